@@ -1,0 +1,46 @@
+# Two commands do all set-up on a fresh machine (see README):
+#   make demo   -> venv (Python 3.12) -> build a dataset, validate it, show it, plot it
+#   make test   -> venv -> the whole test suite, slow end-to-end tests included
+SHELL := /bin/bash
+VENV  ?= .venv
+BIN   := $(VENV)/bin
+OUT   ?= out
+GOALS ?= 250
+# Python 3.12 (lerobot >= 0.5 needs it): on PATH, else pyenv's, else fail with a clear line.
+PYTHON312 ?= $(shell command -v python3.12 2>/dev/null || ls -d $$(pyenv root 2>/dev/null || echo $$HOME/.pyenv)/versions/3.12*/bin/python3.12 2>/dev/null | tail -n1)
+STAMP := $(VENV)/.installed
+
+.PHONY: venv demo test test-fast bench lock clean
+
+venv: $(STAMP)
+$(STAMP): pyproject.toml constraints.txt
+	@test -n "$(PYTHON312)" || { echo "make: error: Python 3.12 not found (install it, or set PYTHON312=/path/to/python3.12)" >&2; exit 2; }
+	@test -x $(BIN)/python || $(PYTHON312) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	@touch $(STAMP)
+
+demo: venv
+	$(BIN)/datagen build --goals $(GOALS) --out datasets
+	@ds=$$(ls -td datasets/quadrotor-reach/n$(GOALS)-s0-* | head -n1); \
+	set -e; mkdir -p $(OUT); \
+	$(BIN)/datagen validate $$ds; \
+	$(BIN)/datagen info $$ds; \
+	$(BIN)/datagen plot $$ds -o $(OUT)/goals.png; \
+	$(BIN)/datagen export-mcap $$ds --episode 3 -o $(OUT)/ep3.mcap
+
+# Everything CI runs: fast tests and the slow end-to-end ones.
+test: venv
+	$(BIN)/python -m pytest -m "slow or not slow"
+
+test-fast: venv
+	$(BIN)/python -m pytest
+
+bench: venv
+	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+lock: venv
+	{ head -n2 constraints.txt; $(BIN)/python -m pip freeze --exclude-editable | grep -v '^-e'; } > constraints.txt.new && mv constraints.txt.new constraints.txt
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache

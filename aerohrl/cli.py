@@ -1,0 +1,54 @@
+"""The umbrella command: ``aerohrl datagen|ipp ...``.
+
+Each stage also has its own entry point (``datagen``); the umbrella forwards the rest
+of the command line to it. (``eval`` alone is a shell builtin, which is why the
+evaluation harness will be reached as ``aerohrl eval``.)
+"""
+
+from __future__ import annotations
+
+import sys
+
+USAGE = """usage: aerohrl COMMAND [ARGS...]
+
+commands:
+  datagen   expert quadrotor datasets (build, info, validate, export-mcap, plot)
+  ipp       informative path planning on motion primitives (lattice, bench, ...)
+
+`aerohrl COMMAND --help` for each command's options."""
+
+
+def _datagen(argv):
+    from aerohrl.datagen.cli import main
+
+    return main(argv)
+
+
+def _ipp(argv):
+    from aerohrl.ipp.cli import main
+
+    return main(argv)
+
+
+COMMANDS = {"datagen": _datagen, "ipp": _ipp}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help"):
+        print(USAGE)
+        return 0 if argv else 2
+    if argv[0] == "--version":
+        from aerohrl import __version__
+
+        print(f"aerohrl {__version__}")
+        return 0
+    cmd = COMMANDS.get(argv[0])
+    if cmd is None:
+        print(f"aerohrl: error: unknown command {argv[0]!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr)
+        return 2
+    return cmd(argv[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Offline goal-conditioned RL on torchrl (thesis §3.4.2)."""

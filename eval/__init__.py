@@ -1,0 +1,1 @@
+"""Evaluation harness and goal planner (thesis §3.4.3-3.5)."""

@@ -1,0 +1,1 @@
+"""Informative path planning on motion primitives (thesis chapter 2)."""
