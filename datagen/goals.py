@@ -36,8 +36,8 @@ import numpy as np
 
 from aerohrl import task
 from aerohrl.errors import UserError
+from aerohrl.sim.params import GRAVITY  # one value everywhere, SPEC.md "Units and frames"
 
-GRAVITY = 9.81
 _SINGULAR = 1e-9  # |f| or |z_B x x_C| below this is treated as singular
 
 

@@ -1,0 +1,63 @@
+"""Throughput of the batched simulator (SPEC.md "Vehicle and simulator").
+
+    .venv/bin/python bench/bench_sim.py [--batches 1 64 1024 4096 16384] [--seconds 1.0]
+
+Prints vehicle-steps per second (one step = one 100 Hz control step of CTBR input:
+5 RK4 substeps at 500 Hz with the rate loop at each) for each batch size, the thread
+split used and the machine's load average (the timings are the best of several
+repeats, which filters out other processes' bursts but not a sustained load). Target:
+>= 1,000,000 vehicle-steps/s at a batch of 4096 on 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import numpy as np
+
+from aerohrl.sim import BatchedQuadrotor, get_preset
+
+
+def bench(n: int, seconds: float, threads: int, preset: str) -> tuple[float, float, int]:
+    """Best time per control step (s) over repeats, median, and the sim's thread count."""
+    p = get_preset(preset)
+    sim = BatchedQuadrotor(p, n, threads=threads)
+    rng = np.random.default_rng(0)
+    a = np.column_stack([np.full(n, 9.81) + rng.uniform(-1, 1, n), rng.uniform(-0.5, 0.5, (n, 3))])
+    sim.step(a)  # warm up
+    per_rep = max(3, int(0.1 / max(1e-6, 1.5e-6 * n + 1e-3)))  # ~0.1 s per repeat
+    times = []
+    t_end = time.perf_counter() + seconds
+    while time.perf_counter() < t_end or len(times) < 5:
+        sim.reset()
+        t0 = time.perf_counter()
+        for _ in range(per_rep):
+            sim.step(a)
+        times.append((time.perf_counter() - t0) / per_rep)
+    return min(times), float(np.median(times)), sim.threads
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batches", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
+    ap.add_argument("--seconds", type=float, default=1.0, help="time budget per batch size")
+    ap.add_argument("--threads", type=int, default=1, help="thread split of the batch (default 1)")
+    ap.add_argument("--preset", default="hummingbird")
+    args = ap.parse_args()
+    load = os.getloadavg()
+    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, numpy {np.__version__}, "
+          f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    print(f"# preset {args.preset}, dt 0.01 s, 5 RK4 substeps, CTBR rate loop at 500 Hz")
+    print(f"{'batch':>7} {'threads':>7} {'ms/step':>9} {'veh-steps/s (best)':>19} {'(median)':>12}")
+    for n in args.batches:
+        best, med, th = bench(n, args.seconds, args.threads, args.preset)
+        print(f"{n:>7} {th:>7} {best * 1e3:>9.3f} {n / best:>19,.0f} {n / med:>12,.0f}", flush=True)
+    print(f"# load average after: {os.getloadavg()[0]:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,161 @@
+r"""The expert: Lee/Mellinger geometric controller with a CTBR output (thesis §3.4.1).
+
+Tracks a flat-output reference ``(p, v, a, j)(t)`` with yaw ``psi`` and returns the
+simulator's action ``[c, wx, wy, wz]`` (SPEC.md "Vehicle and simulator"). Batched over
+N vehicles; float64 NumPy.
+
+Equations (Lee, Leok & McClamroch, CDC 2010; Mellinger & Kumar, ICRA 2011):
+
+* position loop (per-axis gains)::
+
+      e_p = p - p_ref,  e_v = v - v_ref
+      a_des = -k_p e_p - k_v e_v + a_ref + g e3           (F_des = m a_des)
+      c     = a_des . b3,   b3 = R e3                       (mass-normalised thrust)
+
+  the feedback part ``-k_p e_p - k_v e_v`` is limited to ``a_fb_max`` (norm) so that a
+  large error cannot ask for a flip;
+
+* desired attitude (same map as :func:`aerohrl.datagen.goals.flat_attitude`)::
+
+      z_d = a_des / |a_des|,  x_c = [cos psi, sin psi, 0]
+      y_d = z_d x x_c / |z_d x x_c|,  x_d = y_d x z_d,  R_d = [x_d y_d z_d]
+
+* attitude error ``e_R = 1/2 (R_d^T R - R^T R_d)^vee``;
+
+* flatness feed-forward rates of the desired frame (in that frame)::
+
+      h_w = (j_des - (z_d . j_des) z_d) / |a_des|          (= dz_d/dt)
+      p_ff = -h_w . y_d,   q_ff = h_w . x_d
+      r_ff = -((h_w x x_c) + psi_dot (z_d x x_c')) . x_d / |z_d x x_c|,  x_c' = [-sin psi, cos psi, 0]
+
+  ``j_des = j_ref - k_p e_v - k_v e_a`` with ``e_a = c b3 - g e3 - a_ref`` (the time
+  derivative of a_des; the feedback terms are dropped when ``feedback_jerk=False``).
+  ``r_ff`` is the exact yaw rate of the Lee construction of R_d above; Mellinger's
+  ``r = psi_dot z_W . z_B`` belongs to his Z-X-Y Euler construction and would leave a
+  yaw error here;
+
+* rate command ``w_cmd = R^T R_d w_ff - k_R e_R``, clipped to ``rate_max`` (roll,
+  pitch) and ``yaw_rate_max``; ``c`` clipped to ``[c_min, c_max]``.
+
+The inner rate loop of the simulator (k_w = 40 1/s for the Hummingbird, a ~25 ms rate
+response) makes ``k_R`` the attitude bandwidth; the gains below keep a factor of ~4
+between the loops (position ~3 rad/s, attitude 10 1/s, rate 40 1/s).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from aerohrl.sim.params import GRAVITY, QuadrotorParams
+
+
+@dataclass(frozen=True)
+class ControllerGains:
+    """Gains and output limits of :class:`GeometricController` (SI units)."""
+
+    k_p: tuple[float, float, float] = (10.0, 10.0, 12.0)  # 1/s^2
+    k_v: tuple[float, float, float] = (6.0, 6.0, 7.0)  # 1/s
+    k_R: tuple[float, float, float] = (10.0, 10.0, 6.0)  # 1/s, attitude error -> rate command
+    a_fb_max: float = 10.0  # m/s^2, norm limit of the position/velocity feedback acceleration
+    feedback_jerk: bool = True  # include d/dt of the feedback terms in the rate feed-forward
+    c_min: float = 0.5  # m/s^2, collective thrust limits of the action
+    c_max: float = 30.0
+    rate_max: float = 10.0  # rad/s, roll and pitch rate command limit
+    yaw_rate_max: float = 5.0  # rad/s
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        for k in ("k_p", "k_v", "k_R"):
+            d[k] = list(d[k])
+        return d
+
+
+def _cross(a, b):
+    """Row-wise cross product of (N, 3) arrays (np.cross has a large per-call overhead)."""
+    return np.stack([
+        a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+        a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+        a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+    ], axis=1)
+
+
+def _dot(a, b):
+    return np.einsum("ni,ni->n", a, b)
+
+
+class GeometricController:
+    """``ctrl(state, ref_pos, ref_vel, ref_acc, ref_jerk, yaw=0.0, yaw_rate=0.0) -> ctbr (N, 4)``."""
+
+    def __init__(self, params: QuadrotorParams, gains: ControllerGains | None = None):
+        self.params = params
+        self.gains = gains if gains is not None else ControllerGains()
+        g = self.gains
+        self._kp = np.asarray(g.k_p, dtype=np.float64)
+        self._kv = np.asarray(g.k_v, dtype=np.float64)
+        self._kR = np.asarray(g.k_R, dtype=np.float64)
+        self._c_max = min(g.c_max, params.max_collective)
+        self._rate_lim = np.array([g.rate_max, g.rate_max, g.yaw_rate_max])
+
+    def desired(self, state, ref_pos, ref_vel, ref_acc, yaw=0.0):
+        """``(a_des, e_v)`` (N, 3) each: desired acceleration incl. gravity, and velocity error."""
+        s = np.asarray(state, dtype=np.float64)
+        e_p = s[:, 0:3] - ref_pos
+        e_v = s[:, 3:6] - ref_vel
+        fb = -self._kp * e_p - self._kv * e_v
+        n = np.linalg.norm(fb, axis=1, keepdims=True)
+        fb *= np.minimum(1.0, self.gains.a_fb_max / np.maximum(n, 1e-12))
+        a_des = fb + ref_acc
+        a_des[:, 2] += GRAVITY
+        return a_des, e_v
+
+    def __call__(self, state, ref_pos, ref_vel, ref_acc, ref_jerk, yaw=0.0, yaw_rate=0.0) -> np.ndarray:
+        s = np.asarray(state, dtype=np.float64)
+        if s.ndim != 2 or s.shape[1] != 18:
+            raise ValueError(f"state must have shape (N, 18), got {s.shape}")
+        N = s.shape[0]
+        refs = [np.broadcast_to(np.asarray(r, dtype=np.float64), (N, 3)) for r in (ref_pos, ref_vel, ref_acc, ref_jerk)]
+        ref_pos, ref_vel, ref_acc, ref_jerk = refs
+        g = self.gains
+        R = s[:, 6:15].reshape(N, 3, 3)
+        b3 = R[:, :, 2]
+
+        a_des, e_v = self.desired(s, ref_pos, ref_vel, ref_acc)
+        c = _dot(a_des, b3)
+
+        # desired attitude: Lee construction with heading x_c (same as goals.flat_attitude)
+        a_norm = np.linalg.norm(a_des, axis=1)
+        z_d = a_des / a_norm[:, None]
+        psi = np.broadcast_to(np.asarray(yaw, dtype=np.float64), (N,))
+        x_c = np.stack([np.cos(psi), np.sin(psi), np.zeros(N)], axis=1)
+        u = _cross(z_d, x_c)
+        u_norm = np.linalg.norm(u, axis=1)
+        y_d = u / u_norm[:, None]
+        x_d = _cross(y_d, z_d)
+        R_d = np.stack([x_d, y_d, z_d], axis=2)
+
+        # attitude error e_R = 1/2 (R_d^T R - R^T R_d)^vee
+        E = np.einsum("nki,nkj->nij", R_d, R)
+        e_R = 0.5 * np.stack([E[:, 2, 1] - E[:, 1, 2], E[:, 0, 2] - E[:, 2, 0], E[:, 1, 0] - E[:, 0, 1]], axis=1)
+
+        # flatness feed-forward: rates of R_d from the jerk of the desired acceleration
+        j = ref_jerk
+        if g.feedback_jerk:
+            acc = c[:, None] * b3
+            acc[:, 2] -= GRAVITY
+            j = j - self._kp * e_v - self._kv * (acc - ref_acc)
+        h = (j - _dot(z_d, j)[:, None] * z_d) / a_norm[:, None]
+        p_ff = -_dot(h, y_d)
+        q_ff = _dot(h, x_d)
+        psi_dot = np.broadcast_to(np.asarray(yaw_rate, dtype=np.float64), (N,))
+        x_c_dot = psi_dot[:, None] * np.stack([-np.sin(psi), np.cos(psi), np.zeros(N)], axis=1)
+        r_ff = -_dot(_cross(h, x_c) + _cross(z_d, x_c_dot), x_d) / u_norm
+        w_ff = np.stack([p_ff, q_ff, r_ff], axis=1)
+
+        # w_cmd = R^T R_d w_ff - k_R e_R  (E^T = R^T R_d)
+        w_cmd = np.einsum("nji,nj->ni", E, w_ff) - self._kR * e_R
+        out = np.empty((N, 4))
+        out[:, 0] = np.clip(c, g.c_min, self._c_max)
+        out[:, 1:] = np.clip(w_cmd, -self._rate_lim, self._rate_lim)
+        return out
