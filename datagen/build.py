@@ -1,0 +1,351 @@
+"""``datagen build``: goals -> minimum-time references -> expert rollouts -> dataset.
+
+The pipeline of thesis §3.4.1 with the readings of SPEC.md "Expert data":
+
+1. desired goals rho_D sampled from the spec's ranges (seeded); the goal attitude
+   follows from flatness (:mod:`aerohrl.datagen.goals`);
+2. per goal a minimum-time minimum-jerk polynomial reference per axis under the
+   acceleration bound (thesis Alg. 1, :mod:`aerohrl.datagen.reference`); goals with no
+   feasible reference within ``t_max`` are resampled and counted;
+3. the geometric expert (:mod:`aerohrl.datagen.expert`) tracks every reference at once
+   in the batched simulator (:mod:`aerohrl.sim`), recording each 100 Hz step until T;
+4. the frames are written in bulk as a LeRobot v3.0 dataset
+   (:mod:`aerohrl.datagen.lerobot_format`) with our own metadata and checksums
+   (:mod:`aerohrl.datagen.manifest`) and a dataset card.
+
+Everything is written into a temporary directory beside the target and renamed into
+place at the end, so an interrupted build leaves no half-written version.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from tqdm.auto import tqdm
+
+from aerohrl import __version__ as AEROHRL_VERSION
+from aerohrl import task
+from aerohrl.errors import UserError
+from aerohrl.datagen import goals as goals_mod
+from aerohrl.datagen import reference
+from aerohrl.datagen.expert import GeometricController
+from aerohrl.datagen.lerobot_format import write_dataset
+from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
+from aerohrl.datagen.spec import GENERATOR_VERSION, TASK, DatasetSpec, spec_hash, version_name
+from aerohrl.sim import BatchedQuadrotor, get_preset
+
+EPISODES_FILE = "meta/aerohrl_episodes.parquet"
+REPO_ID = "aerohrl/quadrotor-reach"
+
+
+@dataclass
+class ExpertData:
+    """Everything the rollout produced, frames episode-major (F = total frames)."""
+
+    goals: dict  # pos, vel, acc (N,3), R (N,3,3)
+    goal_vec: np.ndarray  # (N,15)
+    T: np.ndarray  # (N,) reference durations (s)
+    length: np.ndarray  # (N,) recorded steps per episode
+    episode_index: np.ndarray  # (F,)
+    frame_index: np.ndarray  # (F,)
+    state: np.ndarray  # (F,18) float64
+    action: np.ndarray  # (F,4)
+    next_state: np.ndarray  # (F,18)
+    success: np.ndarray  # (F,) goal reached at the next state
+    resampled: int = 0
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def episode_success(self) -> np.ndarray:
+        return np.bincount(self.episode_index, weights=self.success, minlength=len(self.T)) > 0
+
+
+@dataclass
+class BuildResult:
+    path: Path
+    created: bool  # False: the version existed and was verified instead
+    episodes: int
+    frames: int
+    expert_success: float
+    resampled: int
+    seconds: float
+
+
+def plan_references(spec: DatasetSpec, rng: np.random.Generator):
+    """Sample rho_D and solve each goal's minimum-time reference; resample infeasible goals.
+
+    Returns (goals, T, coeffs, resampled). Replacement goals come from the same
+    generator in order, so the result is a function of the spec alone.
+    """
+    n = spec.goals
+
+    def sample(k):
+        return goals_mod.sample_goals(rng, k, pos_range=spec.pos_range, vel_range=spec.vel_range, acc_range=spec.acc_range)
+
+    def solve(g):
+        k = len(g["pos"])
+        x0 = np.zeros((k, 3, 3))  # start: origin, at rest, hover (a = 0)
+        xf = np.stack([g["pos"], g["vel"], g["acc"]], axis=-1)  # [n, axis, (p, v, a)]
+        return reference.min_time(
+            x0, xf, a_max=spec.a_max, t_lo=0.0, t_hi=spec.t_max, tol=spec.bisection_tol, solver=spec.solver, degree=spec.degree
+        )
+
+    g = sample(n)
+    T, coeffs, feasible = solve(g)
+    resampled = 0
+    while not feasible.all():
+        bad = np.flatnonzero(~feasible)
+        resampled += len(bad)
+        if resampled > 20 * n:
+            raise UserError(
+                f"almost no goal in these ranges has a reference within t_max={spec.t_max} s at a_max={spec.a_max} "
+                f"(resampled {resampled}); widen --t-max or narrow the ranges"
+            )
+        g2 = sample(len(bad))
+        T2, c2, f2 = solve(g2)
+        for key in g:
+            g[key][bad] = g2[key]
+        T[bad], coeffs[bad], feasible[bad] = T2, c2, f2
+    return g, T, coeffs, resampled
+
+
+def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool = True):
+    """Fly every reference at once with the geometric expert; record each step until T.
+
+    Episode i records steps k = 0 .. ceil(T_i * fps) - 1: state s_k, action a_k and
+    next state s_{k+1}. After its own end an episode keeps flying (it is simply not
+    recorded) so the batch stays rectangular.
+    """
+    params = get_preset(spec.vehicle)
+    n = len(T)
+    dt = spec.dt
+    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
+    kmax = int(length.max())
+    sim = BatchedQuadrotor(params, n, dt=dt, substeps=spec.substeps)
+    ctrl = GeometricController(params)
+    states = np.empty((kmax + 1, n, task.STATE_DIM))
+    actions = np.empty((kmax, n, task.ACTION_DIM))
+    states[0] = sim.reset()
+    for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=not progress, leave=False):
+        t = np.minimum(k * dt, T)
+        ref = [reference.evaluate(coeffs, t, order=o) for o in range(4)]
+        actions[k] = ctrl(states[k], *ref, yaw=0.0)
+        states[k + 1] = sim.step(actions[k])
+    return states, actions, length
+
+
+def generate(spec: DatasetSpec, progress: bool = True) -> ExpertData:
+    """Goals, references and expert rollouts for a spec (nothing written)."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(spec.seed)
+    goals, T, coeffs, resampled = plan_references(spec, rng)
+    t1 = time.perf_counter()
+    states, actions, length = rollout_expert(spec, goals, T, coeffs, progress)
+    t2 = time.perf_counter()
+
+    # Episode-major frame order: (episode, step) for every step < the episode's length.
+    n, kmax = len(T), states.shape[0] - 1
+    ep, k = np.nonzero(np.arange(kmax)[None, :] < length[:, None])
+    goal_vec = goals_mod.goal_vectors(goals)
+    state = states[k, ep]
+    next_state = states[k + 1, ep]
+    success = np.asarray(task.goal_reached(task.achieved_goal(next_state), goal_vec[ep]))
+    data = ExpertData(
+        goals=goals, goal_vec=goal_vec, T=T, length=length, episode_index=ep.astype(np.int64), frame_index=k.astype(np.int64),
+        state=state, action=actions[k, ep], next_state=next_state, success=success, resampled=resampled,
+    )
+    data.timings = {"references_s": t1 - t0, "rollout_s": t2 - t1, "frames_s": time.perf_counter() - t2}
+    return data
+
+
+def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
+    """The LeRobot per-frame features (float32 / bool), SPEC.md "Expert data"."""
+    last = np.r_[data.episode_index[1:] != data.episode_index[:-1], True]
+    return {
+        "observation.state": data.state.astype(np.float32),
+        "action": data.action.astype(np.float32),
+        "observation.desired_goal": data.goal_vec[data.episode_index].astype(np.float32),
+        "next.observation.state": data.next_state.astype(np.float32),
+        "next.reward": data.success.astype(np.float32),
+        "next.done": last,
+        "next.success": data.success.copy(),
+    }
+
+
+FEATURE_NAMES = {
+    "observation.state": task.STATE_NAMES,
+    "action": task.ACTION_NAMES,
+    "observation.desired_goal": task.GOAL_NAMES,
+    "next.observation.state": task.STATE_NAMES,
+}
+
+
+def episode_table(data: ExpertData) -> pa.Table:
+    """Per-episode summary: goal, reference duration, expert outcome and final errors."""
+    n = len(data.T)
+    last = np.cumsum(data.length) - 1
+    dp, dv, dr = task.goal_errors(task.achieved_goal(data.next_state[last]), data.goal_vec)
+    succ = data.success
+    first = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
+    np.minimum.at(first, data.episode_index[succ], data.frame_index[succ])
+    first[first == np.iinfo(np.int64).max] = -1  # never reached
+
+    def fsl(a):
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        return pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), a.shape[1])
+
+    return pa.table({
+        "episode_index": pa.array(np.arange(n, dtype=np.int64)),
+        "goal_pos": fsl(data.goals["pos"]),
+        "goal_vel": fsl(data.goals["vel"]),
+        "goal_acc": fsl(data.goals["acc"]),
+        "reference_duration_s": pa.array(data.T.astype(np.float64)),
+        "length": pa.array(data.length),
+        "expert_success": pa.array(data.episode_success),
+        "first_success_step": pa.array(first),
+        "final_pos_error_m": pa.array(dp),
+        "final_vel_error_mps": pa.array(dv),
+        "final_rot_error_rad": pa.array(dr),
+    })
+
+
+def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
+    params = get_preset(spec.vehicle)
+    ctrl = GeometricController(params)
+    succ = data.episode_success
+    return {
+        "format": "aerohrl-dataset",
+        "repo_id": REPO_ID,
+        "name": spec.name,
+        "version": version,
+        "generator": {"name": "aerohrl.datagen", "generator_version": GENERATOR_VERSION, "aerohrl_version": AEROHRL_VERSION},
+        "spec": spec.to_dict(),
+        "spec_sha256": spec_hash(spec),
+        "seed": spec.seed,
+        "goal_ranges": {"pos_abs": list(spec.pos_range), "vel": list(spec.vel_range), "acc": list(spec.acc_range), "yaw": 0.0},
+        "start_state": "origin, zero velocity, hover attitude (R = I), zero body rates",
+        "vehicle": params.to_dict(),
+        "controller": {"name": "Lee/Mellinger geometric controller, CTBR output", "gains": ctrl.gains.to_dict()},
+        "goal_tolerance": {"pos_m": task.TOLERANCE.pos, "vel_mps": task.TOLERANCE.vel, "rot_rad": task.TOLERANCE.rot},
+        "resampled_goals": int(data.resampled),
+        "episodes": int(len(data.T)),
+        "frames": int(len(data.episode_index)),
+        "expert_success_rate": float(succ.mean()),
+        "reference_duration_s": {"min": float(data.T.min()), "mean": float(data.T.mean()), "max": float(data.T.max())},
+        "layouts": {
+            "observation.state": "[p(3), v(3), R(9, row-major), w(3, body)] absolute, SI",
+            "action": "CTBR [c (m/s^2, mass-normalised collective thrust), wx, wy, wz (rad/s, body)]",
+            "observation.desired_goal": "[p(3), v(3), R(9)] of the episode's desired goal, absolute",
+            "next.observation.state": "the state after the action; its first 15 entries are the achieved goal",
+            "next.reward": "1.0 when the next state meets the goal-reached test for the desired goal, else 0.0",
+            "next.success": "the goal-reached test at the next state (bool)",
+            "next.done": "last recorded step of the episode (reference end T)",
+        },
+        "environment": {"python": platform.python_version(), "numpy": np.__version__, "pyarrow": pa.__version__},
+    }
+
+
+def dataset_card(meta: dict) -> str:
+    s = meta["spec"]
+    return f"""---
+license: mit
+task_categories: [robotics]
+tags: [LeRobot, quadrotor, goal-conditioned, offline-rl, aerohrl]
+---
+# {meta['name']} — {meta['version']}
+
+Expert quadrotor trajectories for offline goal-conditioned RL (thesis §3.4.1), generated
+by `aerohrl.datagen` (generator version {meta['generator']['generator_version']}). A
+{meta['vehicle']['name']} vehicle starts at rest in hover at the origin and flies to each of
+{meta['episodes']} desired goals (position, velocity, attitude) under a minimum-time,
+minimum-jerk reference (|a_i| <= {s['a_max']} m/s^2, {s['solver']} solver, degree {s['degree']})
+tracked by a Lee/Mellinger geometric controller that outputs CTBR actions, recorded at
+{s['fps']} Hz.
+
+- episodes: {meta['episodes']}, frames: {meta['frames']}
+- expert success rate (goal-reached test: 0.15 m, 0.35 m/s, 0.15 rad): {100 * meta['expert_success_rate']:.1f}%
+- goals resampled for infeasibility: {meta['resampled_goals']}
+- seed: {meta['seed']}; goal ranges: |p_i| in {s['pos_range']} m (random sign), v_i in {s['vel_range']} m/s, a_i in {s['acc_range']} m/s^2
+
+## Load
+```python
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+ds = LeRobotDataset("{meta['repo_id']}", root="<this folder>")
+```
+or, without torch: `aerohrl.datagen.lerobot_format.read_columns("<this folder>")`.
+
+## Features
+| key | shape | meaning |
+|---|---|---|
+""" + "".join(f"| `{k}` | | {v} |\n" for k, v in meta["layouts"].items()) + f"""
+`meta/aerohrl.json` holds the full spec, vehicle and controller parameters and the
+SHA-256 of every file; `meta/aerohrl_episodes.parquet` holds per-episode goals,
+durations and expert outcomes. `datagen validate <this folder>` checks integrity.
+"""
+
+
+def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log=print) -> BuildResult:
+    """Build ``<out>/<name>/<version>/`` for ``spec``; verify instead if it exists."""
+    t0 = time.perf_counter()
+    version = version_name(spec)
+    parent = Path(out) / spec.name
+    final = parent / version
+    if final.exists():
+        problems = validate(final)
+        if problems:
+            more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
+            raise UserError(f"{final} exists but is damaged: {problems[0]}{more}; delete it to rebuild")
+        stored = read_manifest(final).get("spec_sha256")
+        if stored != spec_hash(spec):
+            raise UserError(f"{final} exists but holds another spec (spec_sha256 {stored}); delete it to rebuild")
+        meta = read_manifest(final)
+        log(f"{final} exists: verified {len(meta.get('checksums', {}))} files against their checksums; nothing rebuilt")
+        return BuildResult(final, False, meta["episodes"], meta["frames"], meta["expert_success_rate"], meta["resampled_goals"],
+                           time.perf_counter() - t0)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"cannot create output directory {parent}: {e.strerror}") from None
+    if not os.access(parent, os.W_OK):
+        raise UserError(f"output directory {parent} is not writable")
+    _remove_stale_temporaries(parent)
+
+    data = generate(spec, progress=progress)
+    tmp = parent / f".tmp-{version}-{os.getpid()}"
+    try:
+        tmp.mkdir()
+        columns = frame_columns(data)
+        write_dataset(tmp, columns, data.episode_index, fps=spec.fps, task=TASK,
+                      robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
+        pq.write_table(episode_table(data), tmp / EPISODES_FILE)
+        meta = metadata(spec, data, version)
+        (tmp / "README.md").write_text(dataset_card(meta))
+        write_manifest(tmp, meta)
+        os.rename(tmp, final)
+    except OSError as e:
+        raise UserError(f"writing the dataset failed: {e}") from None
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return BuildResult(final, True, len(data.T), len(data.episode_index), float(data.episode_success.mean()), data.resampled,
+                       time.perf_counter() - t0)
+
+
+def _remove_stale_temporaries(parent: Path) -> None:
+    """Delete temporaries left by builds that were killed (their process is gone)."""
+    for p in parent.glob(".tmp-*"):
+        try:
+            pid = int(p.name.rsplit("-", 1)[1])
+            os.kill(pid, 0)
+        except (ValueError, IndexError, ProcessLookupError):
+            shutil.rmtree(p, ignore_errors=True)
+        except PermissionError:
+            pass

@@ -1,0 +1,130 @@
+"""`datagen build`: the pipeline's invariants, reproducibility, versioning, atomicity."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aerohrl import task
+from aerohrl.errors import UserError
+from aerohrl.datagen import build as build_mod
+from aerohrl.datagen.build import build, generate
+from aerohrl.datagen.lerobot_format import read_columns
+from aerohrl.datagen.manifest import read_manifest, validate
+from aerohrl.datagen.spec import DatasetSpec, load_spec, version_name
+
+SMALL = DatasetSpec(goals=16, seed=7)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds")
+    return build(SMALL, out, progress=False), out
+
+
+def test_frames_are_consistent_transitions(built):
+    res, _ = built
+    c = read_columns(res.path)
+    ep, fi = c["episode_index"], c["frame_index"]
+    s, ns = c["observation.state"], c["next.observation.state"]
+    same = ep[1:] == ep[:-1]
+    # within an episode the next state of frame k is the state of frame k+1
+    np.testing.assert_array_equal(ns[:-1][same], s[1:][same])
+    np.testing.assert_array_equal(fi[1:][same], fi[:-1][same] + 1)
+    # every episode starts at rest in hover at the origin
+    start = s[fi == 0]
+    hover = np.r_[np.zeros(6), np.eye(3).reshape(9), np.zeros(3)]
+    np.testing.assert_allclose(start, np.broadcast_to(hover, start.shape), atol=1e-7)
+    # reward and success are the goal-reached test at the next state; done marks episode ends
+    g = c["observation.desired_goal"]
+    reached = task.goal_reached(ns[:, :15].astype(np.float64), g.astype(np.float64))
+    np.testing.assert_array_equal(c["next.success"], reached)
+    np.testing.assert_array_equal(c["next.reward"], reached.astype(np.float32))
+    np.testing.assert_array_equal(c["next.done"], np.r_[~same, True])
+    # the desired goal is constant within an episode
+    assert np.all(g[1:][same] == g[:-1][same])
+    assert res.episodes == SMALL.goals and res.frames == len(ep)
+
+
+def test_episode_lengths_follow_reference_durations(built):
+    res, _ = built
+    meta = read_manifest(res.path)
+    import pyarrow.parquet as pq
+
+    eps = pq.read_table(res.path / build_mod.EPISODES_FILE).to_pydict()
+    T = np.asarray(eps["reference_duration_s"])
+    np.testing.assert_array_equal(np.asarray(eps["length"]), np.ceil(T * SMALL.fps - 1e-9).astype(int))
+    assert np.all((T > 0) & (T <= SMALL.t_max))
+    goal_abs = np.abs(np.asarray(eps["goal_pos"]))
+    assert np.all((goal_abs >= 1.0) & (goal_abs <= 2.0))
+    assert meta["episodes"] == SMALL.goals and meta["spec"] == SMALL.to_dict()
+    assert meta["expert_success_rate"] == pytest.approx(np.mean(eps["expert_success"]))
+
+
+def test_same_spec_gives_byte_identical_files(built, tmp_path):
+    res, _ = built
+    again = build(SMALL, tmp_path, progress=False)
+    assert again.path.name == res.path.name == version_name(SMALL)
+    files = sorted(p.relative_to(res.path) for p in res.path.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(again.path) for p in again.path.rglob("*") if p.is_file())
+    for f in files:
+        assert (res.path / f).read_bytes() == (again.path / f).read_bytes(), f
+
+
+def test_existing_version_is_verified_not_rebuilt(built, monkeypatch):
+    res, out = built
+    monkeypatch.setattr(build_mod, "generate", lambda *a, **k: pytest.fail("rebuilt an existing version"))
+    again = build(SMALL, out, progress=False)
+    assert not again.created and again.path == res.path and again.frames == res.frames
+
+
+def test_damaged_existing_version_is_refused(tmp_path):
+    res = build(DatasetSpec(goals=3, seed=1), tmp_path, progress=False)
+    data = next((res.path / "data").rglob("*.parquet"))
+    raw = bytearray(data.read_bytes())
+    raw[len(raw) // 2] ^= 0x01
+    data.write_bytes(bytes(raw))
+    assert validate(res.path)
+    with pytest.raises(UserError, match="damaged"):
+        build(DatasetSpec(goals=3, seed=1), tmp_path, progress=False)
+
+
+def test_interrupted_build_leaves_nothing(tmp_path, monkeypatch):
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(build_mod, "write_manifest", boom)
+    with pytest.raises(KeyboardInterrupt):
+        build(DatasetSpec(goals=3, seed=2), tmp_path, progress=False)
+    left = list((tmp_path / "quadrotor-reach").iterdir())
+    assert left == [], left
+
+
+def test_version_name_derives_from_spec():
+    a = version_name(DatasetSpec())
+    assert a == version_name(DatasetSpec())
+    assert a != version_name(DatasetSpec(seed=1))
+    assert a != version_name(DatasetSpec(vel_range=(-2.0, 2.0)))
+    assert a.startswith("n250-s0-")
+
+
+def test_spec_file_matches_defaults():
+    spec = load_spec(Path(__file__).parents[1] / "datasets" / "quadrotor-reach.toml")
+    assert spec == DatasetSpec()
+
+
+@pytest.mark.parametrize("kw,msg", [
+    ({"goals": 0}, "positive"), ({"goals": -4}, "positive"), ({"pos_range": (2.0, 1.0)}, "inverted"),
+    ({"vel_range": (1.0, 1.0)}, "empty"), ({"solver": "cvx"}, "solver"), ({"degree": 7}, "closed-form"),
+])
+def test_bad_specs_are_one_line_errors(kw, msg):
+    with pytest.raises(UserError, match=msg) as e:
+        DatasetSpec(**kw)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.slow
+def test_expert_succeeds_on_default_250_goals(tmp_path):
+    data = generate(DatasetSpec(), progress=False)
+    rate = data.episode_success.mean()
+    assert rate >= 0.98, f"expert success {rate:.3f} < 0.98: a controller or gain bug"
