@@ -6,8 +6,10 @@ VENV  ?= .venv
 BIN   := $(VENV)/bin
 OUT   ?= out
 GOALS ?= 250
-# Python 3.12 (lerobot >= 0.5 needs it): on PATH, else pyenv's, else fail with a clear line.
-PYTHON312 ?= $(shell command -v python3.12 2>/dev/null || ls -d $$(pyenv root 2>/dev/null || echo $$HOME/.pyenv)/versions/3.12*/bin/python3.12 2>/dev/null | tail -n1)
+# Python 3.12 (lerobot >= 0.5 needs it): the first candidate that actually runs (a pyenv shim
+# on PATH may exist but refuse), from PATH, else pyenv's versions; else fail with a clear line.
+PYTHON312 ?= $(shell for p in python3.12 $$(ls -d $${PYENV_ROOT:-$$HOME/.pyenv}/versions/3.12*/bin/python3.12 2>/dev/null | sort -rV); do \
+  $$p -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' >/dev/null 2>&1 && { command -v $$p; break; }; done)
 STAMP := $(VENV)/.installed
 
 .PHONY: venv demo test test-fast bench lock clean
