@@ -1,4 +1,4 @@
-"""The umbrella command: ``aerohrl datagen|ipp ...``.
+"""The umbrella command: ``aerohrl datagen|train|runs|ipp ...``.
 
 Each stage also has its own entry point (``datagen``); the umbrella forwards the rest
 of the command line to it. (``eval`` alone is a shell builtin, which is why the
@@ -13,6 +13,8 @@ USAGE = """usage: aerohrl COMMAND [ARGS...]
 
 commands:
   datagen   expert quadrotor datasets (build, info, validate, export-mcap, plot)
+  train     offline goal-conditioned RL on a dataset (gcsl, td3bc, td3awbc, cql)
+  runs      inspect training runs (runs show RUN)
   ipp       informative path planning on motion primitives (lattice, bench, ...)
 
 `aerohrl COMMAND --help` for each command's options."""
@@ -24,13 +26,25 @@ def _datagen(argv):
     return main(argv)
 
 
+def _train(argv):
+    from aerohrl.algorithms.cli import main
+
+    return main(argv)
+
+
+def _runs(argv):
+    from aerohrl.algorithms.runs import main
+
+    return main(argv)
+
+
 def _ipp(argv):
     from aerohrl.ipp.cli import main
 
     return main(argv)
 
 
-COMMANDS = {"datagen": _datagen, "ipp": _ipp}
+COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,79 @@
+"""The interface every algorithm implements, so the trainer, the evaluator and the
+planner never branch on the algorithm's name:
+
+* ``build_algorithm(cfg, normalizer)``;
+* ``update(batch) -> metrics`` (a dict of detached scalar tensors);
+* ``act(state, goal)`` -> (B, 4) CTBR actions, batched and deterministic, from absolute
+  states (B, 18) and goals (B, 15) (inputs via :func:`aerohrl.task.policy_inputs`);
+* ``critics(state, goal, action)`` -> (num_critics, B), the goal-conditioned ensemble the
+  planner scores with (thesis Eq. 3.7);
+* ``optimizers()`` -> name -> torch optimiser (checkpointed by the trainer).
+
+The module's ``state_dict`` holds every weight, target weight, learned temperature and
+the dataset normaliser.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from aerohrl.algorithms.networks import Normalizer, ensemble_values
+
+
+class Algorithm(nn.Module):
+    name = ""
+
+    def __init__(self, cfg, normalizer: Normalizer):
+        super().__init__()
+        self.cfg = cfg
+        self.normalizer = normalizer
+        self.num_updates = 0
+
+    # --- to implement -------------------------------------------------------------
+    def update(self, batch) -> dict[str, torch.Tensor]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def policy_unit(self, observation: torch.Tensor) -> torch.Tensor:  # pragma: no cover - interface
+        """Deterministic action in [-1, 1] from normalised inputs."""
+        raise NotImplementedError
+
+    # the TD3BCLoss holding the critic ensemble (see networks.make_critic_loss)
+    critic_loss: nn.Module
+
+    # --- shared -------------------------------------------------------------------
+    @torch.no_grad()
+    def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        x = self.normalizer.inputs(state, goal)
+        return self.normalizer.action_from_unit(self.policy_unit(x))
+
+    @torch.no_grad()
+    def critics(self, state: torch.Tensor, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        x = self.normalizer.inputs(state, goal)
+        return ensemble_values(self.critic_loss, x, self.normalizer.action_to_unit(action))
+
+    def extra_state(self) -> dict:
+        return {"num_updates": self.num_updates}
+
+    def load_extra_state(self, d: dict) -> None:
+        self.num_updates = int(d.get("num_updates", 0))
+
+
+def algorithm_class(name: str):
+    from aerohrl.algorithms.cql import CQL
+    from aerohrl.algorithms.gcsl import GCSL
+    from aerohrl.algorithms.td3awbc import TD3AWBC
+    from aerohrl.algorithms.td3bc import TD3BC
+
+    return {"gcsl": GCSL, "td3bc": TD3BC, "td3awbc": TD3AWBC, "cql": CQL}[name]
+
+
+def build_algorithm(cfg, normalizer: Normalizer) -> Algorithm:
+    """The algorithm ``cfg.algo`` with fresh weights (seed the RNG before calling)."""
+    return algorithm_class(cfg.algo)(cfg, normalizer)
+
+
+__all__ = ["Algorithm", "build_algorithm", "algorithm_class"]

@@ -1,0 +1,108 @@
+"""The ``train`` command::
+
+    train --algo gcsl --dataset datasets/<name>/<version> --preset cpu     # -> runs/<run>/
+    train --algo td3bc --dataset ... --preset thesis --device cuda
+    train --algo cql --dataset ... --steps 50000 --batch-size 512          # flags override the preset
+    train --resume runs/<run>                                              # continue after a stop/kill
+
+One flag per :class:`~aerohrl.algorithms.config.TrainConfig` field. Exit status: 0 done,
+2 bad input (unknown algorithm/preset, missing/damaged dataset or run), 3 the loss
+diverged (NaN/inf: the last good checkpoint is kept), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+from aerohrl.algorithms import config as C
+from aerohrl.errors import ArgumentParser, UserError, run_cli
+
+PROG = "train"
+# what may change when a run is resumed (everything else defines the run)
+RESUMABLE = {"steps", "device", "log_every", "checkpoint_every", "keep_checkpoints", "eval_every", "eval_episodes", "eval_horizon"}
+HELP = {
+    "algo": f"algorithm ({' | '.join(C.ALGORITHMS)})",
+    "dataset": "dataset folder (datasets/<name>/<version>)",
+    "seed": "random seed",
+    "device": "cpu | cuda | cuda:N",
+    "steps": "gradient steps",
+    "batch_size": "transitions per batch",
+    "hidden": "hidden layer sizes of the actor (and of the critics unless --critic-hidden)",
+    "critic_hidden": "hidden layer sizes of the critics",
+    "relabel_prob": "delta: probability of relabelling a goal with a later achieved goal",
+    "tau": "soft target update rate",
+    "num_critics": "size of the goal-conditioned critic ensemble",
+    "alpha": "TD3-BC alpha",
+    "policy_delay": "TD3: actor/target update every N critic updates",
+    "log_every": "steps between metric lines",
+    "checkpoint_every": "steps between checkpoints",
+    "keep_checkpoints": "checkpoints kept (newest)",
+    "eval_every": "steps between closed-loop evaluations (0: none)",
+    "eval_episodes": "episodes per evaluation",
+    "eval_horizon": "steps per evaluation episode",
+}
+
+
+def parser() -> ArgumentParser:
+    ap = ArgumentParser(prog=PROG, description="Offline goal-conditioned training on an expert dataset (thesis §3.4.2, Alg. 2).")
+    ap.add_argument("--preset", default=None, help=f"hyper-parameter preset ({' | '.join(C.PRESETS)}) [cpu]")
+    ap.add_argument("--resume", type=Path, default=None, metavar="RUN", help="continue RUN from its last checkpoint")
+    ap.add_argument("--out", type=Path, default=Path("runs"), help="folder of runs [runs]")
+    ap.add_argument("--name", default=None, help="run folder name [ALGO-PRESET-sSEED-TIMESTAMP]")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    for f in fields(C.TrainConfig):
+        if f.name in C.INTERNAL:
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        default = f.default
+        h = HELP.get(f.name, f.name.replace("_", " "))
+        if isinstance(default, tuple):
+            ap.add_argument(flag, type=int, nargs="+", default=None, metavar="N", help=f"{h} [cpu: {' '.join(map(str, default))}]")
+        else:
+            ap.add_argument(flag, type=type(default), default=None, help=f"{h} [cpu: {default}]")
+    return ap
+
+
+def _overrides(a) -> dict:
+    return {f.name: getattr(a, f.name) for f in fields(C.TrainConfig) if f.name not in C.INTERNAL and getattr(a, f.name) is not None}
+
+
+def run(a) -> int:
+    from aerohrl.algorithms.trainer import new_run_dir, resume_run, start_run
+
+    ov = _overrides(a)
+    progress = not a.no_progress and sys.stderr.isatty()
+    if a.resume is not None:
+        if a.preset is not None:
+            raise UserError("--preset cannot be changed on --resume")
+        fixed = sorted(set(ov) - RESUMABLE - {"dataset"})
+        if fixed:
+            raise UserError(f"--resume cannot change {', '.join('--' + k.replace('_', '-') for k in fixed)} (they define the run)")
+        tr = resume_run(a.resume, progress=progress, overrides=ov)
+        print(f"resuming {a.resume} at step {tr.step}" + (f" from {tr.resumed_from}" if tr.resumed_from else ""), file=sys.stderr)
+    else:
+        if "dataset" not in ov:
+            raise UserError("--dataset is required (or --resume RUN)")
+        cfg = C.make_config(a.preset or "cpu", **ov)
+        run_dir = new_run_dir(cfg, a.out, a.name)
+        tr = start_run(cfg, run_dir, progress=progress)
+        print(f"run {run_dir}: {cfg.algo}, preset {cfg.preset}, dataset {tr.dataset['version']}", file=sys.stderr)
+    step = tr.train()
+    print(f"done: {tr.run_dir} at step {step}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    import logging
+
+    args = parser().parse_args(argv)
+    import torchrl  # noqa: F401  (its import sets its logger's level; quieten it afterwards)
+
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # no "Initialized LazyTensorStorage" chatter
+    return run_cli(PROG, lambda: run(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,96 @@
+"""CQL (Kumar et al. 2020) made goal-conditioned, on torchrl's ``CQLLoss``.
+
+* CQL proper: a SAC-style ``TanhNormal`` actor and torchrl's ``CQLLoss`` (critic TD loss +
+  the conservative penalty ``logsumexp_a Q(s, a) - Q(s, a_data)`` over random,
+  current-policy and next-policy actions in the [-1, 1] action box, automatic entropy
+  temperature), its targets clipped to [0, 1] like every critic here. One summed loss,
+  one optimiser per parameter group (actor, CQL critics, alpha), as torchrl's sota CQL.
+* The 5-critic ensemble (Eq. 3.2) beside it: ``CQLLoss`` hard-codes 2 critics and its
+  penalty code is written for exactly ``q1``/``q2``, so it cannot hold the planner's
+  ensemble. The ensemble is therefore trained by the same clipped TD loss as GCSL's
+  (``TD3BCLoss.qvalue_loss`` on 5 critics), the next action being the CQL policy's
+  deterministic action ``tanh(loc)`` (Alg. 2: the next action comes from the learned
+  policy). ``critics()`` returns that ensemble, as for every algorithm.
+* Targets of both critic sets: ``SoftUpdate``.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.data import Bounded
+from torchrl.modules import ProbabilisticActor, TanhNormal
+from torchrl.objectives import CQLLoss
+
+from aerohrl.algorithms.config import critic_sizes
+from aerohrl.algorithms.base import Algorithm
+from aerohrl.algorithms.networks import EnsembleSoftUpdate, ACT_DIM, IN_DIM, make_critic, make_critic_loss, mlp, use_clipped_td0
+
+
+class CQL(Algorithm):
+    name = "cql"
+
+    def __init__(self, cfg, normalizer):
+        super().__init__(cfg, normalizer)
+        net = nn.Sequential(mlp(IN_DIM, 2 * ACT_DIM, cfg.hidden), NormalParamExtractor())
+        params = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
+        spec = Bounded(-torch.ones(ACT_DIM), torch.ones(ACT_DIM), (ACT_DIM,))
+        self.actor = ProbabilisticActor(
+            params, in_keys=["loc", "scale"], spec=spec, distribution_class=TanhNormal,
+            distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=False,
+        )
+        # the deterministic policy: tanh of the location (shares the actor's weights)
+        self.det_actor = TensorDictSequential(
+            params, TensorDictModule(torch.tanh, in_keys=["loc"], out_keys=["action"]), selected_out_keys=["action"]
+        )
+        self.cql_loss = CQLLoss(
+            self.actor, [make_critic(critic_sizes(cfg)) for _ in range(2)], loss_function="l2",
+            action_spec=spec, min_q_weight=cfg.cql_min_q_weight, num_random=cfg.cql_num_random,
+            deterministic_backup=False,
+        )
+        use_clipped_td0(self.cql_loss, cfg.gamma, self.cql_loss.tensor_keys.value)
+        self.critic_loss = make_critic_loss(
+            self.det_actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma,
+            delay_actor=False, policy_noise=0.0, noise_clip=0.0,
+        )
+        self.cql_updater = EnsembleSoftUpdate(self.cql_loss, tau=cfg.tau)
+        self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
+        self.actor_opt = torch.optim.Adam(self.cql_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)
+        self.cql_critic_opt = torch.optim.Adam(self.cql_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+        self.alpha_opt = torch.optim.Adam([self.cql_loss.log_alpha], lr=cfg.lr_actor)
+        self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+
+    def optimizers(self):
+        return {"actor": self.actor_opt, "cql_critic": self.cql_critic_opt, "alpha": self.alpha_opt, "critic": self.critic_opt}
+
+    def policy_unit(self, observation):
+        loc, _ = self.actor.module[0].module(observation)
+        return torch.tanh(loc)
+
+    def update(self, batch):
+        # 1. CQL: actor, conservative critics, entropy temperature (disjoint gradients)
+        out = self.cql_loss(batch.clone(False))
+        loss = out["loss_actor"] + out["loss_qvalue"] + out["loss_cql"] + out["loss_alpha"]
+        for opt in (self.actor_opt, self.cql_critic_opt, self.alpha_opt):
+            opt.zero_grad(set_to_none=True)
+        loss.backward()
+        for opt in (self.actor_opt, self.cql_critic_opt, self.alpha_opt):
+            opt.step()
+        # 2. the planner's 5-critic ensemble, Eq. 3.2, next action from the CQL policy
+        loss_q, meta = self.critic_loss.qvalue_loss(batch)
+        self.critic_opt.zero_grad(set_to_none=True)
+        loss_q.backward()
+        self.critic_opt.step()
+        self.cql_updater.step()
+        self.target_updater.step()
+        self.num_updates += 1
+        return {
+            "loss_actor": out["loss_actor"].detach(),
+            "loss_cql_qvalue": out["loss_qvalue"].detach(),
+            "loss_cql": out["loss_cql"].detach(),
+            "alpha": out["alpha"].detach(),
+            "loss_critic": loss_q.detach(),
+            "q_mean": meta["pred_value"].mean(),
+            "target_mean": meta["target_value"].mean(),
+        }

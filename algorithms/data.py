@@ -1,0 +1,254 @@
+"""Dataset -> tensors -> a torchrl replay buffer (thesis Alg. 2, line 1: the buffer B).
+
+:func:`load_dataset` reads a ``datagen build`` folder (or takes the column dict directly,
+as tests do), checks it and keeps every transition in tensors:
+
+* ``state`` (F, 18), ``action`` (F, 4), ``goal`` (F, 15, the desired goal),
+  ``next_state`` (F, 18) and ``episode_end`` (F,): the global index of the last frame of
+  the frame's episode, what relabelling needs to pick a strictly later step.
+
+:func:`make_buffer` puts them in a ``TensorDictReplayBuffer`` over a ``LazyTensorStorage``
+(the whole dataset is written once; sampling is one ``randint`` and one gather with a
+dedicated, checkpointed ``torch.Generator``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from aerohrl import task
+from aerohrl.errors import UserError
+
+REQUIRED = {
+    "observation.state": (task.STATE_DIM,),
+    "action": (task.ACTION_DIM,),
+    "observation.desired_goal": (task.GOAL_DIM,),
+    "next.observation.state": (task.STATE_DIM,),
+    "episode_index": (),
+}
+
+
+@dataclass
+class Dataset:
+    state: torch.Tensor
+    action: torch.Tensor
+    goal: torch.Tensor
+    next_state: torch.Tensor
+    episode_end: torch.Tensor  # int64 (F,)
+    episode_index: torch.Tensor  # int64 (F,)
+    info: dict = field(default_factory=dict)  # path, version, checksum, shapes, spec
+
+    def __len__(self) -> int:
+        return self.state.shape[0]
+
+    @property
+    def achieved_goal(self) -> torch.Tensor:
+        """(F, 15): the achieved goal of each step (its next state's [p, v, R])."""
+        return task.achieved_goal(self.next_state)
+
+    @property
+    def num_episodes(self) -> int:
+        return int(self.episode_end.unique().numel())
+
+    def desired_goals(self) -> torch.Tensor:
+        """(E, 15) the desired goal of each episode, in episode order."""
+        starts = torch.ones(len(self), dtype=torch.bool)
+        starts[1:] = self.episode_index[1:] != self.episode_index[:-1]
+        return self.goal[starts]
+
+    def as_tensordict(self) -> TensorDict:
+        return TensorDict(
+            {
+                "state": self.state,
+                "action": self.action,
+                "goal": self.goal,
+                "next_state": self.next_state,
+                "episode_end": self.episode_end,
+            },
+            batch_size=[len(self)],
+        )
+
+
+def _columns_checksum(cols: dict) -> str:
+    h = hashlib.sha256()
+    for k in sorted(REQUIRED):
+        a = np.ascontiguousarray(cols[k])
+        h.update(k.encode())
+        h.update(str(a.dtype).encode() + str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def read_dataset_columns(root) -> tuple[dict, dict]:
+    """(columns, info) of a dataset folder; UserError when missing or damaged."""
+    from aerohrl.datagen import manifest
+    from aerohrl.datagen.lerobot_format import read_columns
+
+    root = Path(root)
+    if not root.is_dir():
+        raise UserError(f"no dataset at {root}")
+    problems = manifest.validate(root)
+    if problems:
+        more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
+        raise UserError(f"dataset {root} is damaged: {problems[0]}{more}; rebuild it with `datagen build`")
+    m = manifest.read_manifest(root)
+    cols = read_columns(root)
+    info = {
+        "path": str(root),
+        "version": m.get("version"),
+        "checksum": m.get("manifest_sha256"),
+        "spec": m.get("spec", {}),
+    }
+    return cols, info
+
+
+def load_dataset(source) -> Dataset:
+    """A :class:`Dataset` from a dataset folder or from a column dict (same keys as
+    ``read_columns``); UserError on a missing/damaged dataset or wrong feature shapes."""
+    if isinstance(source, dict):
+        cols = source
+        info = {"path": None, "version": "in-memory", "checksum": None, "spec": {}}
+    else:
+        cols, info = read_dataset_columns(source)
+    for k, shape in REQUIRED.items():
+        if k not in cols:
+            raise UserError(f"dataset has no {k!r} column")
+        a = np.asarray(cols[k])
+        if a.ndim != 1 + len(shape) or a.shape[1:] != shape:
+            raise UserError(f"dataset column {k!r} has shape {a.shape[1:]}, expected {shape}")
+    F = len(cols["observation.state"])
+    if F < 2:
+        raise UserError("dataset holds fewer than 2 frames")
+    if any(len(cols[k]) != F for k in REQUIRED):
+        raise UserError("dataset columns have different lengths")
+    for k in ("observation.state", "action", "observation.desired_goal", "next.observation.state"):
+        if not np.isfinite(cols[k]).all():
+            raise UserError(f"dataset column {k!r} holds NaN or inf")
+    if info["checksum"] is None:
+        info["checksum"] = _columns_checksum(cols)
+    ep = torch.as_tensor(np.asarray(cols["episode_index"], dtype=np.int64))
+    if (ep[1:] < ep[:-1]).any():
+        raise UserError("dataset episodes are not contiguous and sorted")
+    # last global index of each frame's episode (episodes are contiguous)
+    change = torch.nonzero(ep[1:] != ep[:-1]).flatten()
+    ends = torch.cat([change, torch.tensor([F - 1])])
+    lengths = torch.diff(torch.cat([torch.tensor([-1]), ends]))
+    episode_end = torch.repeat_interleave(ends, lengths)
+    info["shapes"] = {k: list(np.asarray(cols[k]).shape[1:]) for k in REQUIRED}
+    info["frames"] = F
+    info["episodes"] = int(ends.numel())
+
+    def f32(k):
+        return torch.as_tensor(np.ascontiguousarray(cols[k], dtype=np.float32))
+
+    return Dataset(
+        state=f32("observation.state"),
+        action=f32("action"),
+        goal=f32("observation.desired_goal"),
+        next_state=f32("next.observation.state"),
+        episode_end=episode_end,
+        episode_index=ep,
+        info=info,
+    )
+
+
+def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator, device="cpu"):
+    """A torchrl ``TensorDictReplayBuffer`` holding the whole dataset in a
+    ``LazyTensorStorage``, sampling uniformly with replacement (thesis Alg. 2, line 3)."""
+    from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+
+    td = data.as_tensordict()
+    rb = TensorDictReplayBuffer(
+        storage=LazyTensorStorage(len(data), device=device),
+        sampler=RandomSampler(),
+        batch_size=batch_size,
+        generator=generator,
+    )
+    rb.extend(td.to(device))
+    return rb
+
+
+__all__ = ["Dataset", "load_dataset", "read_dataset_columns", "make_buffer", "REQUIRED"]
+
+
+class GoalBatchSampler:
+    """Sample -> relabel -> reward/done -> normalise: one batch in the layout torchrl's
+    losses read (``observation``, ``action``, ``("next", observation|reward|done|terminated)``),
+    plus ``state``/``goal``/``next_state`` in physical units and the ``relabelled`` mask.
+    No Python loop over the batch; every random draw comes from ``generator``."""
+
+    def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu"):
+        from aerohrl.algorithms.relabel import relabel_goals, reward_done
+
+        self._relabel, self._reward_done = relabel_goals, reward_done
+        # The buffer, the draws and the relabelling stay on the CPU with the CPU generator
+        # (reproducible on any device); the finished batch moves to ``device``.
+        self.device = torch.device(device)
+        self.buffer = make_buffer(data, batch_size, generator)
+        self.achieved_goals = data.achieved_goal
+        self.normalizer = normalizer
+        self.delta = float(delta)
+        self.generator = generator
+        self.batch_size = batch_size
+
+    def sample(self) -> TensorDict:
+        b = self.buffer.sample()
+        index = b.get("index")
+        state, next_state = b.get("state"), b.get("next_state")
+        goal, relabelled = self._relabel(
+            b.get("goal"), index, b.get("episode_end"), self.achieved_goals, self.delta, self.generator
+        )
+        reward, done = self._reward_done(next_state, goal)
+        if self.device.type != "cpu":
+            dev = self.device
+            state, next_state, goal, reward, done, relabelled = (t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, relabelled))
+            b = b.to(dev)
+        norm = self.normalizer
+        n = state.shape[0]
+        return TensorDict(
+            {
+                "observation": norm.inputs(state, goal),
+                "action": norm.action_to_unit(b.get("action")),
+                "state": state,
+                "goal": goal,
+                "next_state": next_state,
+                "relabelled": relabelled,
+                "next": TensorDict(
+                    {
+                        "observation": norm.inputs(next_state, goal),
+                        "reward": reward.unsqueeze(-1),
+                        "done": done.unsqueeze(-1),
+                        "terminated": done.unsqueeze(-1),
+                    },
+                    batch_size=[n],
+                ),
+            },
+            batch_size=[n],
+            device=self.device,
+        )
+
+
+def fit_normalizer(data: Dataset, delta: float, seed: int = 0):
+    """Input statistics over every frame with its desired goal and with a relabelled
+    (strictly later achieved) goal, action bounds over every frame."""
+    from aerohrl.algorithms.networks import Normalizer
+    from aerohrl.algorithms.relabel import relabel_goals
+
+    g = torch.Generator().manual_seed(seed)
+    idx = torch.arange(len(data))
+    later, _ = relabel_goals(data.goal, idx, data.episode_end, data.achieved_goal, 1.0, g)
+    norm = Normalizer()
+    o1, r1 = _task_inputs(data.state, data.goal)
+    o2, r2 = _task_inputs(data.state, later)
+    x = torch.cat([torch.cat([o1, r1], -1), torch.cat([o2, r2], -1)])
+    return norm.fit(x, data.action)
+
+
+def _task_inputs(state, goal):
+    return task.policy_inputs(state, goal)

@@ -1,0 +1,195 @@
+"""Networks shared by every algorithm: input/action normalisation, the actor, the
+ensemble of goal-conditioned critics and the TD3-style clipped critic loss on it.
+
+Key names (torchrl conventions, so torchrl's losses read the batches directly):
+``"observation"`` the normalised 30-d input ``[o(15), relative goal(15)]``
+(:func:`aerohrl.task.policy_inputs`), ``"action"`` the action scaled to ``[-1, 1]``,
+``"state_action_value"`` a critic's output, ``("next", ...)`` the next step.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.modules import MLP, ValueOperator
+from torchrl.objectives import SoftUpdate, TD3BCLoss
+from torchrl.objectives.value import TD0Estimator
+
+from aerohrl import task
+
+IN_DIM = task.OBS_DIM + task.GOAL_DIM  # 30
+ACT_DIM = task.ACTION_DIM  # 4
+ACTION_MARGIN = 0.1  # action bounds = data range widened by 10% on each side
+STD_FLOOR = 1e-2
+
+
+class Normalizer(nn.Module):
+    """Dataset statistics (saved in every checkpoint through the state dict).
+
+    Inputs: ``(x - mean) / std`` on the translation-invariant 30-d input. Actions: an
+    affine map of the data range (widened by :data:`ACTION_MARGIN`) onto ``[-1, 1]``, so
+    thrust (~10 m/s^2) and rates (~1 rad/s) weigh alike and TD3's/CQL's ``[-1, 1]``
+    bounds, noise and random actions are meaningful.
+    """
+
+    def __init__(self):
+        super().__init__()
+        self.register_buffer("in_mean", torch.zeros(IN_DIM))
+        self.register_buffer("in_std", torch.ones(IN_DIM))
+        self.register_buffer("act_center", torch.zeros(ACT_DIM))
+        self.register_buffer("act_half", torch.ones(ACT_DIM))
+
+    @torch.no_grad()
+    def fit(self, inputs: torch.Tensor, actions: torch.Tensor) -> "Normalizer":
+        self.in_mean.copy_(inputs.mean(0))
+        self.in_std.copy_(inputs.std(0).clamp_min(STD_FLOOR))
+        lo, hi = actions.min(0).values, actions.max(0).values
+        span = (hi - lo).clamp_min(1e-3)
+        lo, hi = lo - ACTION_MARGIN * span, hi + ACTION_MARGIN * span
+        self.act_center.copy_((hi + lo) / 2)
+        self.act_half.copy_((hi - lo) / 2)
+        return self
+
+    def inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        o, rel = task.policy_inputs(state, goal)
+        return (torch.cat([o, rel], -1) - self.in_mean) / self.in_std
+
+    def action_to_unit(self, a: torch.Tensor) -> torch.Tensor:
+        return (a - self.act_center) / self.act_half
+
+    def action_from_unit(self, u: torch.Tensor) -> torch.Tensor:
+        return self.act_center + self.act_half * u
+
+
+def mlp(in_features: int, out_features: int, hidden) -> MLP:
+    return MLP(in_features=in_features, out_features=out_features, num_cells=list(hidden), activation_class=nn.ReLU)
+
+
+def make_actor(hidden) -> TensorDictModule:
+    """Deterministic actor: observation -> tanh(MLP) = action in [-1, 1]."""
+    return TensorDictModule(nn.Sequential(mlp(IN_DIM, ACT_DIM, hidden), nn.Tanh()), in_keys=["observation"], out_keys=["action"])
+
+
+def make_critic(hidden) -> ValueOperator:
+    """One goal-conditioned critic Q(o, g, a) (the MLP concatenates its inputs)."""
+    return ValueOperator(mlp(IN_DIM + ACT_DIM, 1, hidden), in_keys=["observation", "action"])
+
+
+class ClippedTD0Estimator(TD0Estimator):
+    """TD(0) target clipped to [0, 1] (thesis Eq. 3.2: with a sparse 0/1 reward no return
+    lies outside it; clipping stops over-estimation). torchrl's TD0 has no clipping, so the
+    estimator is extended rather than the loss rewritten."""
+
+    def value_estimate(self, tensordict, target_params=None, next_value=None, **kwargs):
+        return super().value_estimate(tensordict, target_params=target_params, next_value=next_value, **kwargs).clamp(0.0, 1.0)
+
+
+def make_critic_loss(
+    actor: TensorDictModule,
+    hidden,
+    *,
+    num_critics: int,
+    gamma: float,
+    delay_actor: bool,
+    policy_noise: float,
+    noise_clip: float,
+    alpha: float = 2.5,
+    loss_cls=TD3BCLoss,
+) -> TD3BCLoss:
+    """torchrl's ``TD3BCLoss`` over an ensemble of ``num_critics`` critics, each with its
+    own initialisation and target network, targets ``clip(r + gamma (1 - done)
+    min_j Q'_j(s', a', g), 0, 1)`` (SPEC.md; the minimum over *all* critics is exactly
+    what TD3BCLoss computes), squared error.
+
+    The next action ``a'`` is the target actor's action plus clipped noise (TD3-BC) or,
+    with ``delay_actor=False, policy_noise=0``, the learned policy's own action (Alg. 2,
+    used by GCSL and CQL).
+    """
+    critics = [make_critic(hidden) for _ in range(num_critics)]
+    with warnings.catch_warnings():  # torchrl warns that target_actor_network_params is unannotated when delay_actor=False
+        warnings.filterwarnings("ignore", message=".*target_actor_network_params.*")
+        loss = _make_td3bc(loss_cls, actor, critics, num_critics, policy_noise, noise_clip, alpha, delay_actor)
+    return use_clipped_td0(loss, gamma, loss.tensor_keys.state_action_value)
+
+
+def _make_td3bc(loss_cls, actor, critics, num_critics, policy_noise, noise_clip, alpha, delay_actor):
+    return loss_cls(
+        actor,
+        critics,
+        bounds=(-torch.ones(ACT_DIM), torch.ones(ACT_DIM)),
+        num_qvalue_nets=num_critics,
+        policy_noise=policy_noise,
+        noise_clip=noise_clip,
+        alpha=alpha,
+        loss_function="l2",
+        delay_actor=delay_actor,
+        delay_qvalue=True,
+    )
+
+
+def use_clipped_td0(loss, gamma: float, value_key):
+    """Give a torchrl loss the [0, 1]-clipped TD(0) target (keys: ("next", reward|done|terminated))."""
+    est = ClippedTD0Estimator(gamma=gamma, value_network=None)
+    est.set_keys(value=value_key, reward="reward", done="done", terminated="terminated")
+    loss.make_value_estimator(est)
+    return loss
+
+
+class EnsembleSoftUpdate(SoftUpdate):
+    """torchrl's ``SoftUpdate`` (``phi' <- (1 - tau) phi' + tau phi``, its ``step``/``_step``)
+    for losses whose critic ensemble is a *list* of modules.
+
+    torchrl 0.13.3 + tensordict 0.13.0: ``TargetNetUpdater.init_`` ends with a ``select``
+    on the nested, locked ``TensorDictParams`` that ``TensorDict.from_modules`` builds
+    for a list of critics, which raises "Cannot modify locked TensorDict" (also for
+    plain ``TD3BCLoss`` with ``delay_actor=True``). This ``init_`` keeps the same
+    semantics -- every target group whose tensors are distinct copies is synchronised
+    to its source and updated; groups that share the source's storage (an actor with
+    ``delay_actor=False``, as GCSL's and CQL's ensemble losses) are skipped -- without
+    that ``select``.
+    """
+
+    def init_(self) -> None:
+        keep = []
+        for t, s in zip(self._target_names, self._source_names):
+            src, tgt = getattr(self.loss_module, s), getattr(self.loss_module, t)
+            if tgt.requires_grad:
+                raise RuntimeError("the target parameter is part of a graph.")
+            distinct = all(v.data_ptr() != src.get(k).data.data_ptr() for k, v in tgt.items(True, True))
+            if distinct:
+                tgt.data.copy_(src.data)
+                keep.append((t, s))
+        if not keep:
+            raise RuntimeError("no distinct target parameters to update")
+        self._target_names = [t for t, _ in keep]
+        self._source_names = [s for _, s in keep]
+        self.initialized = True
+
+
+def ensemble_values(loss, observation: torch.Tensor, action: torch.Tensor, params=None) -> torch.Tensor:
+    """(num_critics, B) values of every critic of a torchrl loss's vmapped ensemble."""
+    params = loss.qvalue_network_params if params is None else params
+    n = params.batch_size[0]
+    td = TensorDict({"observation": observation, "action": action}, batch_size=observation.shape[:-1])
+    td = td.expand(n, *td.batch_size)
+    return loss._vmap_qvalue_network00(td, params).get("state_action_value").squeeze(-1)
+
+
+__all__ = [
+    "Normalizer",
+    "make_actor",
+    "make_critic",
+    "make_critic_loss",
+    "ClippedTD0Estimator",
+    "use_clipped_td0",
+    "ensemble_values",
+    "EnsembleSoftUpdate",
+    "mlp",
+    "IN_DIM",
+    "ACT_DIM",
+    "TensorDictSequential",
+]

@@ -1,0 +1,61 @@
+"""Hindsight relabelling (thesis Alg. 2, line 4), vectorised over the batch.
+
+With probability ``delta`` the goal of transition ``j`` becomes the achieved goal of a
+strictly later step ``k`` (``j < k <= last step of the episode``) of the same trajectory,
+``k`` uniform (the "future" strategy of HER/WGCSL: ``k = j + 1 + floor(u (end - j))``).
+The last step of an episode has no later step and keeps its goal. Rewards and done
+flags are then recomputed for the (new) goal with the task's goal-reached test:
+``r = goal_reached(achieved goal of j, g)``, ``done = r`` (a goal-reaching episode ends
+at success; running out of expert data is a truncation, not a termination).
+
+Why not ``torchrl.data.HERReplayBuffer``: its "future" offset starts at 0 (the goal can
+be the transition's own achieved goal, not a strictly later one), it relabels a fixed
+leading fraction of each batch instead of a Bernoulli(delta) choice per transition, and
+it recomputes only the reward; Alg. 2 and SPEC.md ask for the strictly-later,
+per-transition version, which is three tensor ops here.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from aerohrl import task
+
+
+def sample_future_index(index: torch.Tensor, episode_end: torch.Tensor, generator=None) -> torch.Tensor:
+    """A uniformly drawn strictly later step ``k in (j, end]`` for each ``j``;
+    ``k = j`` where ``j`` is the last step of its episode."""
+    span = (episode_end - index).clamp_min(0)
+    u = torch.rand(index.shape, generator=generator, device=index.device)
+    offset = 1 + (u * span).long().clamp_max(span - 1)
+    return torch.where(span > 0, index + offset, index)
+
+
+def relabel_goals(
+    goal: torch.Tensor,
+    index: torch.Tensor,
+    episode_end: torch.Tensor,
+    achieved_goals: torch.Tensor,
+    delta: float,
+    generator=None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(new goals (B, 15), relabelled mask (B,)).
+
+    ``index`` are the transitions' global dataset indices, ``episode_end`` the global
+    index of their episode's last step, ``achieved_goals`` the (F, 15) achieved goal of
+    every step of the dataset.
+    """
+    coin = torch.rand(index.shape, generator=generator, device=index.device) < delta
+    k = sample_future_index(index, episode_end, generator)
+    mask = coin & (k > index)
+    new = torch.where(mask.unsqueeze(-1), achieved_goals[k], goal)
+    return new, mask
+
+
+def reward_done(next_state: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sparse reward (float, 1 when the next state reaches ``goal``) and done (bool)."""
+    reached = task.goal_reached(task.achieved_goal(next_state), goal)
+    return reached.to(next_state.dtype), reached
+
+
+__all__ = ["sample_future_index", "relabel_goals", "reward_done"]

@@ -1,0 +1,125 @@
+"""``aerohrl runs show RUN``: config, dataset version, progress and the learning curve.
+
+The plot (``RUN/learning_curve.png`` unless ``-o``) follows thesis Fig. 3.3/3.4: the
+closed-loop success rate against training steps (one line per evaluation task), with
+the training losses beside it.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from aerohrl.errors import ArgumentParser, UserError, run_cli
+
+PROG = "aerohrl runs"
+
+
+def summary(run_dir) -> dict:
+    from aerohrl.algorithms.trainer import checkpoint_paths, read_json, read_metrics
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise UserError(f"no run at {run_dir}")
+    meta = read_json(run_dir / "config.json")
+    ckpts = checkpoint_paths(run_dir)
+    metrics = read_metrics(run_dir)
+    train_recs = [r for r in metrics if not any(k.startswith("eval/") for k in r)]
+    eval_recs = [r for r in metrics if any(k.startswith("eval/") for k in r)]
+    last_step = int(ckpts[-1].stem.split("-")[1]) if ckpts else 0
+    return {
+        "run": str(run_dir),
+        "config": meta.get("config", {}),
+        "dataset": meta.get("dataset", {}),
+        "checkpoint_step": last_step,
+        "checkpoints": [p.name for p in ckpts],
+        "logged_step": train_recs[-1]["step"] if train_recs else 0,
+        "last_metrics": train_recs[-1] if train_recs else {},
+        "last_eval": eval_recs[-1] if eval_recs else {},
+        "metrics": metrics,
+    }
+
+
+def plot_learning_curve(run_dir, out=None) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = summary(run_dir)
+    out = Path(out) if out else Path(run_dir) / "learning_curve.png"
+    metrics = s["metrics"]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    evals = sorted({k for r in metrics for k in r if k.startswith("eval/") and k.endswith("/success")})
+    for k in evals:
+        pts = [(r["step"], 100 * r[k]) for r in metrics if k in r]
+        (line,) = ax1.plot(*zip(*pts), marker="o", label=k.split("/")[1].replace("_", "-"))
+        kn = k[: -len("success")] + "near_success"
+        near = [(r["step"], 100 * r[kn]) for r in metrics if kn in r]
+        if near:
+            ax1.plot(*zip(*near), ls="--", color=line.get_color(), alpha=0.6, label=f"{k.split('/')[1].replace('_', '-')} (near)")
+    ax1.set_xlabel("training step")
+    ax1.set_ylabel("success rate (%)")
+    ax1.set_ylim(-2, 102)
+    ax1.set_title(f"{s['config'].get('algo', '?')}: closed-loop success")
+    if evals:
+        ax1.legend()
+    else:
+        ax1.text(0.5, 0.5, "no evaluation yet", ha="center", transform=ax1.transAxes)
+    losses = sorted({k for r in metrics for k in r if k.startswith("loss")})
+    for k in losses:
+        pts = [(r["step"], r[k]) for r in metrics if k in r]
+        ax2.plot(*zip(*pts), label=k)
+    ax2.set_xlabel("training step")
+    vals = [abs(r[k]) for r in metrics for k in losses if k in r and r[k] != 0]
+    ax2.set_yscale("symlog", linthresh=max(min(vals), 1e-8) if vals else 1e-3)
+    ax2.set_title("training losses")
+    if losses:
+        ax2.legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(out)
+    return out
+
+
+def cmd_show(a) -> int:
+    s = summary(a.run)
+    cfg, ds = s["config"], s["dataset"]
+    print(f"run:       {s['run']}")
+    print(f"algorithm: {cfg.get('algo')} (preset {cfg.get('preset')}, seed {cfg.get('seed')}, device {cfg.get('device')})")
+    print(f"dataset:   {ds.get('path')}  version {ds.get('version')}  ({ds.get('episodes')} episodes, {ds.get('frames')} frames)")
+    total = cfg.get("steps", 0)
+    print(f"progress:  checkpoint at step {s['checkpoint_step']:,} / {total:,} ({100 * s['checkpoint_step'] / max(total, 1):.1f}%); "
+          f"logged up to step {s['logged_step']:,}; {len(s['checkpoints'])} checkpoints kept")
+    if s["last_metrics"]:
+        m = s["last_metrics"]
+        print("last:      " + ", ".join(f"{k} {v:.4g}" for k, v in m.items() if k != "step"))
+    if s["last_eval"]:
+        e = s["last_eval"]
+        print(f"eval @ {e['step']:,}: " + ", ".join(f"{k[5:]} {v:.3g}" for k, v in e.items() if k != "step"))
+    print("config:    " + " ".join(f"{k}={v}" for k, v in sorted(cfg.items()) if k not in ("algo", "preset", "seed", "device")))
+    if not a.no_plot:
+        print(f"plot:      {plot_learning_curve(a.run, a.output)}")
+    return 0
+
+
+def parser() -> ArgumentParser:
+    ap = ArgumentParser(prog=PROG, description="Inspect training runs.")
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+    s = sub.add_parser("show", help="config, dataset version, progress and learning-curve plot of a run")
+    s.add_argument("run", type=Path)
+    s.add_argument("-o", "--output", type=Path, default=None, help="plot file [RUN/learning_curve.png]")
+    s.add_argument("--no-plot", action="store_true")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    return run_cli(PROG, lambda: {"show": cmd_show}[args.cmd](args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

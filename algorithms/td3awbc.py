@@ -1,0 +1,68 @@
+"""TD3-AWBC: TD3-BC whose behaviour-cloning term also gets an advantage-weighted
+regression term (thesis §3.5.1, "inspired from" Yang et al. 2022, WGCSL):
+
+    loss_actor = -lambda Q_0(s, pi(s)) + (pi(s) - a)^2 + mean_b[ w_b (pi(s_b) - a_b)^2 ],
+    w = min(exp(A / temperature), awr_max_weight),
+    A = mean_j Q_j(s, a, g) - mean_j Q_j(s, pi(s), g)      (no gradient through A or w)
+
+Critics, targets and the update schedule are TD3-BC's (see td3bc.py).
+
+``TD3BCLoss`` has no hook for a weighted BC term, so :class:`TD3AWBCLoss` extends it and
+overrides ``actor_loss`` only; the critic loss, the ensemble, the target networks and
+the vmapped critic calls are torchrl's.
+"""
+
+from __future__ import annotations
+
+import torch
+from torchrl.objectives import TD3BCLoss
+
+from aerohrl.algorithms.config import critic_sizes
+from aerohrl.algorithms.networks import make_critic_loss
+from aerohrl.algorithms.td3bc import TD3BC
+
+
+class TD3AWBCLoss(TD3BCLoss):
+    awr_temperature: float = 1.0
+    awr_max_weight: float = 100.0
+
+    def actor_loss(self, tensordict):
+        td = tensordict.select(*self.actor_network.in_keys, strict=False)
+        with self.actor_network_params.to_module(self.actor_network, preserve_module_state=False):
+            td = self.actor_network(td)
+        pi = td.get(self.tensor_keys.action)
+        a = tensordict.get(self.tensor_keys.action)
+        n, batch = self.num_qvalue_nets, tensordict.batch_size
+        params = self._cached_detach_qvalue_network_params
+        q_pi = self._vmap_qvalue_network00(
+            td.select(*self.qvalue_network.in_keys, strict=False).expand(n, *batch), params
+        ).get(self.tensor_keys.state_action_value).squeeze(-1)  # (n, B), grad to pi only
+        with torch.no_grad():
+            q_data = self._vmap_qvalue_network00(
+                tensordict.select(*self.qvalue_network.in_keys, strict=False).expand(n, *batch), params
+            ).get(self.tensor_keys.state_action_value).squeeze(-1)
+            adv = q_data.mean(0) - q_pi.detach().mean(0)
+            w = (adv / self.awr_temperature).exp().clamp_max(self.awr_max_weight)
+        sq = (pi - a).pow(2).mean(-1)  # (B,)
+        bc_loss = sq.mean()
+        awr_loss = (w * sq).mean()
+        lmbd = self.alpha / q_pi[0].abs().mean().detach()
+        loss = -lmbd * q_pi[0].mean() + bc_loss + awr_loss
+        meta = {"bc_loss": bc_loss.detach(), "awr_loss": awr_loss.detach(), "lmbd": lmbd, "awr_weight": w.mean()}
+        return loss, meta
+
+
+class TD3AWBC(TD3BC):
+    name = "td3awbc"
+
+    def _make_loss(self, cfg, actor):
+        loss = make_critic_loss(
+            actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma, delay_actor=True,
+            policy_noise=cfg.policy_noise, noise_clip=cfg.noise_clip, alpha=cfg.alpha, loss_cls=TD3AWBCLoss,
+        )
+        loss.awr_temperature = cfg.awr_temperature
+        loss.awr_max_weight = cfg.awr_max_weight
+        return loss
+
+    def _actor_extras(self, meta):
+        return {"lambda": meta["lmbd"].detach(), "awr_loss": meta["awr_loss"], "awr_weight": meta["awr_weight"]}
