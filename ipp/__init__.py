@@ -1,1 +1,20 @@
-"""Informative path planning on motion primitives (thesis chapter 2)."""
+"""Informative path planning on motion primitives (thesis chapter 2).
+
+Modules: :mod:`.lattice` (dispersion-minimising primitive lattice, file format),
+:mod:`.world` (ground truth, prior, KL), :mod:`.sensor` (Eq. 2.2), :mod:`.env`
+(batched target-search environment), :mod:`.baselines` (Table 2.1 heuristics),
+:mod:`.policy` / :mod:`.train` (learned recurrent planner), :mod:`.metrics`,
+:mod:`.bench`, :mod:`.cli`. See ipp/README.md.
+"""
+
+from .baselines import PLANNERS, PlannerConfig, make_planner
+from .env import TERMS, EnvConfig, SearchEnv, make_env
+from .lattice import (Lattice, LatticeConfig, build_lattice, default_lattice, load_lattice,
+                      save_lattice)
+from .sensor import SensorConfig
+from .world import WorldConfig, Worlds, sample_worlds
+
+__all__ = ["PLANNERS", "PlannerConfig", "make_planner", "TERMS", "EnvConfig", "SearchEnv",
+           "make_env", "Lattice", "LatticeConfig", "build_lattice", "default_lattice",
+           "load_lattice", "save_lattice", "SensorConfig", "WorldConfig", "Worlds",
+           "sample_worlds"]

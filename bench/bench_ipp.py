@@ -1,0 +1,75 @@
+"""IPP speed: batched environment steps/s and planning ms per decision per planner.
+
+    .venv/bin/python bench/bench_ipp.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from aerohrl.ipp.baselines import PLANNERS, PlannerConfig, make_planner
+from aerohrl.ipp.env import EnvConfig, SearchEnv
+from aerohrl.ipp.lattice import default_lattice
+from aerohrl.ipp.world import sample_worlds
+
+
+def env_steps_per_s(lat, n: int, steps: int) -> tuple[float, float]:
+    cfg = EnvConfig(budget=1e9)  # never runs out during the measurement
+    env = SearchEnv(cfg, lat)
+    env.reset(sample_worlds(cfg.world, 0, range(n)))
+    rng = np.random.default_rng(0)
+    t_obs = 0.0
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        m = env.valid_mask()
+        a = np.argmax(rng.random(m.shape) * m, axis=1)  # a random valid action, vectorised
+        env.step(a)  # includes building the observation
+    dt = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    for _ in range(steps):
+        env.observe()
+    t_obs = (time.perf_counter() - t1) / steps
+    return n * steps / dt, 1000 * t_obs
+
+
+def planning_ms(lat, name: str, n: int, decisions: int) -> float:
+    cfg = EnvConfig()
+    env = SearchEnv(cfg, lat)
+    env.reset(sample_worlds(cfg.world, 0, range(n)))
+    pl = make_planner(name, env, PlannerConfig())
+    total, served = 0.0, 0
+    for _ in range(decisions):
+        live = int((~env.done).sum())
+        if live == 0:
+            break
+        t = time.perf_counter()
+        a = pl.act()
+        total += time.perf_counter() - t
+        served += live
+        env.step(a)
+    return 1000 * total / max(served, 1)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--quick", action="store_true")
+    a = ap.parse_args()
+    lat = default_lattice()
+    print(f"lattice: {lat.n_vertices} vertices, {lat.n_prims} primitives, {lat.n_actions} slots")
+    print("\nenv steps/s (random valid primitives; step = sense + update + rewards + obs)")
+    print("| batch | steps/s | obs ms/batch |\n|---|---|---|")
+    for n in ((1, 16, 64) if a.quick else (1, 16, 64, 256)):
+        sps, obs_ms = env_steps_per_s(lat, n, 20 if a.quick else 40)
+        print(f"| {n} | {sps:,.0f} | {obs_ms:.2f} |")
+    n, dec = (10, 5) if a.quick else (20, 10)
+    print(f"\nplanning ms per decision ({n} envs batched, first {dec} decisions)")
+    print("| planner | ms/decision |\n|---|---|")
+    for name in PLANNERS:
+        print(f"| {name} | {planning_ms(lat, name, n, dec):.2f} |")
+
+
+if __name__ == "__main__":
+    main()

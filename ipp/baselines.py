@@ -1,0 +1,320 @@
+"""The five baselines of thesis Table 2.1 on the lattice's primitives, batched over envs.
+
+All planners score candidate primitive sequences from the agents' current states
+with a per-cell utility of the cells each primitive senses (precomputed per primitive
+in the lattice, tiled to the agent's cell) and pick by *utility per unit cost* (the
+budget is spent in cost units, so this is the budget-efficient ratio):
+
+=============  =====  =================================================================
+planner        depth  utility of a sensed cell (``b`` belief, ``c`` covered)
+=============  =====  =================================================================
+greedy         1      thesis: ``I(q) = f1*b + f2*H(b)`` (revisits count again)
+dp             2      expected information gain of the sequence (receding horizon:
+                      execute the first primitive, replan)
+cmaes          5      the same information gain; CMA-ES (``cmaes`` package) over the
+                      sequence, executed open-loop for 5 primitives, then replanned
+coverage       2      1 for a cell neither covered nor sensed earlier in the sequence
+prio_coverage  2      ``eps + b`` for such a cell (coverage prioritised by belief)
+=============  =====  =================================================================
+
+Information gain of a cell sensed with total log-odds magnitude ``lam`` (the sum of
+``log((1-e)/e)`` over its measurements) is computed as for one measurement with error
+``sigma(-lam)``: ``IG = H(b) - E_z H(b | z)`` with ``P(z=1) = b(1-e) + (1-b)e``.
+Overlap inside a sequence is exact: a cell sensed again later adds
+``IG(b, lam_prev + lam) - IG(b, lam_prev)``.
+
+When every candidate scores zero (nothing new in reach: coverage planners late in an
+episode), the planner heads for the nearest uncovered cell instead (distance
+transform), so it never dithers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+from aerohrl.errors import UserError
+
+from .env import SearchEnv
+from .sensor import entropy_bits, sigmoid
+
+PLANNERS = ("greedy", "dp", "cmaes", "coverage", "prio_coverage")
+THESIS_NAMES = {"greedy": "Greedy-IPP", "dp": "DP-IPP", "cmaes": "CMAES-IPP",
+                "coverage": "Coverage", "prio_coverage": "Prioritised Coverage",
+                "rl_nolstm": "Ours-noLSTM", "rl": "Ours-LSTM"}
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Planner knobs (CLI flags of ``ipp bench``)."""
+
+    depth: int | None = None       # tree depth (None = the planner's default)
+    f1: float = 1.0                # greedy: weight of belief
+    f2: float = 1.0                # greedy: weight of entropy
+    eps: float = 0.05              # prioritised coverage: floor weight of a new cell
+    horizon: int = 5               # CMA-ES sequence length (thesis: 5)
+    popsize: int = 12              # CMA-ES population
+    generations: int = 15          # CMA-ES generations per replan
+    sigma0: float = 0.3            # CMA-ES initial step size on [0, 1]^horizon
+    max_nodes: int = 2_000_000     # memory bound per chunk for dense overlap maps
+
+
+def info_gain(b: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Expected entropy reduction (bits) of a cell with belief ``b`` sensed with ``lam``."""
+    e = sigmoid(-lam)
+    pz1 = b * (1 - e) + (1 - b) * e
+    pz1 = np.clip(pz1, 1e-12, 1 - 1e-12)
+    post1 = b * (1 - e) / pz1
+    post0 = b * e / (1 - pz1)
+    return entropy_bits(b) - pz1 * entropy_bits(post1) - (1 - pz1) * entropy_bits(post0)
+
+
+class Planner:
+    name = "planner"
+
+    def __init__(self, env: SearchEnv, cfg: PlannerConfig | None = None):
+        self.env, self.cfg = env, cfg or PlannerConfig()
+
+    def reset(self) -> None:
+        pass
+
+    def act(self) -> np.ndarray:  # (N,) action slots
+        raise NotImplementedError
+
+
+class TreePlanner(Planner):
+    """Exhaustive search over primitive sequences of length ``depth`` (batched)."""
+
+    def __init__(self, env, cfg=None, kind="info", depth=2):
+        super().__init__(env, cfg)
+        self.kind = kind
+        self.depth = int(self.cfg.depth or depth)
+        if not 1 <= self.depth <= 4:
+            raise UserError(f"planner depth must be in 1..4, got {self.depth}")
+        self.name = kind
+
+    # utility of cells: b belief, c covered, lp previous lam in sequence, lam this prim
+    def _util(self, b, c, lp, lam):
+        if self.kind == "info":
+            g = info_gain(b, lp + lam)
+            seen = lp > 0
+            if seen.any():
+                g[seen] -= info_gain(b[seen], lp[seen])
+            return g
+        new = (~c) & (lp == 0)
+        if self.kind == "coverage":
+            return new.astype(float)
+        if self.kind == "prio":
+            return new * (self.cfg.eps + b)
+        if self.kind == "greedy":
+            return self.cfg.f1 * b + self.cfg.f2 * entropy_bits(b)
+        raise UserError(f"unknown utility {self.kind!r}")
+
+    def act(self) -> np.ndarray:
+        env = self.env
+        N = env.n
+        out = np.zeros(N, np.int64)
+        A = env.lat.n_actions
+        per_env = A ** max(self.depth - 1, 0) * env.Hp * env.Hp
+        chunk = max(1, int(self.cfg.max_nodes // max(per_env, 1)))
+        live = np.flatnonzero(~env.done)
+        for s in range(0, len(live), chunk):
+            idx = live[s:s + chunk]
+            out[idx] = self._plan(idx)
+        return out
+
+    def _plan(self, idx: np.ndarray) -> np.ndarray:
+        env, lat = self.env, self.env.lat
+        A, Hp, S = lat.n_actions, env.Hp, env.S
+        n = len(idx)
+        b_all = sigmoid(env.L[idx]).reshape(n, -1)
+        c_all = env.cov[idx].reshape(n, -1)
+        lamv = env.lam_levels
+        # node state: (n, K) with K = A^k
+        pos = env.pos[idx][:, None, :].copy()
+        vert = env.vert[idx][:, None].copy()
+        alive = np.ones((n, 1), bool)
+        util = np.zeros((n, 1))
+        cost = np.zeros((n, 1))
+        lmap = None  # (n, K, Hp*Hp) lam already sensed by the sequence
+        rows = np.arange(n)[:, None, None, None]
+        for k in range(self.depth):
+            K = pos.shape[1]
+            ok = env.ok[vert, :, np.clip(pos[..., 1], 0, S - 1), np.clip(pos[..., 0], 0, S - 1)]
+            ok &= alive[..., None]  # (n, K, A)
+            prim = lat.edges[vert]  # (n, K, A)
+            pr = np.maximum(prim, 0)
+            off = lat.cell_off[pr].astype(np.int64)  # (n, K, A, U, 2)
+            cnt = lat.cell_count[pr].astype(float)  # (n, K, A, U, L)
+            lam = cnt @ lamv  # (n, K, A, U)
+            x = pos[..., 0][:, :, None, None] + off[..., 0]
+            y = pos[..., 1][:, :, None, None] + off[..., 1]
+            inside = (x >= 0) & (x < S) & (y >= 0) & (y < S) & (cnt.sum(-1) > 0)
+            flat = np.clip(y + env.pad, 0, Hp - 1) * Hp + np.clip(x + env.pad, 0, Hp - 1)
+            b = b_all[rows, flat]
+            c = c_all[rows, flat]
+            if lmap is None:
+                lp = np.zeros_like(lam)
+            else:
+                lp = lmap[np.arange(n)[:, None, None, None], np.arange(K)[None, :, None, None], flat]
+            uc = np.zeros(lam.shape)
+            uc[inside] = self._util(b[inside], c[inside], lp[inside], lam[inside])
+            u = uc.sum(-1)  # (n, K, A)
+            util = (util[..., None] + u).reshape(n, K * A)
+            cost = (cost[..., None] + lat.prim_cost[pr]).reshape(n, K * A)
+            alive = ok.reshape(n, K * A)
+            if k + 1 < self.depth:
+                w = np.where(inside, lam, 0.0)
+                ii = (np.arange(n * K * A)[:, None] * (Hp * Hp)
+                      + flat.reshape(n * K * A, -1))
+                nl = np.bincount(ii.ravel(), weights=w.reshape(-1),
+                                 minlength=n * K * A * Hp * Hp).reshape(n, K, A, Hp * Hp)
+                if lmap is not None:
+                    nl += lmap[:, :, None, :]
+                lmap = nl.reshape(n, K * A, Hp * Hp)
+            pos = (pos[:, :, None, :] + lat.prim_disp[pr]).reshape(n, K * A, 2)
+            vert = lat.prim_to[pr].reshape(n, K * A)
+        score = np.where(alive, util / cost, -np.inf)
+        first = score.reshape(n, A, -1).max(-1)  # best continuation per first action
+        best = first.argmax(1)
+        flat_zero = ~(first.max(1) > 1e-9)
+        if flat_zero.any():  # nothing to gain in reach: go to the nearest uncovered cell
+            best[flat_zero] = self._frontier(idx[flat_zero])
+        return best
+
+    def _frontier(self, idx: np.ndarray) -> np.ndarray:
+        env, lat = self.env, self.env.lat
+        S, p = env.S, env.pad
+        out = np.zeros(len(idx), np.int64)
+        for j, n in enumerate(idx):  # one distance transform per env (not per cell)
+            unc = ~env.cov[n, p:p + S, p:p + S]
+            okm = env.ok[env.vert[n], :, env.pos[n, 1], env.pos[n, 0]]
+            if not unc.any():
+                out[j] = int(np.argmax(okm))
+                continue
+            dist = distance_transform_edt(~unc)
+            prim = np.maximum(lat.edges[env.vert[n]], 0)
+            end = env.pos[n] + lat.prim_disp[prim]
+            d = dist[np.clip(end[:, 1], 0, S - 1), np.clip(end[:, 0], 0, S - 1)]
+            d = d + 1e-3 * lat.prim_cost[prim] / lat.prim_cost.mean()
+            out[j] = int(np.argmin(np.where(okm, d, np.inf)))
+        return out
+
+
+class CMAESPlanner(Planner):
+    """CMA-ES over ``horizon``-primitive sequences (``cmaes.CMA``), open-loop execution.
+
+    A candidate ``x in [0,1]^h`` decodes step by step: at each state the valid actions
+    are listed in slot order and ``x_k`` picks ``floor(x_k * n_valid)``; decoding never
+    leaves the viable set. The best sequence seen over the generations is executed
+    (the original code returned a fresh sample; that bug is not reproduced).
+    """
+
+    name = "cmaes"
+
+    def __init__(self, env, cfg=None):
+        super().__init__(env, cfg)
+        try:
+            import cmaes  # noqa: F401
+        except ImportError:
+            raise UserError("planner cmaes needs the 'cmaes' package (pip install cmaes)") from None
+        self.reset()
+
+    def reset(self) -> None:
+        self.queue = np.full((self.env.n, 0), -1, np.int64)
+        self.rng_seed = 0
+
+    def _decode(self, X: np.ndarray, env_idx: np.ndarray):
+        """X (C, h) -> actions (C, h), info utility (C,), cost (C,) for envs env_idx (C,)."""
+        env, lat = self.env, self.env.lat
+        C, h = X.shape
+        S, Hp = env.S, env.Hp
+        pos = env.pos[env_idx].copy()
+        vert = env.vert[env_idx].copy()
+        acts = np.zeros((C, h), np.int64)
+        flats, lams = [], []
+        cost = np.zeros(C)
+        for k in range(h):
+            ok = env.ok[vert, :, pos[:, 1], pos[:, 0]]  # (C, A)
+            nv = ok.sum(1)
+            pick = np.minimum((X[:, k] * nv).astype(np.int64), np.maximum(nv - 1, 0))
+            csum = np.cumsum(ok, 1)
+            a = np.argmax(csum > pick[:, None], axis=1)
+            acts[:, k] = a
+            pr = lat.edges[vert, a]
+            off = lat.cell_off[pr].astype(np.int64)
+            cnt = lat.cell_count[pr].astype(float)
+            x = pos[:, 0, None] + off[..., 0]
+            y = pos[:, 1, None] + off[..., 1]
+            inside = (x >= 0) & (x < S) & (y >= 0) & (y < S) & (cnt.sum(-1) > 0)
+            flats.append(np.arange(C)[:, None] * Hp * Hp + (y + env.pad) * Hp + x + env.pad)
+            lams.append(np.where(inside, cnt @ env.lam_levels, 0.0))
+            cost += lat.prim_cost[pr]
+            pos = pos + lat.prim_disp[pr]
+            vert = lat.prim_to[pr]
+        f = np.concatenate(flats, 1).ravel()
+        w = np.concatenate(lams, 1).ravel()
+        tot = np.bincount(f, weights=w, minlength=C * Hp * Hp)
+        nz = np.flatnonzero(tot)
+        b = sigmoid(env.L[env_idx].reshape(C, -1)).ravel()[nz]
+        util = np.bincount(nz // (Hp * Hp), weights=info_gain(b, tot[nz]), minlength=C)
+        return acts, util, cost
+
+    def act(self) -> np.ndarray:
+        from cmaes import CMA
+
+        env, cfg = self.env, self.cfg
+        if self.queue.shape[0] != env.n:
+            self.reset()
+        need = np.flatnonzero(~env.done & (self.queue[:, 0] < 0 if self.queue.shape[1] else True))
+        if len(need):
+            h = cfg.horizon
+            newq = np.full((env.n, h), -1, np.int64)
+            newq[:, : self.queue.shape[1]] = self.queue[:, :h] if self.queue.shape[1] else -1
+            opts = []
+            for j, n in enumerate(need):
+                self.rng_seed += 1
+                opts.append(CMA(mean=np.full(h, 0.5), sigma=cfg.sigma0,
+                                bounds=np.tile([0.0, 1.0], (h, 1)),
+                                population_size=cfg.popsize,
+                                seed=int(env.worlds.seeds[n, 1] * 7919 + self.rng_seed)))
+            best_f = np.full(len(need), np.inf)
+            best_a = np.zeros((len(need), h), np.int64)
+            P = cfg.popsize
+            env_idx = np.repeat(need, P)
+            for _ in range(cfg.generations):
+                X = np.array([[o.ask() for _ in range(P)] for o in opts])  # (E, P, h)
+                acts, util, cost = self._decode(X.reshape(-1, h), env_idx)
+                f = (-util / cost).reshape(len(need), P)
+                for j, o in enumerate(opts):
+                    o.tell(list(zip(X[j], f[j])))
+                k = f.argmin(1)
+                better = f[np.arange(len(need)), k] < best_f
+                best_f[better] = f[np.arange(len(need)), k][better]
+                best_a[better] = acts.reshape(len(need), P, h)[np.arange(len(need)), k][better]
+            newq[need] = best_a
+            self.queue = newq
+        a = np.where(self.queue[:, 0] >= 0, self.queue[:, 0], 0)
+        self.queue = np.concatenate([self.queue[:, 1:], np.full((env.n, 1), -1)], 1)
+        return a
+
+
+def make_planner(name: str, env: SearchEnv, cfg: PlannerConfig | None = None) -> Planner:
+    """Planner by name (see :data:`PLANNERS`); unknown names raise UserError."""
+    cfg = cfg or PlannerConfig()
+    if name == "greedy":
+        p = TreePlanner(env, cfg, "greedy", 1)
+    elif name == "dp":
+        p = TreePlanner(env, cfg, "info", 2)
+    elif name == "coverage":
+        p = TreePlanner(env, cfg, "coverage", 2)
+    elif name == "prio_coverage":
+        p = TreePlanner(env, cfg, "prio", 2)
+    elif name == "cmaes":
+        p = CMAESPlanner(env, cfg)
+    else:
+        raise UserError(f"unknown planner {name!r} (choose from {', '.join(PLANNERS)})")
+    p.name = name
+    return p

@@ -1,0 +1,259 @@
+"""``aerohrl ipp``: lattice build, bench, show.
+
+    aerohrl ipp lattice build -o lattice.npz            # + lattice.png
+    aerohrl ipp bench --planner dp --envs 100
+    aerohrl ipp bench --all --envs 100                  # Markdown + CSV + KL plot
+    aerohrl ipp train --preset cpu                      # -> runs/<run>/
+    aerohrl ipp bench --all --run runs/<run>            # baselines + learned policy
+    aerohrl ipp show --env 7 --planner dp -o path.png
+
+Flags map one to one onto :class:`~aerohrl.ipp.lattice.LatticeConfig`,
+:class:`~aerohrl.ipp.env.EnvConfig`, :class:`~aerohrl.ipp.baselines.PlannerConfig` and
+:class:`~aerohrl.ipp.bench.BenchConfig`. Bad input exits with a one-line error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from aerohrl.errors import UserError, run_cli
+
+PROG = "aerohrl ipp"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2, like UserError
+        raise UserError(message)
+
+
+def _parser() -> argparse.ArgumentParser:
+    from .baselines import PLANNERS
+    from .bench import TEST_SEED
+    from .env import EnvConfig
+    from .lattice import LatticeConfig
+
+    lc, ec = LatticeConfig(), EnvConfig()
+    p = _Parser(prog=PROG, description="Informative path planning on motion primitives.")
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
+
+    lat = sub.add_parser("lattice", help="motion-primitive lattices")
+    lsub = lat.add_subparsers(dest="lcmd", required=True, parser_class=_Parser)
+    b = lsub.add_parser("build", help="build a dispersion-minimising lattice")
+    b.add_argument("-o", "--output", required=True, help="lattice file to write (.npz)")
+    b.add_argument("--plot", help="figure path (default: <output>.png)")
+    b.add_argument("--no-plot", action="store_true")
+    b.add_argument("--vertices", type=int, default=lc.n_vertices, dest="n_vertices")
+    b.add_argument("--v-max", type=float, default=lc.v_max)
+    b.add_argument("--a-max", type=float, default=lc.a_max)
+    b.add_argument("--rho", type=float, default=lc.rho)
+    b.add_argument("--reach", type=int, default=lc.reach)
+    b.add_argument("--max-edges", type=int, default=lc.max_edges)
+    b.add_argument("--footprint-radius", type=int, default=lc.footprint_radius)
+    b.add_argument("--sense-dt", type=float, default=lc.sense_dt)
+
+    def env_flags(q):
+        q.add_argument("--lattice", help="lattice file (default: the shipped one)")
+        q.add_argument("--map-size", type=int, default=ec.map_size)
+        q.add_argument("--budget", type=float, default=ec.budget)
+        q.add_argument("--start", choices=("center", "random"), default=ec.start)
+        q.add_argument("--seed", type=int, default=TEST_SEED, help="test-suite seed")
+        q.add_argument("--depth", type=int, default=None, help="tree depth (greedy/dp/coverage)")
+        q.add_argument("--horizon", type=int, default=5, help="CMA-ES horizon")
+        q.add_argument("--popsize", type=int, default=12)
+        q.add_argument("--generations", type=int, default=15)
+        q.add_argument("--run", action="append", default=None,
+                       help="trained policy run directory (planner rl); bench takes several")
+
+    tr = sub.add_parser("train", help="train the learned recurrent policy")
+    tr.add_argument("--preset", default="cpu", help="cpu | quick | test")
+    tr.add_argument("--envs", type=int, default=None, dest="n_envs")
+    tr.add_argument("--iterations", type=int, default=None)
+    tr.add_argument("--seed", type=int, default=None)
+    tr.add_argument("--threads", type=int, default=None)
+    tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
+    tr.add_argument("--run-dir", help="output directory (default runs/ipp-<preset>-<time>)")
+    tr.add_argument("--lattice", help="lattice file (default: the shipped one)")
+    tr.add_argument("--budget", type=float, default=ec.budget)
+    tr.add_argument("--no-progress", action="store_true")
+
+    be = sub.add_parser("bench", help="Table 2.1 analogue on the seeded test suite")
+    g = be.add_mutually_exclusive_group()
+    g.add_argument("--planner", help=f"one of {', '.join(PLANNERS)} (default dp)")
+    g.add_argument("--all", action="store_true", help="every baseline (+ rl with --run)")
+    be.add_argument("--envs", type=int, default=100)
+    be.add_argument("--batch", type=int, default=100, help="environments stepped together")
+    be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
+    be.add_argument("--no-progress", action="store_true")
+    env_flags(be)
+
+    sh = sub.add_parser("show", help="Fig. 2.3 analogue: truth, prior, path over the budget")
+    sh.add_argument("--env", type=int, default=0, help="test-suite world index")
+    sh.add_argument("--planner", default="dp")
+    sh.add_argument("-o", "--output", required=True)
+    env_flags(sh)
+    return p
+
+
+def _configs(a):
+    from .baselines import PlannerConfig
+    from .env import EnvConfig
+    from .world import WorldConfig
+
+    if a.map_size < 1:
+        raise UserError(f"map size must be positive, got {a.map_size}")
+    env = EnvConfig(map_size=a.map_size, budget=a.budget, start=a.start,
+                    world=WorldConfig(map_size=a.map_size))
+    pc = PlannerConfig(depth=a.depth, horizon=a.horizon, popsize=a.popsize,
+                       generations=a.generations)
+    if a.horizon < 1 or a.popsize < 2 or a.generations < 1:
+        raise UserError("--horizon >= 1, --popsize >= 2 and --generations >= 1 are required")
+    return env, pc
+
+
+def _lattice_build(a) -> int:
+    from .lattice import LatticeConfig, build_lattice, plot_lattice, save_lattice
+
+    cfg = replace(LatticeConfig(), n_vertices=a.n_vertices, v_max=a.v_max, a_max=a.a_max,
+                  rho=a.rho, reach=a.reach, max_edges=a.max_edges,
+                  footprint_radius=a.footprint_radius, sense_dt=a.sense_dt)
+    lat = build_lattice(cfg)
+    out = save_lattice(lat, a.output)
+    print(f"lattice: {lat.n_vertices} vertices, {lat.n_prims} primitives, "
+          f"<= {lat.n_actions} per vertex, dispersion {lat.dispersion[-1]:.1f} -> {out}")
+    if not a.no_plot:
+        fig = plot_lattice(lat, a.plot or Path(a.output).with_suffix(".png"))
+        print(f"plot -> {fig}")
+    return 0
+
+
+def _load_models(a) -> dict:
+    """{row key: model} for the --run directories: 'rl' (GRU core) / 'rl_nolstm' (MLP)."""
+    if not a.run:
+        raise UserError("planner rl needs --run <trained run directory>")
+    from .policy import load_policy
+    out = {}
+    for path in a.run:
+        m = load_policy(path)
+        key = "rl" if m.cfg.recurrent else "rl_nolstm"
+        k, i = key, 2
+        while k in out:
+            k, i = f"{key}_{i}", i + 1
+        out[k] = m
+    return out
+
+
+def _bench(a) -> int:
+    from tqdm import tqdm
+
+    from .baselines import PLANNERS, THESIS_NAMES, make_planner
+    from .bench import BenchConfig, run_episodes
+    from .env import SearchEnv
+    from .lattice import get_lattice
+    from .metrics import (markdown_table, per_env_csv, plot_kl, summarise, summary_csv,
+                          write_atomic)
+
+    env, pc = _configs(a)
+    names = tuple(PLANNERS) if a.all else (a.planner or "dp",)
+    if a.all and a.run:
+        names += ("rl",)
+    cfg = BenchConfig(planners=names, envs=a.envs, seed=a.seed, batch=a.batch, env=env,
+                      planner=pc)
+    cfg.validate()
+    lat = get_lattice(a.lattice)
+    probe = SearchEnv(env, lat)  # validate map size / budget / planner flags up front
+    models = _load_models(a) if "rl" in names else {}
+    for name in names:
+        if name != "rl":
+            make_planner(name, probe, pc)
+    rows = [(n, None) for n in names if n != "rl"] + list(models.items())
+    results = {}
+    for name, model in rows:
+        bar = tqdm(total=a.envs, desc=name, file=sys.stderr, disable=a.no_progress,
+                   leave=False)
+        r = run_episodes(name, lat, cfg, progress=bar, model=model)
+        bar.close()
+        r["summary"] = summarise(r["per_env"])
+        results[name] = r
+    md = markdown_table(results, THESIS_NAMES)
+    print(md, end="")
+    out = Path(a.out_dir)
+    write_atomic(out / "ipp_bench.md", md)
+    write_atomic(out / "ipp_bench.csv", summary_csv(results))
+    write_atomic(out / "ipp_bench_envs.csv", per_env_csv(results))
+    plot_kl(results, THESIS_NAMES, out / "ipp_kl.png")
+    print(f"wrote {out}/ipp_bench.md, ipp_bench.csv, ipp_bench_envs.csv, ipp_kl.png")
+    return 0
+
+
+def _train(a) -> int:
+    import time
+
+    from tqdm import tqdm
+
+    from .lattice import get_lattice
+    from .train import preset, train
+
+    cfg = preset(a.preset, n_envs=a.n_envs, iterations=a.iterations, seed=a.seed,
+                 threads=a.threads, recurrent=False if a.no_rnn else None)
+    cfg = replace(cfg, env=replace(cfg.env, budget=a.budget))
+    if cfg.n_envs < 1 or cfg.iterations < 1:
+        raise UserError("--envs and --iterations must be >= 1")
+    lat = get_lattice(a.lattice)
+    from .env import SearchEnv
+    SearchEnv(cfg.env, lat)
+    run = Path(a.run_dir or f"runs/ipp-{a.preset}{'-nornn' if a.no_rnn else ''}-"
+               f"{time.strftime('%Y%m%d-%H%M%S')}")
+    bar = tqdm(total=cfg.iterations, desc="train", file=sys.stderr, disable=a.no_progress)
+    last = train(cfg, lat, run, progress=bar)
+    bar.close()
+    print(f"trained {cfg.iterations} iterations x {cfg.n_envs} envs: return {last['return']:.1f}, "
+          f"coverage {last['coverage']:.1f}%, search eff. {last['search_efficiency']:.1f}% "
+          f"-> {run}")
+    return 0
+
+
+def _show(a) -> int:
+    from .baselines import PLANNERS, THESIS_NAMES
+    from .bench import BenchConfig, render_episode, run_episodes
+    from .lattice import get_lattice
+
+    if a.planner not in PLANNERS + ("rl",):
+        raise UserError(f"unknown planner {a.planner!r} (choose from {', '.join(PLANNERS)}, rl)")
+    if a.env < 0:
+        raise UserError("--env must be >= 0")
+    env, pc = _configs(a)
+    cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc)
+    lat = get_lattice(a.lattice)
+    key, model = next(iter(_load_models(a).items())) if a.planner == "rl" else (a.planner, None)
+    r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model)
+    m = r["per_env"]
+    title = (f"{THESIS_NAMES.get(key, key)} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
+             f"entropy red. {m['entropy_reduction'][0]:.0f}%, "
+             f"search eff. {m['search_efficiency'][0]:.0f}%")
+    out = render_episode(r["env"], 0, a.output, title)
+    print(f"{title} -> {out}")
+    return 0
+
+
+def _dispatch(argv) -> int:
+    a = _parser().parse_args(argv)
+    if a.cmd == "lattice":
+        return _lattice_build(a)
+    if a.cmd == "bench":
+        return _bench(a)
+    if a.cmd == "show":
+        return _show(a)
+    if a.cmd == "train":
+        return _train(a)
+    raise UserError(f"unknown command {a.cmd!r}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_cli(PROG, lambda: _dispatch(sys.argv[1:] if argv is None else argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

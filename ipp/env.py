@@ -1,0 +1,352 @@
+"""Batched target-search environment on a motion-primitive lattice (thesis §2.4-2.5.2).
+
+``N`` environments live in arrays: log-odds belief, coverage and truth maps of shape
+``(N, Hp, Wp)`` (the ``map_size`` square padded by ``pad`` cells on every side so that
+footprints and observation windows never index out of range). A step gathers the
+precomputed measurement list of each chosen primitive, shifted to the agent's cell
+(translation invariance), draws the labels, and scatters the log-odds increments with
+one ``np.bincount``: no per-cell Python loop.
+
+Rewards (thesis §2.5.2, SPEC.md), per step, as columns of ``terms``:
+
+* ``entropy``  ``15 * (H(M_t) - H(M_{t+1})) / H(M_0)`` (Eq. 2.4-2.5, inner map, bits);
+  sums to ``15 * entropy reduction``: +15 for the whole map.
+* ``coverage`` ``10 * (newly covered cells) / (H*W)``: +10 for the whole map.
+* ``target``   ``+20`` per target whose cell belief first reaches ``found_threshold``.
+* ``cost``     ``-20 * min(cost, remaining) / budget``: exactly -20 over a full budget.
+* ``invalid``  ``-1`` for an invalid primitive (the agent stays; the cost is charged).
+
+The episode ends when the budget is spent (the primitive that crosses zero is
+executed in full; its charge is capped so the cost term sums to -20).
+
+Valid primitives: the footprint centre stays on the inner map along the whole
+primitive *and* the end state is viable, i.e. lies in the viability kernel of the
+lattice on this map (a valid successor exists forever). The kernel is a fixed point
+computed once per (lattice, map size); it removes the dead ends a fast vertex near
+the boundary would otherwise run into. (The thesis/original code only penalise
+leaving the map; see :func:`viability`.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from aerohrl.errors import UserError
+
+from .lattice import Lattice
+from .sensor import (SensorConfig, entropy_bits, hashed_uniform, logit,
+                     logodds_step, measure, sigmoid)
+from .world import WorldConfig, Worlds, sample_worlds
+
+TERMS = ("entropy", "coverage", "target", "cost", "invalid")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Environment parameters; ``budget`` is in primitive-cost units."""
+
+    map_size: int = 30
+    budget: float = 5000.0
+    found_threshold: float = 0.95
+    start: str = "center"          # "center" or "random" (valid, viable hover start)
+    r_entropy: float = 15.0
+    r_coverage: float = 10.0
+    r_target: float = 20.0
+    r_cost: float = 20.0
+    r_invalid: float = 1.0
+    obs_radius: int = 4            # windows are 2R x 2R cells at each scale
+    obs_scales: tuple[int, ...] = (1, 2, 4)
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    world: WorldConfig = field(default_factory=WorldConfig)
+
+    def validate(self, lattice: Lattice) -> None:
+        if self.map_size < 2 * lattice.config.footprint_radius + 2:
+            raise UserError(f"map size {self.map_size} is too small for the lattice "
+                            f"(needs >= {2 * lattice.config.footprint_radius + 2})")
+        if self.map_size > 512:
+            raise UserError(f"map size {self.map_size} is too large (max 512)")
+        if not np.isfinite(self.budget) or self.budget < lattice.prim_cost.min():
+            raise UserError(f"budget {self.budget:g} cannot pay for a single primitive "
+                            f"(cheapest costs {lattice.prim_cost.min():.1f})")
+        if self.start not in ("center", "random"):
+            raise UserError(f"unknown start {self.start!r} (center|random)")
+        if not 0.5 < self.found_threshold < 1:
+            raise UserError("found_threshold must be in (0.5, 1)")
+        if self.world.map_size != self.map_size:
+            raise UserError("world.map_size must equal map_size")
+
+
+def viability(lattice: Lattice, size: int) -> np.ndarray:
+    """``ok[v, a, y, x]``: action ``a`` at vertex ``v`` in cell ``(x, y)`` is valid.
+
+    Valid = the primitive exists, its visited centre cells stay on the ``size`` map
+    (bounding box test) and its end state is viable. The viable set is the greatest
+    fixed point of ``viable[v,y,x] = any_a ok[v,a,y,x]`` (vectorised over cells).
+    """
+    return _viability(lattice.edges.tobytes(), lattice.edges.shape, lattice.prim_bbox.tobytes(),
+                      lattice.prim_disp.tobytes(), lattice.prim_to.tobytes(), size).copy()
+
+
+@lru_cache(maxsize=8)
+def _viability(edges_b, eshape, bbox_b, disp_b, to_b, size):
+    edges = np.frombuffer(edges_b, np.int32).reshape(eshape)
+    P = len(np.frombuffer(to_b, np.int32))
+    bbox = np.frombuffer(bbox_b, np.int32).reshape(P, 4)
+    disp = np.frombuffer(disp_b, np.int32).reshape(P, 2)
+    to = np.frombuffer(to_b, np.int32)
+    V, A = edges.shape
+    g = np.arange(size)
+    X, Y = np.meshgrid(g, g, indexing="xy")  # (H, W)
+    e = np.maximum(edges, 0)
+    exists = (edges >= 0)[:, :, None, None]
+    bb = bbox[e]  # (V, A, 4)
+    inb = ((X + bb[..., 0, None, None] >= 0) & (X + bb[..., 1, None, None] < size)
+           & (Y + bb[..., 2, None, None] >= 0) & (Y + bb[..., 3, None, None] < size)) & exists
+    ex = np.clip(X + disp[e][..., 0, None, None], 0, size - 1)
+    ey = np.clip(Y + disp[e][..., 1, None, None], 0, size - 1)
+    tv = np.broadcast_to(to[e][..., None, None], ex.shape)
+    viable = np.ones((V, size, size), bool)
+    while True:
+        ok = inb & viable[tv, ey, ex]
+        new = ok.any(axis=1)
+        if np.array_equal(new, viable):
+            return ok
+        viable = new
+
+
+class SearchEnv:
+    """``N`` target-search environments stepped together (arrays, no per-cell loops)."""
+
+    def __init__(self, cfg: EnvConfig, lattice: Lattice):
+        cfg.validate(lattice)
+        self.cfg, self.lat = cfg, lattice
+        S = cfg.map_size
+        r = lattice.config.footprint_radius
+        reach = int(np.abs(lattice.meas_off).max()) if lattice.n_prims else r
+        self.pad = int(max(cfg.obs_radius * max(cfg.obs_scales), reach + 1, r + 1))
+        self.S, self.Hp = S, S + 2 * self.pad
+        self.ok = viability(lattice, S)  # (V, A, S, S)
+        e = cfg.sensor.error_levels(lattice.n_levels)
+        self.err_levels = e
+        self.lam_levels = logodds_step(e)
+        inner = np.zeros((self.Hp, self.Hp), bool)
+        inner[self.pad:self.pad + S, self.pad:self.pad + S] = True
+        self.inner = inner
+        self.boundary = (~inner).astype(np.float32)
+        self.n = 0
+
+    # ----------------------------------------------------------------- set-up
+    def reset(self, worlds: Worlds, start: np.ndarray | None = None) -> dict:
+        """Start one episode per world. ``start``: (N, 2) cells (x, y), else per config."""
+        cfg, S, p = self.cfg, self.S, self.pad
+        N = len(worlds)
+        self.n, self.worlds = N, worlds
+        sl = (slice(None), slice(p, p + S), slice(p, p + S))
+        self.truth = np.zeros((N, self.Hp, self.Hp), bool)
+        self.truth[sl] = worlds.targets
+        self.L = np.full((N, self.Hp, self.Hp), -cfg.sensor.logodds_clip)
+        self.L[sl] = logit(worlds.prior)
+        self.cov = np.zeros((N, self.Hp, self.Hp), bool)
+        self.found = np.zeros((N, self.Hp, self.Hp), bool)
+        # observation planes kept up to date incrementally: belief (0 off the map),
+        # coverage, boundary; float32 (N, 3, Hp, Hp)
+        self.planes = np.zeros((N, 3, self.Hp, self.Hp), np.float32)
+        self.planes[:, 0][sl] = worlds.prior
+        self.planes[:, 2] = self.boundary
+        if start is None:
+            if cfg.start == "center":
+                start = np.full((N, 2), S // 2)
+            else:
+                viable0 = np.argwhere(self.ok[0].any(axis=0))  # (k, 2) as (y, x)
+                h = hashed_uniform(worlds.seeds[:, 0], worlds.seeds[:, 1], 7)
+                pick = viable0[(h * len(viable0)).astype(int)]
+                start = pick[:, ::-1]
+        self.pos = np.asarray(start, np.int64).reshape(N, 2).copy()
+        if not self.ok[0][:, self.pos[:, 1], self.pos[:, 0]].any(axis=0).all():
+            raise UserError("a start cell has no valid primitive on this map")
+        self.vert = np.zeros(N, np.int64)
+        self.last_action = np.full(N, -1, np.int64)
+        self.remaining = np.full(N, float(cfg.budget))
+        self.steps = np.zeros(N, np.int64)
+        self.done = np.zeros(N, bool)
+        self.n_targets = worlds.targets.reshape(N, -1).sum(1)
+        self.H0 = self._entropy()
+        self.H = self.H0.copy()
+        self.n_cov = np.zeros(N, np.int64)
+        self.n_found = np.zeros(N, np.int64)
+        self.trace = [self.pos.copy()]
+        self.trace_prim = []
+        self.trace_budget = [self.remaining.copy()]
+        self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) \
+            + worlds.seeds[:, 1].astype(np.uint64)
+        return self.observe()
+
+    # ---------------------------------------------------------------- queries
+    def belief(self) -> np.ndarray:
+        """(N, S, S) current belief on the inner map."""
+        p, S = self.pad, self.S
+        return sigmoid(self.L[:, p:p + S, p:p + S])
+
+    def _entropy(self) -> np.ndarray:
+        return entropy_bits(self.belief()).reshape(self.n, -1).sum(1)
+
+    def valid_mask(self) -> np.ndarray:
+        """(N, A) bool: valid primitives at each agent's state (all False when done)."""
+        m = self.ok[self.vert, :, self.pos[:, 1], self.pos[:, 0]]
+        m[self.done] = False
+        return m
+
+    def flat_index(self, off: np.ndarray, idx: np.ndarray | None = None) -> np.ndarray:
+        """Flat indices into (N, Hp, Wp) for offsets (n, ..., 2) from the agents' cells."""
+        idx = np.arange(self.n) if idx is None else idx
+        sh = (-1,) + (1,) * (off.ndim - 2)
+        x = self.pos[idx, 0].reshape(sh) + self.pad + off[..., 0]
+        y = self.pos[idx, 1].reshape(sh) + self.pad + off[..., 1]
+        return (idx.reshape(sh) * self.Hp + y) * self.Hp + x
+
+    def metrics(self) -> dict[str, np.ndarray]:
+        """Thesis Table 2.1 metrics on the inner map, per environment, in %."""
+        p, S = self.pad, self.S
+        cov = self.cov[:, p:p + S, p:p + S].reshape(self.n, -1).mean(1)
+        return {
+            "coverage": 100.0 * cov,
+            "entropy_reduction": 100.0 * (1.0 - self.H / self.H0),
+            "search_efficiency": 100.0 * self.n_found / np.maximum(self.n_targets, 1),
+            "kl": self.worlds.kl.copy(),
+            "steps": self.steps.copy(),
+        }
+
+    # ------------------------------------------------------------------- step
+    def step(self, actions: np.ndarray):
+        """Execute one primitive per environment. Returns (obs, reward, terms, done).
+
+        ``actions`` (N,) int action slots; entries of finished environments are ignored.
+        ``terms`` (N, 5) holds the reward terms in the order of :data:`TERMS`.
+        """
+        cfg, lat = self.cfg, self.lat
+        a = np.asarray(actions, np.int64).reshape(self.n)
+        terms = np.zeros((self.n, len(TERMS)))
+        act = ~self.done
+        if not act.any():
+            return self.observe(), terms.sum(1), terms, self.done.copy()
+        if np.any((a[act] < 0) | (a[act] >= lat.n_actions)):
+            raise UserError(f"action outside 0..{lat.n_actions - 1}")
+        valid = self.valid_mask()[np.arange(self.n), np.clip(a, 0, lat.n_actions - 1)] & act
+        prim = lat.edges[self.vert, np.clip(a, 0, lat.n_actions - 1)]
+        inval = act & ~valid
+        # cost (invalid: the primitive's cost, or the dearest one if the slot is empty)
+        cost = np.where(prim >= 0, lat.prim_cost[np.maximum(prim, 0)], lat.prim_cost.max())
+        charged = np.where(act, np.minimum(cost, self.remaining), 0.0)
+        terms[:, 3] = -cfg.r_cost * charged / cfg.budget
+        terms[:, 4] = -cfg.r_invalid * inval
+        idx = np.flatnonzero(valid)
+        if len(idx):
+            pr = prim[idx]
+            lev = lat.meas_level[pr].astype(np.int64)  # (k, M)
+            off = lat.meas_off[pr].astype(np.int64)
+            flat = self.flat_index(off, idx)
+            x = self.pos[idx, 0, None] + off[..., 0]
+            y = self.pos[idx, 1, None] + off[..., 1]
+            use = (lev >= 0) & (x >= 0) & (x < self.S) & (y >= 0) & (y < self.S)
+            levc = np.maximum(lev, 0)
+            slot = np.arange(lev.shape[1])[None, :]
+            u = hashed_uniform(self._seed_key[idx, None], self.steps[idx, None], slot)
+            z = measure(self.truth.ravel()[flat], self.err_levels[levc], u)
+            dl = np.where(z, 1.0, -1.0) * self.lam_levels[levc]
+            f, w = flat[use], dl[use]
+            # Eq. 2.2 summed per touched cell; everything below touches only those cells
+            cells, inv = np.unique(f, return_inverse=True)
+            Lf = self.L.reshape(-1)
+            old = Lf[cells]
+            new = np.clip(old + np.bincount(inv, weights=w, minlength=len(cells)),
+                          -cfg.sensor.logodds_clip, cfg.sensor.logodds_clip)
+            Lf[cells] = new
+            env_of = cells // (self.Hp * self.Hp)
+            dH = entropy_bits(sigmoid(new)) - entropy_bits(sigmoid(old))
+            Hn = self.H + np.bincount(env_of, weights=dH, minlength=self.n)
+            covf = self.cov.reshape(-1)
+            newcov = ~covf[cells]
+            covf[cells] = True
+            ncov = self.n_cov + np.bincount(env_of[newcov], minlength=self.n)
+            pl = self.planes.reshape(-1)
+            pidx = env_of * (3 * self.Hp * self.Hp) + cells % (self.Hp * self.Hp)
+            pl[pidx] = sigmoid(new)
+            pl[pidx + self.Hp * self.Hp] = 1.0
+            foundf = self.found.reshape(-1)
+            hit = (new >= logit(cfg.found_threshold)) & self.truth.reshape(-1)[cells] \
+                & ~foundf[cells]
+            foundf[cells[hit]] = True
+            nf = np.bincount(env_of[hit], minlength=self.n)
+            self.pos[idx] += lat.prim_disp[pr]
+            self.vert[idx] = lat.prim_to[pr]
+        else:
+            Hn, ncov, nf = self.H, self.n_cov, np.zeros(self.n, np.int64)
+        self.last_action[act] = a[act]
+        self.remaining[act] -= cost[act]
+        self.steps[act] += 1
+        # rewards: entropy (Eq. 2.4-2.5), coverage, targets; zero where inactive
+        terms[:, 0] = np.where(act, cfg.r_entropy * (self.H - Hn) / self.H0, 0.0)
+        self.H = Hn
+        terms[:, 1] = cfg.r_coverage * (ncov - self.n_cov) / (self.S * self.S)
+        self.n_cov = ncov
+        self.n_found += nf
+        terms[:, 2] = cfg.r_target * nf
+        # termination: budget spent, or (cannot happen from viable states) no valid move
+        stuck = act & ~self.done & (self.remaining > 0) & ~self.valid_mask().any(1)
+        if stuck.any():  # forfeit the rest of the budget so the cost term still sums to -20
+            terms[stuck, 3] -= cfg.r_cost * self.remaining[stuck] / cfg.budget
+            self.remaining[stuck] = 0.0
+        self.done |= act & (self.remaining <= 1e-9 * cfg.budget)
+        self.trace.append(self.pos.copy())
+        self.trace_prim.append(np.where(valid, prim, -1))
+        self.trace_budget.append(np.maximum(self.remaining, 0.0))
+        return self.observe(), terms.sum(1), terms, self.done.copy()
+
+    # ----------------------------------------------------------- observations
+    def observe(self) -> dict[str, np.ndarray]:
+        """Egocentric multi-scale maps and the vector features (SPEC "Observations").
+
+        ``maps`` (N, 3*len(scales), 2R, 2R) float32: for each scale s the 2Rs x 2Rs
+        window of belief, coverage and boundary around the agent, max-pooled by s.
+        ``vec`` (N, 2 + (A+1) + V + 1): position / map size, one-hot last action
+        (slot A = none yet), one-hot lattice vertex, remaining budget fraction.
+        """
+        cfg, R = self.cfg, self.cfg.obs_radius
+        smax = max(cfg.obs_scales)
+        half = R * smax
+        g = np.arange(-half, half)
+        ys = (self.pos[:, 1] + self.pad)[:, None] + g
+        xs = (self.pos[:, 0] + self.pad)[:, None] + g
+        n = np.arange(self.n)[:, None, None]
+        win = self.planes[n, :, ys[:, :, None], xs[:, None, :]]  # (N, 2h, 2h, 3)
+        outs = []
+        for s in cfg.obs_scales:
+            w = R * s
+            crop = win[:, half - w:half + w, half - w:half + w]
+            k = s
+            while k > 1 and k % 2 == 0:  # max-pool by 2 repeatedly (composes exactly)
+                crop = np.maximum(np.maximum(crop[:, 0::2, 0::2], crop[:, 1::2, 0::2]),
+                                  np.maximum(crop[:, 0::2, 1::2], crop[:, 1::2, 1::2]))
+                k //= 2
+            if k > 1:
+                crop = crop.reshape(self.n, 2 * R, k, 2 * R, k, 3).max(axis=4).max(axis=2)
+            outs.append(crop)
+        maps = np.ascontiguousarray(np.concatenate(outs, 3).transpose(0, 3, 1, 2))
+        A, V = self.lat.n_actions, self.lat.n_vertices
+        vec = np.zeros((self.n, 2 + A + 1 + V + 1), np.float32)
+        vec[:, :2] = self.pos / self.S
+        la = np.where(self.last_action < 0, A, self.last_action)
+        vec[np.arange(self.n), 2 + la] = 1
+        vec[np.arange(self.n), 3 + A + self.vert] = 1
+        vec[:, -1] = np.maximum(self.remaining, 0) / self.cfg.budget
+        return {"maps": maps, "vec": vec, "valid": self.valid_mask()}
+
+
+def make_env(cfg: EnvConfig, lattice: Lattice, seed: int, indices) -> tuple[SearchEnv, dict]:
+    """Convenience: an env reset on worlds ``indices`` of suite ``seed``."""
+    env = SearchEnv(cfg, lattice)
+    obs = env.reset(sample_worlds(cfg.world, seed, indices))
+    return env, obs

@@ -1,0 +1,111 @@
+"""Table 2.1 metrics: summaries, the thesis's numbers, Markdown/CSV tables, the KL plot.
+
+Per environment (computed by :meth:`aerohrl.ipp.env.SearchEnv.metrics` on the inner
+map, in %): coverage = covered cells / cells; entropy reduction = ``1 - H_T / H_0``
+(Eq. 2.4); search efficiency = targets found / targets.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ._io import atomic_path
+
+METRICS = ("coverage", "entropy_reduction", "search_efficiency")
+
+# thesis Table 2.1: (mean, std) of coverage, entropy reduction, search efficiency, %
+THESIS_TABLE = {
+    "greedy": ((40.94, 23.71), (41.76, 24.54), (54.37, 33.18)),
+    "dp": ((57.84, 11.73), (60.23, 12.42), (80.24, 20.84)),
+    "cmaes": ((52.10, 7.03), (55.81, 7.43), (75.52, 15.95)),
+    "coverage": ((62.24, 0.28), (60.48, 1.48), (82.07, 10.53)),
+    "prio_coverage": ((51.99, 10.10), (56.10, 10.56), (82.49, 18.11)),
+    "rl_nolstm": ((57.72, 3.22), (61.26, 3.37), (85.73, 10.02)),
+    "rl": ((60.20, 3.31), (63.75, 2.77), (88.52, 8.71)),
+}
+
+
+def summarise(per_env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
+    return {k: (float(np.mean(per_env[k])), float(np.std(per_env[k]))) for k in METRICS}
+
+
+def markdown_table(results: dict[str, dict], names: dict[str, str]) -> str:
+    """``results[planner] = {"summary": ..., "ms_per_decision": ..., "n": ...}``."""
+    head = ("| planner | coverage % | entropy red. % | search eff. % | thesis cov / ent / eff "
+            "| ms/decision | envs |\n|---|---|---|---|---|---|---|\n")
+    rows = []
+    for p, r in results.items():
+        s = r["summary"]
+        th = THESIS_TABLE.get(p)
+        ths = " / ".join(f"{m:.1f}±{sd:.1f}" for m, sd in th) if th else "—"
+        rows.append(f"| {names.get(p, p)} | " + " | ".join(f"{s[k][0]:.1f} ± {s[k][1]:.1f}" for k in METRICS)
+                    + f" | {ths} | {r['ms_per_decision']:.2f} | {r['n']} |")
+    return head + "\n".join(rows) + "\n"
+
+
+def summary_csv(results: dict[str, dict]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["planner", "n_envs"] + [f"{k}_{s}" for k in METRICS for s in ("mean", "std")]
+               + [f"thesis_{k}_{s}" for k in METRICS for s in ("mean", "std")] + ["ms_per_decision"])
+    for p, r in results.items():
+        th = THESIS_TABLE.get(p)
+        thv = [v for m in th for v in m] if th else [""] * 6
+        w.writerow([p, r["n"]] + [f"{v:.4f}" for k in METRICS for v in r["summary"][k]]
+                   + thv + [f"{r['ms_per_decision']:.4f}"])
+    return buf.getvalue()
+
+
+def per_env_csv(results: dict[str, dict]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["planner", "env", "kl"] + list(METRICS) + ["steps"])
+    for p, r in results.items():
+        e = r["per_env"]
+        for i in range(len(e["kl"])):
+            w.writerow([p, int(r["env_ids"][i]), f"{e['kl'][i]:.5f}"]
+                       + [f"{e[k][i]:.3f}" for k in METRICS] + [int(e["steps"][i])])
+    return buf.getvalue()
+
+
+def write_atomic(path: str | os.PathLike, text: str) -> Path:
+    with atomic_path(path) as tmp:
+        with open(tmp, "w") as f:
+            f.write(text)
+    return Path(path)
+
+
+def plot_kl(results: dict[str, dict], names: dict[str, str], path, bins: int = 5) -> Path:
+    """Fig. 2.4 analogue: search efficiency against KL(truth || prior), binned, per planner."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kl = np.concatenate([r["per_env"]["kl"] for r in results.values()])
+    edges = np.quantile(kl, np.linspace(0, 1, bins + 1)) if len(kl) > bins else \
+        np.linspace(kl.min(), kl.max() + 1e-9, bins + 1)
+    edges[-1] += 1e-9
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for j, (p, r) in enumerate(results.items()):
+        k, eff = r["per_env"]["kl"], r["per_env"]["search_efficiency"]
+        b = np.clip(np.digitize(k, edges) - 1, 0, bins - 1)
+        centre = 0.5 * (edges[:-1] + edges[1:])
+        mu = np.array([eff[b == i].mean() if (b == i).any() else np.nan for i in range(bins)])
+        sd = np.array([eff[b == i].std() if (b == i).any() else np.nan for i in range(bins)])
+        off = (j - len(results) / 2) * 0.01 * (edges[-1] - edges[0])
+        ax.errorbar(centre + off, mu, yerr=sd, marker="o", capsize=3, label=names.get(p, p))
+    ax.set_xlabel("KL(truth || prior) (nats), quantile bins")
+    ax.set_ylabel("search efficiency (%)")
+    ax.legend(fontsize=8)
+    ax.set_title("Robustness to the prior (Fig. 2.4 analogue)")
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,133 @@
+"""Learned planner: recurrent actor-critic over motion primitives (thesis §2.5.3).
+
+Network (thesis Fig. 2.2 in spirit): a small CNN over the egocentric multi-scale maps
+and an MLP over the vector features, a GRU core (``recurrent=False`` gives the
+"no-LSTM" variant: an MLP core), and three heads:
+
+* policy logits over the action slots, ``pi(.|o_t)``;
+* one value per reward term (entropy, coverage, target, cost, invalid), ``V_delta``;
+  the state value is their sum;
+* valid-primitive logits ``phi(o_t)`` trained with the asymmetric binary cross entropy
+  of Eq. 2.7 against the environment's valid mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from aerohrl.errors import UserError
+
+from .baselines import Planner
+from .env import TERMS
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    hidden: int = 128
+    recurrent: bool = True
+    mask_invalid: bool = True   # sample only valid primitives (see train.py)
+
+
+class ActorCritic(nn.Module):
+    def __init__(self, map_ch: int, map_hw: int, vec_dim: int, n_actions: int,
+                 cfg: PolicyConfig = PolicyConfig()):
+        super().__init__()
+        self.cfg = cfg
+        h = cfg.hidden
+        self.conv = nn.Sequential(
+            nn.Conv2d(map_ch, 32, 3, padding=1), nn.ReLU(),
+            nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten())
+        conv_out = 64 * ((map_hw + 1) // 2) ** 2
+        self.vec = nn.Sequential(nn.Linear(vec_dim, 64), nn.ReLU())
+        self.fuse = nn.Sequential(nn.Linear(conv_out + 64, 2 * h), nn.ReLU(),
+                                  nn.Linear(2 * h, h), nn.ReLU())
+        self.core = nn.GRU(h, h, batch_first=False) if cfg.recurrent else \
+            nn.Sequential(nn.Linear(h, h), nn.ReLU())
+        self.pi = nn.Linear(h, n_actions)
+        self.v = nn.Linear(h, len(TERMS))
+        self.valid = nn.Linear(h, n_actions)
+        nn.init.orthogonal_(self.pi.weight, 0.01)
+        nn.init.zeros_(self.pi.bias)
+
+    def initial_state(self, n: int) -> torch.Tensor:
+        return torch.zeros(1, n, self.cfg.hidden)
+
+    def forward(self, maps, vec, h):
+        """maps (T, N, C, H, W), vec (T, N, D), h (1, N, hidden) -> heads over (T, N)."""
+        T, N = maps.shape[:2]
+        x = torch.cat([self.conv(maps.reshape(T * N, *maps.shape[2:])),
+                       self.vec(vec.reshape(T * N, -1))], -1)
+        x = self.fuse(x).reshape(T, N, -1)
+        if self.cfg.recurrent:
+            x, h = self.core(x, h)
+        else:
+            x = self.core(x)
+        return self.pi(x), self.v(x), self.valid(x), h
+
+
+def valid_loss(phi_logits, valid, beta1: float = 1.0, beta2: float = 0.2):
+    """Eq. 2.7: ``-[beta1 (1-y) log(1-phi) + beta2 y log phi]`` (invalid weighted heavily)."""
+    y = valid.float()
+    ls = nn.functional.logsigmoid
+    return -(beta1 * (1 - y) * ls(-phi_logits) + beta2 * y * ls(phi_logits)).mean()
+
+
+def save_policy(model: ActorCritic, dims: dict, path) -> None:
+    from ._io import atomic_path
+    with atomic_path(path, ".pt") as tmp:
+        torch.save({"state_dict": model.state_dict(), "dims": dims,
+                    "config": asdict(model.cfg)}, tmp)
+
+
+def load_policy(path) -> ActorCritic:
+    path = Path(path)
+    if path.is_dir():
+        path = path / "model.pt"
+    if not path.is_file():
+        raise UserError(f"no trained policy at {path} (run 'aerohrl ipp train' first)")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+        model = ActorCritic(**ck["dims"], cfg=PolicyConfig(**ck["config"]))
+        model.load_state_dict(ck["state_dict"])
+    except Exception as e:
+        raise UserError(f"{path}: not a policy checkpoint ({type(e).__name__})") from None
+    model.eval()
+    return model
+
+
+class RLPlanner(Planner):
+    """Acts with a trained :class:`ActorCritic` (argmax over valid primitives)."""
+
+    name = "rl"
+
+    def __init__(self, env, model: ActorCritic, greedy: bool = True):
+        super().__init__(env)
+        self.model, self.greedy = model, greedy
+        self.h = None
+
+    def reset(self) -> None:
+        self.h = None
+
+    @torch.no_grad()
+    def act(self) -> np.ndarray:
+        env = self.env
+        if self.h is None or self.h.shape[1] != env.n:
+            self.h = self.model.initial_state(env.n)
+        obs = env.observe()
+        logits, _, _, h = self.model(torch.from_numpy(obs["maps"])[None],
+                                     torch.from_numpy(obs["vec"])[None], self.h)
+        live = torch.from_numpy(~env.done)
+        self.h = torch.where(live[None, :, None], h, self.h)
+        logits = logits[0]
+        valid = torch.from_numpy(obs["valid"])
+        logits = logits.masked_fill(~valid, -1e9)
+        if self.greedy:
+            a = logits.argmax(-1)
+        else:
+            a = torch.distributions.Categorical(logits=logits).sample()
+        return a.numpy().astype(np.int64)

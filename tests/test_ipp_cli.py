@@ -1,0 +1,74 @@
+"""`aerohrl ipp` command line: outputs and one-line errors."""
+
+import numpy as np
+import pytest
+
+from aerohrl.ipp.cli import main
+
+
+def test_lattice_build(tmp_path, capsys):
+    out = tmp_path / "lat.npz"
+    assert main(["lattice", "build", "-o", str(out), "--vertices", "5", "--reach", "5",
+                 "--max-edges", "8"]) == 0
+    assert out.is_file() and out.with_suffix(".png").is_file()
+    assert "5 vertices" in capsys.readouterr().out
+    assert not list(tmp_path.glob(".*"))  # no temp files left
+
+
+def test_bench_and_show(tmp_path, capsys):
+    d = tmp_path / "b"
+    assert main(["bench", "--planner", "greedy", "--envs", "3", "--budget", "1500",
+                 "--out-dir", str(d), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "Greedy-IPP" in out and "54.4" in out  # thesis column beside ours
+    for f in ("ipp_bench.md", "ipp_bench.csv", "ipp_bench_envs.csv", "ipp_kl.png"):
+        assert (d / f).is_file()
+    rows = (d / "ipp_bench_envs.csv").read_text().strip().splitlines()
+    assert len(rows) == 1 + 3
+    png = tmp_path / "path.png"
+    assert main(["show", "--env", "7", "--planner", "coverage", "--budget", "1500",
+                 "-o", str(png)]) == 0
+    assert png.is_file() and png.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("argv,msg", [
+    (["bench", "--planner", "astar"], "unknown planner"),
+    (["show", "--planner", "astar", "-o", "x.png"], "unknown planner"),
+    (["bench", "--budget", "10"], "budget"),
+    (["bench", "--budget", "nan"], "budget"),
+    (["bench", "--map-size", "4"], "too small"),
+    (["bench", "--map-size", "0"], "map size"),
+    (["bench", "--envs", "0"], "--envs"),
+    (["bench", "--depth", "7", "--envs", "1"], "depth"),
+    (["bench", "--lattice", "MISSING.npz"], "not found"),
+    (["frobnicate"], "invalid choice"),
+    (["bench", "--planner", "rl", "--envs", "1"], "needs --run"),
+    (["bench", "--planner", "rl", "--run", "nowhere"], "no trained policy"),
+    (["train", "--preset", "gpu-cluster"], "unknown preset"),
+    (["train", "--preset", "test", "--iterations", "0"], "--iterations"),
+    (["lattice", "build"], "required"),
+    (["lattice", "build", "-o", "x.npz", "--vertices", "0"], "n_vertices"),
+])
+def test_bad_input_one_line_error(argv, msg, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("aerohrl ipp: error:") and msg in err
+    assert "\n" not in err
+
+
+def test_malformed_lattice_file(tmp_path, capsys):
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, x=np.zeros(3))
+    assert main(["bench", "--lattice", str(bad), "--envs", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "not a lattice file" in err or "meta" in err
+
+
+def test_train_then_bench_rl(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert main(["train", "--preset", "test", "--run-dir", str(run), "--no-progress"]) == 0
+    assert (run / "model.pt").is_file() and (run / "config.json").is_file()
+    assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
+                 "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 0
+    assert "Ours-LSTM" in capsys.readouterr().out

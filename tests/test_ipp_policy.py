@@ -1,0 +1,61 @@
+"""Learned planner: losses (Eq. 2.7), GAE per reward term, a tiny training run."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from aerohrl.errors import UserError
+from aerohrl.ipp.env import TERMS, EnvConfig, make_env
+from aerohrl.ipp.lattice import default_lattice
+from aerohrl.ipp.policy import RLPlanner, load_policy, valid_loss
+from aerohrl.ipp.train import _gae, preset, train
+
+
+def test_valid_loss_is_eq_2_7():
+    phi = torch.tensor([[2.0, -1.0, 0.5]])
+    y = torch.tensor([[True, False, True]])
+    s = torch.sigmoid(phi)
+    b1, b2 = 1.0, 0.2
+    hand = -(b1 * (1 - y.float()) * torch.log(1 - s) + b2 * y.float() * torch.log(s)).mean()
+    assert valid_loss(phi, y, b1, b2).item() == pytest.approx(hand.item(), rel=1e-6)
+
+
+def test_gae_reward_to_go_per_term():
+    T, N = 4, 2
+    rew = torch.arange(T * N * len(TERMS), dtype=torch.float).reshape(T, N, len(TERMS))
+    alive = torch.ones(T, N)
+    alive[3, 1] = 0  # env 1 finished after 3 steps
+    adv, ret = _gae(rew, torch.zeros_like(rew), alive, 1.0, 1.0)
+    np.testing.assert_allclose(ret[0, 0].numpy(), rew[:, 0].sum(0).numpy())
+    np.testing.assert_allclose(ret[0, 1].numpy(), rew[:3, 1].sum(0).numpy())
+    assert torch.all(adv[3, 1] == 0)
+
+
+def test_tiny_training_run_and_planner(tmp_path):
+    lat = default_lattice()
+    cfg = preset("test")
+    last = train(cfg, lat, tmp_path / "run")
+    lines = (tmp_path / "run" / "metrics.jsonl").read_text().strip().splitlines()
+    assert len(lines) == cfg.iterations and json.loads(lines[-1])["iteration"] == cfg.iterations
+    assert np.isfinite(last["return"])
+    model = load_policy(tmp_path / "run")
+    env, _ = make_env(EnvConfig(budget=1500.0), lat, 1000, range(3))
+    pl = RLPlanner(env, model)
+    while not env.done.all():
+        a = pl.act()
+        live = ~env.done
+        assert env.valid_mask()[live, a[live]].all()
+        env.step(a)
+    assert np.all(env.metrics()["coverage"] > 0)
+
+
+def test_bad_policy_and_preset(tmp_path):
+    with pytest.raises(UserError):
+        load_policy(tmp_path)
+    (tmp_path / "model.pt").write_bytes(b"junk")
+    with pytest.raises(UserError):
+        load_policy(tmp_path)
+    with pytest.raises(UserError):
+        preset("gpu-cluster")
