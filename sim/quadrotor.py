@@ -14,7 +14,10 @@ once per control step (Gram-Schmidt on its rows, see dynamics.orthonormalize_row
 from __future__ import annotations
 
 import os
+import weakref
 from concurrent.futures import ThreadPoolExecutor
+from multiprocessing import get_context
+from multiprocessing.shared_memory import SharedMemory
 
 import numpy as np
 
@@ -68,6 +71,91 @@ class _Chunk:
         np.clip(X[dyn.OMEGA], self.model.omega_min, self.model.omega_max, out=X[dyn.OMEGA])
 
 
+# --------------------------------------------------------------------------- processes
+# Why processes and not only threads: a control step is ~1,300 short NumPy calls; two
+# threads hand the GIL back and forth between them and at 2,048 vehicles per thread run
+# 2x *slower* than one. A worker process has its own interpreter, so the split scales.
+# The arrays live in shared memory (no copies); one byte each way per step syncs them.
+
+_STEP = {b"c": "step_ctbr", b"s": "step_speeds"}
+
+
+def _shared_arrays(buf, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Views ``X0, X1, u, cmd`` over a shared block of ``(2 NX + 8) n`` float64."""
+    a = np.ndarray((2 * dyn.NX + 8, n), dtype=np.float64, buffer=buf)
+    return a[: dyn.NX], a[dyn.NX: 2 * dyn.NX], a[2 * dyn.NX: 2 * dyn.NX + 4], a[2 * dyn.NX + 4:]
+
+
+def _worker(conn, shm_name: str, model: dyn.Model, n: int, h: float, substeps: int) -> None:
+    """Worker process: step one chunk whose arrays live in shared memory, on command."""
+    shm = SharedMemory(name=shm_name)
+    try:
+        chunk = _Chunk(model, n, h, substeps)
+        X0, X1, chunk.u, chunk.cmd = _shared_arrays(shm.buf, n)
+        while True:
+            msg = conn.recv_bytes()
+            if msg == b"q":
+                break
+            chunk.X, chunk.spare = (X0, X1) if msg[1:] == b"0" else (X1, X0)
+            getattr(chunk, _STEP[msg[:1]])()
+            conn.send_bytes(b"0" if chunk.X is X0 else b"1")
+        del X0, X1, chunk
+    except (EOFError, KeyboardInterrupt):
+        pass
+    finally:
+        shm.close()
+
+
+def _shutdown(proc, conn, shm) -> None:
+    try:
+        conn.send_bytes(b"q")
+    except (OSError, ValueError):
+        pass
+    proc.join(timeout=2)
+    if proc.is_alive():
+        proc.terminate()
+    conn.close()
+    shm.close()
+    shm.unlink()
+
+
+class _ProcChunk:
+    """A block of vehicles stepped by a worker process (same attributes as :class:`_Chunk`
+    for the parent: ``X``, ``u``, ``cmd``, ``scratch``), its arrays in shared memory."""
+
+    def __init__(self, model: dyn.Model, n: int, h: float, substeps: int):
+        self.model, self.n = model, n
+        self.scratch = dyn.Scratch(n)
+        self._shm = SharedMemory(create=True, size=(2 * dyn.NX + 8) * n * 8)
+        self._X0, self._X1, self.u, self.cmd = _shared_arrays(self._shm.buf, n)
+        self._X0[:] = 0.0
+        self.u[:] = 0.0
+        self.cmd[:] = 0.0
+        self.X = self._X0
+        # forkserver, not fork: the parent may hold torch/OpenMP threads, which fork copies badly
+        ctx = get_context("forkserver")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_worker, args=(child, self._shm.name, model, n, h, substeps),
+                                 daemon=True, name="aerohrl-sim")
+        self._proc.start()
+        child.close()
+        self._finalizer = weakref.finalize(self, _shutdown, self._proc, self._conn, self._shm)
+
+    def start(self, method: str) -> None:
+        code = b"c" if method == "step_ctbr" else b"s"
+        self._conn.send_bytes(code + (b"0" if self.X is self._X0 else b"1"))
+
+    def wait(self) -> None:
+        try:
+            reply = self._conn.recv_bytes()
+        except EOFError:
+            raise RuntimeError("a simulator worker process died") from None
+        self.X = self._X0 if reply == b"0" else self._X1
+
+    def close(self) -> None:
+        self._finalizer()
+
+
 class BatchedQuadrotor:
     """``num_vehicles`` independent quadrotors with the same parameters.
 
@@ -76,10 +164,16 @@ class BatchedQuadrotor:
     on the split (bit for bit). Default 1: on the shared 2-core machine the split was
     measured 2.5x *slower* at 4096 vehicles (GIL hand-offs between ~600 short NumPy calls
     per step and competing processes); try ``threads=2`` on an idle multi-core machine.
+
+    ``processes``: the batch is split into this many blocks, the first stepped in this
+    process and the others in worker processes over shared memory (no GIL between
+    them; bit for bit the same result). Worth it from a few thousand vehicles per block
+    (``bench/bench_sim.py --processes 2``); workers start in ~0.1-0.5 s and stop with
+    :meth:`close` (or when the simulator is garbage collected / the program exits).
     """
 
     def __init__(self, params: QuadrotorParams, num_vehicles: int, *, dt: float = 0.01, substeps: int = 5,
-                 threads: int = 1):
+                 threads: int = 1, processes: int = 1):
         if int(num_vehicles) < 1:
             raise ValueError(f"num_vehicles must be >= 1, got {num_vehicles}")
         if not dt > 0 or int(substeps) < 1:
@@ -91,10 +185,17 @@ class BatchedQuadrotor:
         self.h = self.dt / self.substeps
         self.model = dyn.Model.from_params(params)
         threads = max(1, min(int(threads), n))
-        bounds = np.linspace(0, n, threads + 1).round().astype(int)
+        processes = max(1, min(int(processes), n))
+        if threads > 1 and processes > 1:
+            raise ValueError("choose threads or processes, not both")
+        parts = max(threads, processes)
+        bounds = np.linspace(0, n, parts + 1).round().astype(int)
         self._slices = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
-        self._chunks = [_Chunk(self.model, sl.stop - sl.start, self.h, self.substeps) for sl in self._slices]
+        self._chunks = [(_ProcChunk if i > 0 and processes > 1 else _Chunk)(self.model, sl.stop - sl.start, self.h,
+                                                                           self.substeps)
+                        for i, sl in enumerate(self._slices)]
         self.threads = threads
+        self.processes = processes
         self.t = 0.0
         self.reset()
 
@@ -164,6 +265,12 @@ class BatchedQuadrotor:
     def _run(self, method: str):
         if len(self._chunks) == 1:
             getattr(self._chunks[0], method)()
+        elif self.processes > 1:
+            for c in self._chunks[1:]:
+                c.start(method)
+            getattr(self._chunks[0], method)()
+            for c in self._chunks[1:]:
+                c.wait()
         else:
             futs = [_pool().submit(getattr(c, method)) for c in self._chunks[1:]]
             getattr(self._chunks[0], method)()
@@ -194,6 +301,18 @@ class BatchedQuadrotor:
         self._run("step_speeds")
         return self.state
 
+    def close(self) -> None:
+        """Stop the worker processes (if any) and free their shared memory; idempotent."""
+        for c in self._chunks:
+            if isinstance(c, _ProcChunk):
+                c.close()
+
+    def __enter__(self) -> "BatchedQuadrotor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     def __repr__(self) -> str:
         return (f"BatchedQuadrotor({self.params.name!r}, num_vehicles={self.num_vehicles}, dt={self.dt}, "
-                f"substeps={self.substeps}, threads={self.threads})")
+                f"substeps={self.substeps}, threads={self.threads}, processes={self.processes})")

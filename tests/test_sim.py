@@ -249,3 +249,29 @@ def test_rotation_helpers():
     Rn = rot.orthonormalize(R + 1e-6 * rng.normal(size=R.shape), iterations=2)
     np.testing.assert_allclose(Rn @ np.swapaxes(Rn, 1, 2), np.broadcast_to(np.eye(3), (4, 3, 3)), atol=1e-13)
     assert rot.geodesic_angle(R, R) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_process_split_matches_one_process():
+    """Splitting the batch over worker processes (shared memory) gives the same states,
+    through reset with given states, CTBR steps and rotor-speed steps; close() stops the
+    workers and frees their memory."""
+    rng = np.random.default_rng(3)
+    n = 97
+    a = np.column_stack([rng.uniform(5, 15, n), rng.uniform(-3, 3, (n, 3))])
+    ref = BatchedQuadrotor(HB, n)
+    start = ref.step(a)
+    x1 = ref.reset(start)
+    with BatchedQuadrotor(HB, n, processes=3) as par:
+        workers = [c._proc for c in par._chunks[1:]]
+        assert len(workers) == 2 and all(p.is_alive() for p in workers)
+        np.testing.assert_array_equal(par.reset(start), x1)
+        for k in range(7):  # odd and even step counts: the shared double buffer alternates
+            np.testing.assert_array_equal(par.step(a), ref.step(a))
+        om = np.full((n, 4), HB.hover_rotor_speed * 1.05)
+        np.testing.assert_array_equal(par.step_rotor_speeds(om), ref.step_rotor_speeds(om))
+        np.testing.assert_array_equal(par.rotor_speeds, ref.rotor_speeds)
+    for p in workers:
+        p.join(timeout=5)
+        assert not p.is_alive()
+    with pytest.raises(ValueError, match="threads or processes"):
+        BatchedQuadrotor(HB, n, threads=2, processes=2)
