@@ -1,4 +1,4 @@
-"""The umbrella command: ``aerohrl datagen|train|runs|ipp ...``.
+"""The umbrella command: ``aerohrl datagen|train|runs|ipp|eval ...``.
 
 Each stage also has its own entry point (``datagen``); the umbrella forwards the rest
 of the command line to it. (``eval`` alone is a shell builtin, which is why the
@@ -16,6 +16,7 @@ commands:
   train     offline goal-conditioned RL on a dataset (gcsl, td3bc, td3awbc, cql)
   runs      inspect training runs (runs show RUN)
   ipp       informative path planning on motion primitives (lattice, bench, ...)
+  eval      evaluate runs in the simulator (reach-desired, reach-intermediate, ood + planner; table, plot)
 
 `aerohrl COMMAND --help` for each command's options."""
 
@@ -44,7 +45,13 @@ def _ipp(argv):
     return main(argv)
 
 
-COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp}
+def _eval(argv):
+    from aerohrl.eval.cli import main
+
+    return main(argv)
+
+
+COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp, "eval": _eval}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -183,7 +183,8 @@ class GoalBatchSampler:
     plus ``state``/``goal``/``next_state`` in physical units and the ``relabelled`` mask.
     No Python loop over the batch; every random draw comes from ``generator``."""
 
-    def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu"):
+    def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu",
+                 future: dict | None = None):
         from aerohrl.algorithms.relabel import relabel_goals, reward_done
 
         self._relabel, self._reward_done = relabel_goals, reward_done
@@ -194,6 +195,7 @@ class GoalBatchSampler:
         self.achieved_goals = data.achieved_goal
         self.normalizer = normalizer
         self.delta = float(delta)
+        self.future = dict(future or {})  # sample_future_index's strategy/window/mean
         self.generator = generator
         self.batch_size = batch_size
 
@@ -202,7 +204,7 @@ class GoalBatchSampler:
         index = b.get("index")
         state, next_state = b.get("state"), b.get("next_state")
         goal, relabelled = self._relabel(
-            b.get("goal"), index, b.get("episode_end"), self.achieved_goals, self.delta, self.generator
+            b.get("goal"), index, b.get("episode_end"), self.achieved_goals, self.delta, self.generator, **self.future
         )
         reward, done = self._reward_done(next_state, goal)
         if self.device.type != "cpu":
@@ -234,15 +236,16 @@ class GoalBatchSampler:
         )
 
 
-def fit_normalizer(data: Dataset, delta: float, seed: int = 0):
+def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None):
     """Input statistics over every frame with its desired goal and with a relabelled
-    (strictly later achieved) goal, action bounds over every frame."""
+    (strictly later achieved, drawn as in training: ``future``) goal, action bounds over
+    every frame."""
     from aerohrl.algorithms.networks import Normalizer
     from aerohrl.algorithms.relabel import relabel_goals
 
     g = torch.Generator().manual_seed(seed)
     idx = torch.arange(len(data))
-    later, _ = relabel_goals(data.goal, idx, data.episode_end, data.achieved_goal, 1.0, g)
+    later, _ = relabel_goals(data.goal, idx, data.episode_end, data.achieved_goal, 1.0, g, **(future or {}))
     norm = Normalizer()
     o1, r1 = _task_inputs(data.state, data.goal)
     o2, r2 = _task_inputs(data.state, later)

@@ -17,17 +17,42 @@ per-transition version, which is three tensor ops here.
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from aerohrl import task
 
 
-def sample_future_index(index: torch.Tensor, episode_end: torch.Tensor, generator=None) -> torch.Tensor:
-    """A uniformly drawn strictly later step ``k in (j, end]`` for each ``j``;
-    ``k = j`` where ``j`` is the last step of its episode."""
+FUTURE_STRATEGIES = ("uniform", "geometric")
+
+
+def sample_future_index(index: torch.Tensor, episode_end: torch.Tensor, generator=None, *,
+                        strategy: str = "uniform", window: int = 0, mean: float = 30.0) -> torch.Tensor:
+    """A strictly later step ``k in (j, end]`` of the same episode for each ``j``
+    (``k = j`` where ``j`` is the last step of its episode). The offset ``k - j >= 1`` is
+
+    * ``uniform``: uniform over ``1 .. span`` with ``span = end - j``, or over
+      ``1 .. min(window, span)`` when ``window > 0``;
+    * ``geometric``: ``Geometric(1 / mean)`` on ``1, 2, ...`` (mean ``mean``; OGBench's
+      ``geom_sample`` with ``p = 1 - gamma``), capped at ``window`` when ``window > 0``
+      and at the episode's last step (the cap puts the overflow on that step).
+    """
     span = (episode_end - index).clamp_min(0)
+    if window > 0:
+        span = span.clamp_max(int(window))
     u = torch.rand(index.shape, generator=generator, device=index.device)
-    offset = 1 + (u * span).long().clamp_max(span - 1)
+    if strategy == "uniform":
+        offset = 1 + (u * span).long()
+    elif strategy == "geometric":
+        p = 1.0 / max(float(mean), 1.0)
+        if p >= 1.0:
+            offset = torch.ones_like(index)
+        else:  # inverse CDF: P(offset > n) = (1 - p)^n
+            offset = 1 + torch.floor(torch.log1p(-u) / math.log1p(-p)).clamp(0, 2**40).long()
+    else:
+        raise ValueError(f"unknown future strategy {strategy!r}")
+    offset = torch.minimum(offset, span.clamp_min(1))
     return torch.where(span > 0, index + offset, index)
 
 
@@ -38,15 +63,17 @@ def relabel_goals(
     achieved_goals: torch.Tensor,
     delta: float,
     generator=None,
+    **future,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(new goals (B, 15), relabelled mask (B,)).
 
     ``index`` are the transitions' global dataset indices, ``episode_end`` the global
     index of their episode's last step, ``achieved_goals`` the (F, 15) achieved goal of
-    every step of the dataset.
+    every step of the dataset; ``future`` = ``strategy``/``window``/``mean`` of
+    :func:`sample_future_index`.
     """
     coin = torch.rand(index.shape, generator=generator, device=index.device) < delta
-    k = sample_future_index(index, episode_end, generator)
+    k = sample_future_index(index, episode_end, generator, **future)
     mask = coin & (k > index)
     new = torch.where(mask.unsqueeze(-1), achieved_goals[k], goal)
     return new, mask
@@ -58,4 +85,4 @@ def reward_done(next_state: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Ten
     return reached.to(next_state.dtype), reached
 
 
-__all__ = ["sample_future_index", "relabel_goals", "reward_done"]
+__all__ = ["FUTURE_STRATEGIES", "sample_future_index", "relabel_goals", "reward_done"]

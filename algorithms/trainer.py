@@ -201,10 +201,12 @@ class MetricsLog:
         self.tb = None
         try:
             from torch.utils.tensorboard import SummaryWriter
-
-            self.tb = SummaryWriter(str(run_dir / "tb"))
         except Exception:  # tensorboard is optional
-            self.tb = None
+            SummaryWriter = None
+        if SummaryWriter is not None:
+            # on resume, TensorBoard drops the events logged after the checkpoint (purge_step)
+            purge = None if keep_until_step is None else keep_until_step + 1
+            self.tb = SummaryWriter(str(run_dir / "tb"), purge_step=purge)
 
     def write(self, record: dict) -> None:
         self._f.write(json.dumps(record) + "\n")
@@ -244,7 +246,8 @@ class Trainer:
             self._resume(ckpts[-1])
         else:
             self._fresh()
-        self.sampler = GoalBatchSampler(data, self.algo.normalizer, cfg.batch_size, cfg.relabel_prob, self.generator, device=self.device)
+        self.sampler = GoalBatchSampler(data, self.algo.normalizer, cfg.batch_size, cfg.relabel_prob, self.generator, device=self.device,
+                                        future=C.relabel_future(cfg))
         if ckpts:
             set_rng_state(self._pending_rng, self.generator)
 
@@ -252,7 +255,7 @@ class Trainer:
     def _fresh(self):
         cfg = self.cfg
         self.generator = seed_everything(cfg.seed)
-        norm = fit_normalizer(self.data, cfg.relabel_prob, seed=cfg.seed)
+        norm = fit_normalizer(self.data, cfg.relabel_prob, seed=cfg.seed, future=C.relabel_future(cfg))
         self.algo = build_algorithm(cfg, norm).to(self.device)
         self.dataset = dataset_identity(self.data)
         atomic_write_json(self.run_dir / "config.json", {"config": C.to_dict(cfg), "dataset": self.dataset,

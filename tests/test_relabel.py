@@ -1,16 +1,29 @@
 """Hindsight relabelling (thesis Alg. 2 line 4) on a hand-made dataset."""
 
+import pytest
 import torch
 
 from aerohrl import task
 from aerohrl.algorithms.data import GoalBatchSampler, fit_normalizer, load_dataset
-from aerohrl.algorithms.relabel import relabel_goals, reward_done, sample_future_index
+from aerohrl.algorithms.relabel import FUTURE_STRATEGIES, relabel_goals, reward_done, sample_future_index
 
 from aerohrl.algorithms.synthetic import straight_columns
 
 
 def _data():
     return load_dataset(straight_columns(n_eps=5, length=[7, 12, 1, 20, 9], seed=1))
+
+
+# every offset distribution of the relabelled goal (config: relabel_offset/_window/_mean_offset)
+FUTURES = [
+    {},
+    {"strategy": "uniform", "window": 5},
+    {"strategy": "geometric", "mean": 4.0},
+    {"strategy": "geometric", "mean": 3.0, "window": 6},
+    {"strategy": "geometric", "mean": 1.0},
+]
+FUTURE_IDS = ["uniform-rest", "uniform-w5", "geom-4", "geom-3-w6", "geom-1"]
+SOME = [0, 1, 3]  # the default, a uniform window and a capped geometric offset (for the slower tests)
 
 
 def test_episode_end_index():
@@ -21,49 +34,93 @@ def test_episode_end_index():
         assert ep[e] == ep[i] and (e == len(d) - 1 or ep[e + 1] != ep[i])
 
 
-def test_future_index_strictly_later_same_episode():
+@pytest.mark.parametrize("future", FUTURES, ids=FUTURE_IDS)
+def test_future_index_strictly_later_same_episode(future):
     d = _data()
     g = torch.Generator().manual_seed(0)
     idx = torch.arange(len(d)).repeat(200)
-    k = sample_future_index(idx, d.episode_end[idx], g)
+    k = sample_future_index(idx, d.episode_end[idx], g, **future)
     last = idx == d.episode_end[idx]
     assert (k[~last] > idx[~last]).all()
     assert (k[last] == idx[last]).all()
     assert (d.episode_index[k] == d.episode_index[idx]).all()
-    # every later step of an episode is reachable (uniform support)
+    if future.get("window"):
+        assert (k - idx).max() <= future["window"]
     j = 20  # first frame of episode 3 (7+12+1): 20 frames, later steps 21..39
-    assert set(k[idx == j].tolist()) == set(range(21, 40))
+    if not future:  # every later step of an episode is reachable (uniform support)
+        assert set(k[idx == j].tolist()) == set(range(21, 40))
+    elif future == {"strategy": "uniform", "window": 5}:
+        assert set(k[idx == j].tolist()) == set(range(21, 26))
+    elif future["strategy"] == "geometric" and future["mean"] == 1.0:
+        assert (k[~last] == idx[~last] + 1).all()  # mean 1: always the next step
 
 
-def test_every_relabelled_goal_is_a_later_achieved_goal():
+def test_offset_distributions_match_their_parameters():
+    d = load_dataset(straight_columns(n_eps=2, length=3000, seed=4))
+    g = torch.Generator().manual_seed(7)
+    idx = torch.randint(0, 1000, (200_000,), generator=g)  # >= 2000 steps before the end: no episode cap
+    end = d.episode_end[idx]
+    off = lambda **kw: (sample_future_index(idx, end, g, **kw) - idx).double()  # noqa: E731
+    for mean in (5.0, 30.0, 80.0):  # geometric on 1, 2, ...: mean `mean`, P(offset = 1) = 1 / mean
+        o = off(strategy="geometric", mean=mean)
+        assert abs(o.mean().item() / mean - 1) < 0.02, (mean, o.mean())
+        assert abs((o == 1).double().mean().item() - 1 / mean) < 0.01
+    o = off(strategy="uniform", window=60)  # uniform on 1..60
+    assert o.min() == 1 and o.max() == 60 and abs(o.mean().item() - 30.5) < 0.3
+    counts = torch.bincount(o.long(), minlength=61)[1:].double()
+    assert (counts / counts.mean() - 1).abs().max() < 0.1
+    o = off(strategy="geometric", mean=30.0, window=45)  # capped: the overflow lands on 45
+    assert o.max() == 45 and abs((o == 45).double().mean().item() - (1 - 1 / 30) ** 44) < 0.01
+    # near the end of an episode the offset stops at its last step (strictly later, same episode)
+    j = torch.full((10_000,), 2995)
+    k = sample_future_index(j, d.episode_end[j], g, strategy="geometric", mean=30.0)
+    assert k.min() >= 2996 and k.max() == 2999
+
+
+def test_uniform_default_is_the_original_draw():
+    """The default (uniform over the rest of the episode) keeps the draw it always had."""
+    d = _data()
+    idx = torch.arange(len(d)).repeat(50)
+    span = (d.episode_end[idx] - idx).clamp_min(0)
+    u = torch.rand(idx.shape, generator=torch.Generator().manual_seed(9))
+    expect = torch.where(span > 0, idx + 1 + (u * span).long().clamp_max(span - 1), idx)
+    assert torch.equal(sample_future_index(idx, d.episode_end[idx], torch.Generator().manual_seed(9)), expect)
+    assert set(FUTURE_STRATEGIES) == {"uniform", "geometric"}
+
+
+@pytest.mark.parametrize("future", FUTURES, ids=FUTURE_IDS)
+def test_every_relabelled_goal_is_a_later_achieved_goal(future):
     d = _data()
     g = torch.Generator().manual_seed(3)
     idx = torch.randint(0, len(d), (5000,), generator=g)
-    new, mask = relabel_goals(d.goal[idx], idx, d.episode_end[idx], d.achieved_goal, 0.6, g)
+    new, mask = relabel_goals(d.goal[idx], idx, d.episode_end[idx], d.achieved_goal, 0.6, g, **future)
     ag = d.achieved_goal
+    w = future.get("window") or len(d)
     for i, gl in zip(idx[mask].tolist(), new[mask]):
-        later = torch.arange(i + 1, int(d.episode_end[i]) + 1)
+        later = torch.arange(i + 1, min(int(d.episode_end[i]), i + w) + 1)
         assert later.numel() > 0
         assert (ag[later] == gl).all(-1).any(), "relabelled goal is not a later achieved goal of the episode"
     assert torch.equal(new[~mask], d.goal[idx][~mask])
 
 
-def test_relabel_rate_matches_delta():
+@pytest.mark.parametrize("future", [FUTURES[i] for i in SOME], ids=[FUTURE_IDS[i] for i in SOME])
+def test_relabel_rate_matches_delta(future):
     d = _data()
     g = torch.Generator().manual_seed(5)
     idx = torch.randint(0, len(d), (200_000,), generator=g)
     eligible = idx < d.episode_end[idx]
     for delta in (0.0, 0.3, 0.8, 1.0):
-        _, mask = relabel_goals(d.goal[idx], idx, d.episode_end[idx], d.achieved_goal, delta, g)
+        _, mask = relabel_goals(d.goal[idx], idx, d.episode_end[idx], d.achieved_goal, delta, g, **future)
         rate = mask[eligible].float().mean().item()
         assert abs(rate - delta) < 0.005, (delta, rate)
         assert not mask[~eligible].any()
 
 
-def test_reward_and_done_recomputed_for_the_new_goal():
+@pytest.mark.parametrize("future", [FUTURES[i] for i in SOME], ids=[FUTURE_IDS[i] for i in SOME])
+def test_reward_and_done_recomputed_for_the_new_goal(future):
     d = load_dataset(straight_columns(n_eps=3, length=40, seed=2))
-    norm = fit_normalizer(d, 0.5)
-    s = GoalBatchSampler(d, norm, batch_size=4096, delta=0.7, generator=torch.Generator().manual_seed(0))
+    norm = fit_normalizer(d, 0.5, future=future)
+    s = GoalBatchSampler(d, norm, batch_size=4096, delta=0.7, generator=torch.Generator().manual_seed(0), future=future)
     b = s.sample()
     r_expect = task.goal_reached(task.achieved_goal(b["next_state"]), b["goal"])
     assert torch.equal(b["next", "reward"].squeeze(-1), r_expect.float())

@@ -237,3 +237,43 @@ def test_cosine_schedule_resumes_exactly(data, tmp_path):
     assert _same(full.algo, again.algo)
     with pytest.raises(UserError, match="lr schedule"):
         make_config("cpu", lr_schedule="step")
+
+
+def test_tensorboard_events_match_metrics_and_resume_purges(data, tmp_path):
+    """tb/ holds the metrics.jsonl scalars; a resumed run's events after its checkpoint are dropped."""
+    pytest.importorskip("tensorboard")
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    cfg = make_config("cpu", algo="gcsl", dataset=str(data.info["path"]), **TINY)
+    evals = {"fake": lambda algo, step: {"success": step / 100}}
+    tr = start_run(cfg, tmp_path / "r", data=data, progress=False, evaluators=evals)
+    tr.cfg.eval_every = 20
+    tr.train(until=30)  # logs 10, 20, 30; checkpoint at 20; events at 30 are then stale
+    again = resume_run(tmp_path / "r", data=data, progress=False, evaluators=evals)
+    again.cfg.eval_every = 20
+    again.train()
+    ea = EventAccumulator(str(tmp_path / "r" / "tb"))
+    ea.Reload()
+    recs = read_metrics(tmp_path / "r")
+    for tag in ("loss_actor", "loss_critic", "steps_per_s", "eval/fake/success"):
+        got = [(e.step, e.value) for e in ea.Scalars(tag)]
+        want = [(r["step"], r[tag]) for r in recs if tag in r]
+        assert [s for s, _ in got] == [s for s, _ in want], tag  # no step twice after the resume
+        assert all(abs(a - b) <= 1e-6 * max(1.0, abs(b)) for (_, a), (_, b) in zip(got, want)), tag
+    assert [e.step for e in ea.Scalars("loss_actor")] == [10, 20, 30, 40]
+    assert [e.step for e in ea.Scalars("eval/fake/success")] == [20, 40]
+
+
+def test_relabel_offset_flags_reach_the_sampler(data, tmp_path):
+    a = cli.parser().parse_args(["--relabel-offset", "geometric", "--relabel-mean-offset", "12.5", "--relabel-window", "60"])
+    ov = cli._overrides(a)
+    assert ov == {"relabel_offset": "geometric", "relabel_mean_offset": 12.5, "relabel_window": 60}
+    cfg = make_config("cpu", algo="gcsl", dataset=str(data.info["path"]), **TINY, **ov)
+    tr = start_run(cfg, tmp_path / "r", data=data, progress=False)
+    assert tr.sampler.future == {"strategy": "geometric", "mean": 12.5, "window": 60}
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["config"]["relabel_offset"] == "geometric"
+    for bad, msg in [({"relabel_offset": "final"}, "unknown relabel offset 'final'"), ({"relabel_window": -1}, "relabel window"),
+                     ({"relabel_mean_offset": 0.5}, "relabel mean offset")]:
+        with pytest.raises(UserError, match=msg):
+            make_config("cpu", **bad)
+    assert cli.main(["--algo", "gcsl", "--dataset", str(data.info["path"]), "--relabel-offset", "final"]) == 2

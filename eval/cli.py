@@ -1,0 +1,150 @@
+"""``aerohrl eval``: closed-loop evaluation, tables and plots (thesis §3.5).
+
+::
+
+    aerohrl eval --task reach-desired --run runs/<run>           # last 10 checkpoints, 250 episodes each
+    aerohrl eval --task reach-intermediate --run runs/<run>
+    aerohrl eval --task ood --run runs/<run> --planner single    # none | single (Eq. 3.7) | multi (Eq. 3.6)
+    aerohrl eval table runs/gcsl runs/td3bc runs/td3awbc runs/cql -o results/table   # Markdown + CSV
+    aerohrl eval plot --task ood --run runs/<run> -o ood.png     # 3D trajectories (Fig. 3.5 / 3.6)
+    aerohrl eval plot --curves runs/gcsl runs/td3bc -o curves.png   # learning curves (Fig. 3.3 / 3.4)
+
+Exit status: 0 done, 2 bad input (one line ``aerohrl eval: error: ...``), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from aerohrl.errors import ArgumentParser, UserError, run_cli
+
+PROG = "aerohrl eval"
+
+
+def _eval_parser() -> ArgumentParser:
+    from aerohrl.eval.harness import EvalOptions, PLANNERS
+    from aerohrl.eval.tasks import TASKS
+
+    d = EvalOptions()
+    ap = ArgumentParser(prog=PROG, description="Evaluate the last checkpoints of a training run in the batched simulator "
+                        "(subcommands: `table RUN...`, `plot ...`).")
+    ap.add_argument("--task", required=True, help=f"{' | '.join(TASKS)}")
+    ap.add_argument("--run", required=True, type=Path, help="training run folder (runs/<run>)")
+    ap.add_argument("--episodes", type=int, default=d.episodes, help=f"episodes per checkpoint [{d.episodes}]")
+    ap.add_argument("--checkpoints", type=int, default=d.checkpoints, help=f"newest checkpoints evaluated [{d.checkpoints}]")
+    ap.add_argument("--planner", default=d.planner, help=f"ood only: {' | '.join(PLANNERS)} [{d.planner}]")
+    ap.add_argument("--waypoints", type=int, default=d.waypoints, help=f"multi: intermediate goals (Eq. 3.6 n) [{d.waypoints}]")
+    ap.add_argument("--beam", type=int, default=d.beam, help=f"multi: beam width [{d.beam}]")
+    ap.add_argument("--alpha", type=float, default=d.alpha, help=f"variance penalty of Eq. 3.6/3.7 [{d.alpha}]")
+    ap.add_argument("--candidates", type=int, default=d.candidates,
+                    help=f"achieved goals scored by the planner (seeded subset; 0 = all) [{d.candidates}]")
+    ap.add_argument("--replan-every", type=int, default=d.replan_every,
+                    help="re-plan from the current state every K steps during intermediate legs (0: never) [0]")
+    ap.add_argument("--no-replan", action="store_true", help="multi: keep the take-off plan (no re-planning at reached goals)")
+    ap.add_argument("--horizon", type=int, default=d.horizon, help=f"ood: steps per episode, every planner [{d.horizon}]")
+    ap.add_argument("--leg-horizon", type=int, default=d.leg_horizon,
+                    help="ood: step budget to reach an intermediate goal [horizon / (intermediate goals + 1)]")
+    ap.add_argument("--waypoint-tol", type=float, default=d.waypoint_tol,
+                    help=f"an intermediate goal is reached with the goal tolerances x this (2.5: near success) [{d.waypoint_tol}]")
+    ap.add_argument("--dataset", default=None, help="the run's dataset at another path (identity is checked)")
+    ap.add_argument("--out", default=None, help="result folder [RUN/eval/<task>[-<planner>]]")
+    ap.add_argument("--device", default=d.device, help="cpu | cuda [cpu]")
+    ap.add_argument("--seed", type=int, default=d.seed, help="episode-set seed [0]")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads [1]")
+    ap.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def cmd_eval(a) -> int:
+    import torch
+
+    from aerohrl.eval.harness import EvalOptions, evaluate_run
+
+    torch.set_num_threads(max(1, a.threads))
+    opt = EvalOptions(task=a.task, episodes=a.episodes, checkpoints=a.checkpoints, planner=a.planner, waypoints=a.waypoints,
+                      beam=a.beam, alpha=a.alpha, candidates=a.candidates, replan=not a.no_replan, replan_every=a.replan_every,
+                      horizon=a.horizon, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
+                      progress=not a.no_progress and sys.stderr.isatty())
+    s = evaluate_run(a.run, opt)
+    print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "
+          f"near success {100 * s['near_success_mean']:.1f} ± {100 * s['near_success_std']:.1f} % "
+          f"({len(s['checkpoints'])} checkpoints x {s['episodes']} episodes, {s['seconds']:.0f} s)")
+    out = Path(a.out) if a.out else Path(a.run) / "eval" / s["name"]
+    print(f"results:   {out}/summary.json, {out}/episodes-step-*.csv")
+    return 0
+
+
+def _table_parser() -> ArgumentParser:
+    ap = ArgumentParser(prog=f"{PROG} table", description="Table 3.1 / 3.2 analogues (Markdown on stdout; with -o also "
+                        "PREFIX.md, PREFIX-t31.csv, PREFIX-t32.csv).")
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("-o", "--output", type=Path, default=None, help="file prefix for .md and .csv")
+    return ap
+
+
+def cmd_table(a) -> int:
+    from aerohrl.eval import results
+
+    t = results.tables(a.runs)
+    md = results.tables_markdown(t)
+    print(md, end="")
+    if a.output:
+        p = a.output
+        results.write_text(p.with_name(p.name + ".md"), md)
+        results.write_text(p.with_name(p.name + "-t31.csv"), results.to_csv(*t["t31"]))
+        results.write_text(p.with_name(p.name + "-t32.csv"), results.to_csv(*t["t32"]))
+    return 0
+
+
+def _plot_parser() -> ArgumentParser:
+    ap = ArgumentParser(prog=f"{PROG} plot", description="3D trajectories of an evaluation (thesis Fig. 3.5/3.6) or learning "
+                        "curves of runs (Fig. 3.3/3.4).")
+    ap.add_argument("--task", default=None, help="evaluation to draw: reach-desired | reach-intermediate | ood")
+    ap.add_argument("--planner", default=None, help="ood: which evaluation (none | single | multi) [the planned one present]")
+    ap.add_argument("--run", type=Path, default=None)
+    ap.add_argument("--curves", type=Path, nargs="+", default=None, metavar="RUN", help="learning curves of these runs")
+    ap.add_argument("--max", type=int, default=12, help="trajectories per panel [12]")
+    ap.add_argument("-o", "--output", type=Path, required=True)
+    return ap
+
+
+def cmd_plot(a) -> int:
+    from aerohrl.eval import plots
+
+    if a.curves:
+        out = plots.plot_learning_curves(a.curves, a.output)
+    else:
+        if a.task is None or a.run is None:
+            raise UserError("plot needs --task and --run (trajectories) or --curves RUN... (learning curves)")
+        out = plots.plot_trajectories(a.run, a.task, a.output, planner=a.planner, max_per_panel=a.max)
+    print(f"plot: {out}")
+    return 0
+
+
+def _io(fn):
+    """File-system failures (unwritable output, full disk) as one-line errors."""
+
+    def wrapped(a):
+        try:
+            return fn(a)
+        except OSError as e:
+            raise UserError(f"{e.strerror or e}: {e.filename or ''}".rstrip(": ")) from None
+
+    return wrapped
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "table":
+        a = _table_parser().parse_args(argv[1:])
+        return run_cli(PROG, lambda: _io(cmd_table)(a))
+    if argv and argv[0] == "plot":
+        a = _plot_parser().parse_args(argv[1:])
+        return run_cli(PROG, lambda: _io(cmd_plot)(a))
+    a = _eval_parser().parse_args(argv)
+    return run_cli(PROG, lambda: _io(cmd_eval)(a))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,231 @@
+"""The reach task as a Gymnasium goal-conditioned environment: ``aerohrl/QuadrotorReach-v0``.
+
+:class:`QuadrotorReachVectorEnv` is a native :class:`gymnasium.vector.VectorEnv`: its
+``num_envs`` vehicles are one :class:`~aerohrl.sim.BatchedQuadrotor` stepped in one call
+(wrapping a single-vehicle env in ``SyncVectorEnv`` would step them in a Python loop,
+which is what this project avoids on hot paths). :class:`QuadrotorReachEnv` is the
+single-vehicle ``gymnasium.Env`` (the same code with one vehicle).
+
+Observation (the goal-env convention of gymnasium-robotics, which external GC-RL code
+such as HER implementations expects): a dict with ``observation`` (18: the state
+``[p, v, R, w]``), ``achieved_goal`` (15: its ``[p, v, R]``) and ``desired_goal`` (15).
+Action: CTBR ``[c, wx, wy, wz]`` (clipped to the action space: ``0 <= c <=`` the
+vehicle's maximum collective thrust, ``|w_i| <= 20`` rad/s). Reward (SPEC.md): sparse,
+``compute_reward(achieved_goal, desired_goal, info)`` = 1 when the goal-reached test
+holds, else 0, batched over any leading dimensions (HER relabels with it). An episode
+*terminates* when the goal is reached (``tolerance_scale`` scales the test's
+tolerances for that; default 1) and is *truncated* at its horizon; ``info`` holds
+``is_success`` and ``near_success`` (tolerances x 2.5) per vehicle.
+
+Resetting: ``reset(seed=..., options=...)`` draws goals from the goal pool (the
+dataset's desired goals when built with ``dataset=``; otherwise rho_D sampled with
+:func:`aerohrl.datagen.goals.sample_goals`) and starts at hover at the origin; options
+``start_states`` (N, 18), ``goals`` (N, 15) and ``horizons`` (int or (N,)) fix them, as
+the evaluation harness does. Autoreset: ``NEXT_STEP`` (Gymnasium's default: the step
+after a sub-environment ended resets it and ignores its action), or ``DISABLED`` with
+``autoreset=False`` (the harness: finished vehicles keep flying and are ignored).
+:meth:`set_desired_goals` changes the goal (and the step budget) of some vehicles in
+flight: how the harness hands planned intermediate goals to the policy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from aerohrl import task
+from aerohrl.eval.tasks import hover_states
+from aerohrl.sim.params import GRAVITY
+
+ENV_ID = "aerohrl/QuadrotorReach-v0"
+RATE_LIMIT = 20.0  # rad/s, commanded body-rate bound of the action space
+
+
+def compute_reward(achieved_goal, desired_goal, info=None):
+    """Sparse goal-reaching reward (SPEC.md): 1.0 where the goal-reached test holds."""
+    return np.asarray(task.goal_reached(np.asarray(achieved_goal, np.float64), np.asarray(desired_goal, np.float64)),
+                      dtype=np.float64)
+
+
+def _goal_pool_from_dataset(path):
+    from aerohrl.algorithms.data import load_dataset
+
+    data = load_dataset(path)
+    spec = data.info.get("spec") or {}
+    return data.desired_goals().numpy().astype(np.float64), spec
+
+
+class QuadrotorReachVectorEnv(VectorEnv):
+    """``num_envs`` quadrotors, one batched simulator; see the module docstring."""
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int = 1, *, dataset=None, goals=None, vehicle: str | None = None, fps: int | None = None,
+                 substeps: int | None = None, horizon: int = 500, autoreset: bool = True,
+                 pos_range=(1.0, 2.0), vel_range=(-2.5, 2.5), acc_range=(-5.0, 5.0), tolerance_scale: float = 1.0,
+                 render_mode=None):
+        from aerohrl.sim import BatchedQuadrotor, get_preset
+
+        spec = {}
+        if dataset is not None and goals is None:
+            goals, spec = _goal_pool_from_dataset(dataset)
+        self.goal_pool = None if goals is None else np.asarray(goals, np.float64).reshape(-1, task.GOAL_DIM)
+        if self.goal_pool is not None and len(self.goal_pool) == 0:
+            raise ValueError("the goal pool is empty")
+        self.goal_ranges = {"pos_range": tuple(spec.get("pos_range", pos_range)), "vel_range": tuple(spec.get("vel_range", vel_range)),
+                            "acc_range": tuple(spec.get("acc_range", acc_range))}
+        self.vehicle = vehicle or spec.get("vehicle", "hummingbird")
+        self.fps = int(fps or spec.get("fps", 100))
+        self.substeps = int(substeps or spec.get("substeps", 5))
+        self.num_envs = n = int(num_envs)
+        self.render_mode = render_mode
+        self.sim = BatchedQuadrotor(get_preset(self.vehicle), n, dt=1.0 / self.fps, substeps=self.substeps)
+        self.metadata = {**self.metadata, "autoreset_mode": AutoresetMode.NEXT_STEP if autoreset else AutoresetMode.DISABLED}
+        self.autoreset = bool(autoreset)
+        self.tolerance = task.TOLERANCE.scaled(float(tolerance_scale))  # of `terminated` (1: the SPEC's goal-reached test)
+        inf = np.inf
+        self.single_observation_space = spaces.Dict({
+            "observation": spaces.Box(-inf, inf, (task.STATE_DIM,), np.float64),
+            "achieved_goal": spaces.Box(-inf, inf, (task.GOAL_DIM,), np.float64),
+            "desired_goal": spaces.Box(-inf, inf, (task.GOAL_DIM,), np.float64),
+        })
+        cmax = float(self.sim.params.max_collective)
+        self.single_action_space = spaces.Box(np.array([0.0, -RATE_LIMIT, -RATE_LIMIT, -RATE_LIMIT]),
+                                              np.array([cmax, RATE_LIMIT, RATE_LIMIT, RATE_LIMIT]), dtype=np.float64)
+        self.observation_space = batch_space(self.single_observation_space, n)
+        self.action_space = batch_space(self.single_action_space, n)
+        self.default_horizon = int(horizon)
+        self.state = self.sim.state
+        self.goals = np.zeros((n, task.GOAL_DIM))
+        self.start_states = self.state.copy()
+        self.horizons = np.full(n, self.default_horizon, np.int64)
+        self.elapsed = np.zeros(n, np.int64)
+        self.done = np.zeros(n, bool)
+        self._needs_reset = np.zeros(n, bool)
+
+    # ------------------------------------------------------------------ goals
+    def compute_reward(self, achieved_goal, desired_goal, info=None):
+        return compute_reward(achieved_goal, desired_goal, info)
+
+    def _sample_goals(self, k: int) -> np.ndarray:
+        if self.goal_pool is not None:
+            return self.goal_pool[self.np_random.integers(0, len(self.goal_pool), size=k)]
+        from aerohrl.datagen.goals import goal_vectors, sample_goals
+
+        return goal_vectors(sample_goals(self.np_random, k, **self.goal_ranges))
+
+    def _obs(self) -> dict:
+        s = self.state
+        return {"observation": s.copy(), "achieved_goal": task.achieved_goal(s).copy(), "desired_goal": self.goals.copy()}
+
+    def _reset_rows(self, rows: np.ndarray, starts: np.ndarray, goals: np.ndarray, horizons: np.ndarray) -> None:
+        full = self.state.copy()
+        full[rows] = starts
+        om = self.sim.rotor_speeds
+        om[rows] = self.sim.params.hover_rotor_speed
+        self.state = self.sim.reset(full, om)
+        self.start_states[rows] = self.state[rows]
+        self.goals[rows] = goals
+        self.horizons[rows] = horizons
+        self.elapsed[rows] = 0
+        self.done[rows] = False
+        self._needs_reset[rows] = False
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        options = options or {}
+        n = self.num_envs
+        starts = options.get("start_states")
+        starts = hover_states(n) if starts is None else np.asarray(starts, np.float64).reshape(n, task.STATE_DIM)
+        goals = options.get("goals")
+        goals = self._sample_goals(n) if goals is None else np.asarray(goals, np.float64).reshape(n, task.GOAL_DIM)
+        hz = np.broadcast_to(np.asarray(options.get("horizons", self.default_horizon), np.int64), (n,))
+        self._reset_rows(np.arange(n), starts, goals, hz)
+        return self._obs(), {}
+
+    def set_desired_goals(self, goals, mask=None, horizons=None) -> dict:
+        """New goals (and step budgets) for the vehicles in ``mask`` mid-flight; their
+        step counters and done flags restart. Returns the observation."""
+        mask = np.ones(self.num_envs, bool) if mask is None else np.asarray(mask, bool)
+        goals = np.asarray(goals, np.float64).reshape(-1, task.GOAL_DIM)
+        self.goals[mask] = goals[mask] if len(goals) == self.num_envs else goals  # full (N, 15) or one row per masked vehicle
+        if horizons is not None:
+            self.horizons[mask] = np.broadcast_to(np.asarray(horizons, np.int64), (self.num_envs,))[mask]
+        self.elapsed[mask] = 0
+        self.done[mask] = False
+        return self._obs()
+
+    def step(self, actions):
+        n = self.num_envs
+        a = np.nan_to_num(np.asarray(actions, np.float64).reshape(n, 4), nan=0.0, posinf=0.0, neginf=0.0)
+        a = np.clip(a, self.single_action_space.low, self.single_action_space.high)
+        resetting = self._needs_reset.copy() if self.autoreset else np.zeros(n, bool)
+        if resetting.any():  # NEXT_STEP autoreset: these ignore their action
+            a[resetting] = [GRAVITY, 0.0, 0.0, 0.0]  # hover command
+        self.state = self.sim.step(a)
+        self.elapsed += 1
+        bad = ~np.isfinite(self.state).all(1)
+        if bad.any():  # a diverged vehicle: back to its start, episode truncated
+            self._reset_rows(np.flatnonzero(bad), self.start_states[bad], self.goals[bad], self.horizons[bad])
+        ag = task.achieved_goal(self.state)
+        reached = task.goal_reached(ag, self.goals, self.tolerance)
+        near = task.near_success(ag, self.goals)
+        active = ~self.done & ~resetting
+        terminated = reached & active
+        truncated = active & ~terminated & ((self.elapsed >= self.horizons) | bad)
+        reward = compute_reward(ag, self.goals) * active
+        self.done |= terminated | truncated
+        if resetting.any():
+            rows = np.flatnonzero(resetting)
+            self._reset_rows(rows, hover_states(len(rows)), self._sample_goals(len(rows)), np.full(len(rows), self.default_horizon))
+        if self.autoreset:
+            self._needs_reset |= terminated | truncated
+        info = {"is_success": task.goal_reached(ag, self.goals), "near_success": near, "elapsed": self.elapsed.copy(), "diverged": bad}
+        return self._obs(), reward, terminated, truncated, info
+
+
+class QuadrotorReachEnv(gym.Env):
+    """One quadrotor (``gymnasium.make("aerohrl/QuadrotorReach-v0")``); the vector env with one vehicle."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, **kw):
+        kw.pop("num_envs", None)
+        self._vec = QuadrotorReachVectorEnv(1, autoreset=False, **kw)
+        self.observation_space = self._vec.single_observation_space
+        self.action_space = self._vec.single_action_space
+
+    def compute_reward(self, achieved_goal, desired_goal, info=None):
+        return compute_reward(achieved_goal, desired_goal, info)
+
+    @staticmethod
+    def _one(d):
+        return {k: v[0] for k, v in d.items()}
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        opts = dict(options or {})
+        for k, shape in (("start_states", task.STATE_DIM), ("goals", task.GOAL_DIM)):
+            if k in opts:
+                opts[k] = np.asarray(opts[k], np.float64).reshape(1, shape)
+        obs, _ = self._vec.reset(seed=seed, options=opts)
+        return self._one(obs), {}
+
+    def step(self, action):
+        obs, r, te, tr, info = self._vec.step(np.asarray(action, np.float64).reshape(1, 4))
+        return self._one(obs), float(r[0]), bool(te[0]), bool(tr[0]), {k: v[0] for k, v in info.items()}
+
+
+def register() -> None:
+    """Register ``aerohrl/QuadrotorReach-v0`` (single env and vector entry point)."""
+    if ENV_ID in gym.registry:
+        return
+    gym.register(id=ENV_ID, entry_point="aerohrl.eval.gym_env:QuadrotorReachEnv",
+                 vector_entry_point="aerohrl.eval.gym_env:QuadrotorReachVectorEnv", max_episode_steps=None)
+
+
+__all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "compute_reward", "register", "ENV_ID"]

@@ -1,0 +1,198 @@
+"""Evaluate a training run: the last K checkpoints x one episode set (thesis Table 3.1 protocol).
+
+:func:`evaluate_run` loads the run's dataset (``config.json``; ``dataset=`` overrides the
+path when the data moved), checks that every evaluated checkpoint was trained on
+exactly that dataset (version, manifest checksum, feature shapes), builds the task's
+episodes once (seeded: every checkpoint and algorithm flies the same ones), and for
+each checkpoint runs the batched closed loop (:func:`aerohrl.eval.rollout.rollout`),
+writing per-episode records and a summary under ``RUN/eval/<task>[-<planner>]/``
+(:mod:`aerohrl.eval.results`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from aerohrl.errors import UserError
+
+PLANNERS = ("none", "single", "multi")
+
+
+@dataclass
+class EvalOptions:
+    task: str = "reach-desired"
+    episodes: int = 250
+    checkpoints: int = 10
+    planner: str = "none"  # none | single (Eq. 3.7) | multi (Eq. 3.6, beam search)
+    waypoints: int = 2  # multi: intermediate goals
+    beam: int = 8
+    alpha: float = 1.0
+    candidates: int = 1024  # 0 = every achieved goal of the dataset
+    replan: bool = True  # multi: re-plan the remaining goals at each reached intermediate goal
+    replan_every: int = 0  # also re-plan every K steps during intermediate legs (0: never)
+    horizon: int = 1000  # ood: total steps of every variant (none | single | multi), = 2 legs of 500
+    leg_horizon: int = 0  # ood: step budget of an intermediate leg (0: horizon // (intermediate goals + 1))
+    waypoint_tol: float = 1.0  # an intermediate goal counts as reached with the tolerances x this
+    seed: int = 0
+    device: str = "cpu"
+    record: bool = True  # keep trajectories of the newest checkpoint (for plots)
+    progress: bool = True
+    dataset: str | None = None
+    out: str | None = None  # default RUN/eval/<name>
+    extra: dict = field(default_factory=dict)
+
+    def name(self) -> str:
+        return self.task if self.task != "ood" else f"ood-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") \
+            + (f"-replan{self.replan_every}" if self.replan_every and self.planner != "none" else "") \
+            + (f"-tol{self.waypoint_tol:g}" if self.waypoint_tol != 1.0 and self.planner != "none" else "") \
+            + (f"-a{self.alpha:g}" if self.alpha != 1.0 and self.planner != "none" else "")
+
+
+def load_policy(ckpt_path, device="cpu"):
+    """(algo, checkpoint dict) from a checkpoint file, in eval mode."""
+    from aerohrl.algorithms import config as C
+    from aerohrl.algorithms.base import build_algorithm
+    from aerohrl.algorithms.networks import Normalizer
+    from aerohrl.algorithms.trainer import load_checkpoint
+
+    ck = load_checkpoint(ckpt_path, map_location=device)
+    try:
+        cfg = C.from_dict(ck["config"])
+        algo = build_algorithm(cfg, Normalizer()).to(device)
+        algo.load_state_dict(ck["model"])
+    except (KeyError, RuntimeError, ValueError, TypeError) as e:
+        raise UserError(f"checkpoint {ckpt_path} cannot be loaded as a policy: {e}") from None
+    algo.eval()
+    return algo, ck
+
+
+def run_checkpoints(run_dir, k: int) -> list[Path]:
+    from aerohrl.algorithms.trainer import checkpoint_paths
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise UserError(f"no run at {run_dir}")
+    paths = checkpoint_paths(run_dir)
+    if not paths:
+        raise UserError(f"run {run_dir} has no checkpoints (checkpoints/step-*.pt)")
+    if k < 1:
+        raise UserError(f"--checkpoints must be >= 1, got {k}")
+    return paths[-k:]
+
+
+def load_run_dataset(run_dir, override=None):
+    """The run's dataset (``config.json``), or ``override``; identity checked against the run."""
+    from aerohrl.algorithms.data import load_dataset
+    from aerohrl.algorithms.trainer import check_same_dataset, read_json
+
+    meta = read_json(Path(run_dir) / "config.json")
+    path = override or (meta.get("dataset") or {}).get("path") or (meta.get("config") or {}).get("dataset")
+    if not path:
+        raise UserError(f"run {run_dir} names no dataset; pass --dataset PATH")
+    data = load_dataset(path)
+    try:
+        check_same_dataset(meta.get("dataset") or {}, data)
+    except UserError as e:
+        raise UserError(f"dataset {path} does not belong to run {run_dir}: {e}") from None
+    return data, meta
+
+
+def check_checkpoint_dataset(ck: dict, data, path) -> None:
+    from aerohrl.algorithms.trainer import check_same_dataset
+
+    try:
+        check_same_dataset(ck.get("dataset") or {}, data)
+    except UserError as e:
+        raise UserError(f"checkpoint {path} and dataset {data.info.get('path')} do not belong together: {e}") from None
+
+
+def sim_kwargs(data) -> dict:
+    spec = data.info.get("spec") or {}
+    return {"vehicle": spec.get("vehicle", "hummingbird"), "fps": int(spec.get("fps", 100)), "substeps": int(spec.get("substeps", 5))}
+
+
+def make_planner(algo, data, opt: EvalOptions):
+    from aerohrl.eval.planner import Planner, candidates_from_dataset
+
+    if opt.planner == "none":
+        return None, 0
+    cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
+    n = 1 if opt.planner == "single" else opt.waypoints
+    return Planner(algo, cand, n=n, alpha=opt.alpha, beam=opt.beam), n
+
+
+def check_options(opt: EvalOptions) -> None:
+    from aerohrl.eval.tasks import TASKS
+
+    if opt.task not in TASKS:
+        raise UserError(f"unknown task {opt.task!r} (choose from {', '.join(TASKS)})")
+    if opt.planner not in PLANNERS:
+        raise UserError(f"unknown planner {opt.planner!r} (choose from {', '.join(PLANNERS)})")
+    if opt.planner != "none" and opt.task != "ood":
+        raise UserError(f"--planner {opt.planner} applies to --task ood only")
+    if opt.episodes < 1:
+        raise UserError(f"empty goal set: --episodes must be >= 1, got {opt.episodes}")
+    if opt.planner == "multi" and opt.waypoints < 2:
+        raise UserError(f"--planner multi needs --waypoints >= 2, got {opt.waypoints}")
+    if opt.horizon < 1 or opt.leg_horizon < 0 or opt.beam < 1 or opt.candidates < 0 or opt.replan_every < 0:
+        raise UserError("--horizon and --beam must be >= 1, --leg-horizon, --candidates and --replan-every >= 0")
+
+
+def build_episodes(data, opt: EvalOptions):
+    from aerohrl.eval.tasks import make_episodes
+
+    kw = {}
+    if opt.task == "ood":
+        # every OOD variant flies the same goals with the same total time
+        kw = {"leg_horizon": opt.horizon, "legs": 1}
+    return make_episodes(opt.task, data, opt.episodes, opt.seed, **kw)
+
+
+def evaluate_run(run_dir, opt: EvalOptions) -> dict:
+    """Evaluate the last ``opt.checkpoints`` checkpoints of ``run_dir``; returns the summary."""
+    from tqdm import tqdm
+
+    from aerohrl.eval import results
+    from aerohrl.eval.rollout import rollout
+    from aerohrl.algorithms.trainer import resolve_device
+
+    check_options(opt)
+    run_dir = Path(run_dir)
+    ckpts = run_checkpoints(run_dir, opt.checkpoints)
+    device = resolve_device(opt.device)
+    data, meta = load_run_dataset(run_dir, opt.dataset)
+    episodes = build_episodes(data, opt)
+    out_dir = Path(opt.out) if opt.out else run_dir / "eval" / opt.name()
+    per_ckpt = []
+    t_start = time.perf_counter()
+    bar = tqdm(ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=not opt.progress, dynamic_ncols=True)
+    for i, path in enumerate(bar):
+        algo, ck = load_policy(path, device)
+        check_checkpoint_dataset(ck, data, path)
+        planner, nw = make_planner(algo, data, opt)
+        leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
+        record = opt.record and i == len(ckpts) - 1
+        t0 = time.perf_counter()
+        r = rollout(algo, episodes, planner=planner, n_waypoints=nw, leg_horizon=leg_h, replan=opt.replan,
+                    replan_every=opt.replan_every, waypoint_tol=opt.waypoint_tol, record=record, progress=opt.progress, desc=f"step {ck['step']}",
+                    **sim_kwargs(data))
+        wall = time.perf_counter() - t0
+        results.write_episodes(out_dir, int(ck["step"]), episodes, r)
+        per_ckpt.append({"checkpoint": path.name, "step": int(ck["step"]), "success": float(r["success"].mean()),
+                         "near_success": float(r["near_success"].mean()), "seconds": wall,
+                         **results.kind_rates(episodes, r)})
+        bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
+        if record:
+            results.write_trajectories(out_dir, int(ck["step"]), episodes, r)
+    summary = results.summarize(per_ckpt, run_dir=run_dir, meta=meta, options=opt, episodes=episodes,
+                                seconds=time.perf_counter() - t_start)
+    results.write_summary(out_dir, summary)
+    return summary
+
+
+__all__ = ["EvalOptions", "evaluate_run", "load_policy", "run_checkpoints", "load_run_dataset", "PLANNERS"]

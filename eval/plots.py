@@ -1,0 +1,151 @@
+"""Plots of evaluations (matplotlib, Agg).
+
+* :func:`plot_trajectories` — thesis Fig. 3.5 / 3.6 analogues: 3D flight paths of the
+  newest evaluated checkpoint (``trajectories-step-N.npz``), successes and failures in
+  two panels, start (orange), task goal (red) and planned intermediate goals (green)
+  marked, each path drawn up to the episode's last step.
+* :func:`plot_learning_curves` — thesis Fig. 3.3 / 3.4 analogues: closed-loop success
+  against training steps from the runs' ``metrics.jsonl`` (the trainer's periodic
+  evaluations) and, dashed, the per-checkpoint results of ``aerohrl eval`` for
+  Reach-Desired and Reach-Intermediate when present.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from aerohrl.errors import UserError
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, out: Path) -> Path:
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.stem}.tmp{out.suffix or '.png'}")
+    fig.savefig(tmp, dpi=110)
+    tmp.replace(out)
+    return out
+
+
+def _eval_dir(run, task: str, planner: str | None) -> Path:
+    base = Path(run) / "eval"
+    if task != "ood":
+        d = base / task
+    elif planner:
+        d = base / f"ood-{planner}"
+        if not d.is_dir():
+            alt = sorted(base.glob(f"ood-{planner}*"))
+            d = alt[0] if alt else d
+    else:
+        cands = [p for p in sorted(base.glob("ood-*")) if p.name != "ood-none"] or sorted(base.glob("ood-*"))
+        if not cands:
+            raise UserError(f"run {run} has no ood evaluation (run `aerohrl eval --task ood --run {run}` first)")
+        d = cands[0]
+    if not d.is_dir():
+        raise UserError(f"run {run} has no {d.name} evaluation (run `aerohrl eval --task {task} --run {run}` first)")
+    return d
+
+
+def plot_trajectories(run, task: str, out, planner: str | None = None, max_per_panel: int = 12) -> Path:
+    from aerohrl.eval.tasks import TASKS
+
+    if task not in TASKS:
+        raise UserError(f"unknown task {task!r} (choose from {', '.join(TASKS)})")
+    d = _eval_dir(run, task, planner)
+    files = sorted(d.glob("trajectories-step-*.npz"))
+    if not files:
+        raise UserError(f"{d} holds no trajectories (re-run the evaluation)")
+    z = np.load(files[-1])
+    pos, goals, starts, steps, succ = z["positions"], z["goals"], z["start_states"], z["steps"], z["success"]
+    wps = z["waypoints"] if "waypoints" in z.files else None
+    plt = _plt()
+    fig = plt.figure(figsize=(12, 5.5))
+    rng = np.random.default_rng(0)
+    # the view box: starts, goals and planned goals with a 1 m margin; path points outside
+    # it are not drawn (a diverging failure would otherwise shrink everything else to a dot)
+    marks = [starts[:, :3], goals[:, :3]] + ([wps[:, :, :3].reshape(-1, 3)] if wps is not None else [])
+    lo, hi = np.min([m.min(0) for m in marks], 0) - 1.0, np.max([m.max(0) for m in marks], 0) + 1.0
+    for k, (label, mask) in enumerate((("successes", succ), ("failures", ~succ))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        idx = np.flatnonzero(mask)
+        if len(idx) > max_per_panel:
+            idx = np.sort(rng.choice(idx, max_per_panel, replace=False))
+        left = 0
+        for i in idx:
+            p = pos[i, : steps[i] + 1].astype(np.float64)
+            outside = ((p < lo) | (p > hi)).any(1)
+            left += bool(outside.any())
+            p[outside] = np.nan
+            (line,) = ax.plot(p[:, 0], p[:, 1], p[:, 2], lw=1.0, alpha=0.8)
+            if np.isfinite(p[-1]).all():  # where the episode ended, in the path's colour
+                ax.scatter(*p[-1], color=line.get_color(), s=10, depthshade=False)
+        if len(idx):
+            ax.scatter(*starts[idx, :3].T, c="orange", s=18, label="start", depthshade=False)
+            ax.scatter(*goals[idx, :3].T, c="red", s=24, marker="*", label="goal", depthshade=False)
+            if wps is not None:
+                w = wps[idx, :, :3].reshape(-1, 3)
+                ax.scatter(*w.T, c="green", s=20, marker="^", label="intermediate goal", depthshade=False)
+            ax.legend(loc="upper left", fontsize=7)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_zlim(lo[2], hi[2])
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_zlabel("z (m)")
+        ax.set_title(f"{label}: {int(mask.sum())} of {len(mask)} (drawn {len(idx)}, {left} leave the box)", fontsize=10)
+    step = files[-1].stem.split("-")[-1]
+    fig.suptitle(f"{Path(run).name}: {d.name}, checkpoint step {int(step):,}")
+    fig.tight_layout()
+    out = _save(fig, out)
+    plt.close(fig)
+    return out
+
+
+def plot_learning_curves(runs, out) -> Path:
+    from aerohrl.algorithms.trainer import read_metrics
+    from aerohrl.eval.results import ALGO_NAMES, _algo_of, read_summary
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    drawn = 0
+    for rd in runs:
+        if not Path(rd).is_dir():
+            raise UserError(f"no run at {rd}")
+        metrics = read_metrics(rd)
+        keys = sorted({k for r in metrics for k in r if k.startswith("eval/") and k.endswith("/success")})
+        algo = ALGO_NAMES.get(_algo_of(rd), _algo_of(rd))
+        for k in keys:
+            pts = [(r["step"], 100 * r[k]) for r in metrics if k in r]
+            ax.plot(*zip(*pts), marker="o", ms=3, label=f"{algo} ({Path(rd).name}): {k.split('/')[1].replace('_', '-')} (training log)")
+            drawn += 1
+        for task_name in ("reach-desired", "reach-intermediate"):  # the harness's per-checkpoint results
+            s = read_summary(rd, task_name)
+            if s:
+                pts = [(c["step"], 100 * c["success"]) for c in s["checkpoints"]]
+                ax.plot(*zip(*pts), marker="s", ms=3, ls="--",
+                        label=f"{algo} ({Path(rd).name}): {task_name} (aerohrl eval, {s['episodes']} ep.)")
+                drawn += 1
+    if not drawn:
+        raise UserError("none of the runs logged a closed-loop evaluation (train with --eval-every > 0 or run `aerohrl eval`)")
+    ax.set_xlabel("training step")
+    ax.set_ylabel("success rate (%)")
+    ax.set_ylim(-2, 102)
+    ax.set_title("closed-loop success during training (thesis Fig. 3.3/3.4)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    out = _save(fig, out)
+    plt.close(fig)
+    return out
+
+
+__all__ = ["plot_trajectories", "plot_learning_curves"]

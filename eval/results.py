@@ -1,0 +1,228 @@
+"""Evaluation files and the thesis-style tables.
+
+Per evaluation ``RUN/eval/<name>/`` (``<name>`` = the task, or ``ood-<planner>``)::
+
+    episodes-step-NNNNNNNNN.csv   one row per episode and checkpoint: start state, goal,
+                                  horizon, source episode/frame, outcome, first step of
+                                  success / near success, final errors, planned goals
+    trajectories-step-N.npz       positions (E, T+1, 3), goals, planned goals, outcomes
+                                  (newest checkpoint only; what `eval plot` draws)
+    summary.json                  per checkpoint rates, mean ± std over checkpoints
+                                  (thesis Table 3.1 protocol), options, dataset identity
+
+Every file is written to a temporary name and renamed. ``std`` is the population
+standard deviation over the evaluated checkpoints (ddof 0; the thesis does not say).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from aerohrl import task
+from aerohrl.errors import UserError
+
+# thesis Table 3.1 (success %, mean ± std over the last 10 checkpoints) and Table 3.2
+THESIS_T31 = {
+    "cql": {"reach-desired": (0.0, 0.0), "reach-intermediate": (0.0, 0.0)},
+    "td3bc": {"reach-desired": (85.2, 4.29), "reach-intermediate": (67.6, 2.23)},
+    "td3awbc": {"reach-desired": (82.8, 7.28), "reach-intermediate": (66.8, 3.52)},
+    "gcsl": {"reach-desired": (93.2, 3.78), "reach-intermediate": (75.6, 3.78)},
+}
+THESIS_T32 = {"single": (11.6, 29.2), "none": (0.0, 4.4)}  # (success %, near success %)
+ALGO_NAMES = {"gcsl": "GCSL", "td3bc": "TD3-BC", "td3awbc": "TD3-AWBC", "cql": "CQL"}
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_text(path, text: str) -> Path:
+    path = Path(path)
+    _atomic_write(path, text.encode())
+    return path
+
+
+def episode_rows(episodes, r: dict) -> tuple[list[str], list[list]]:
+    """Header and rows of the per-episode table."""
+    E = len(episodes)
+    head = ["episode", "kind", "source_episode", "start_frame", "steps_ahead", "horizon"]
+    head += [f"start_{n}" for n in task.STATE_NAMES] + [f"goal_{n}" for n in task.GOAL_NAMES]
+    head += ["success", "near_success", "first_success_step", "first_near_step", "steps",
+             "final_pos_err", "final_vel_err", "final_rot_err", "min_pos_err"]
+    wp = r.get("waypoints")
+    nw = 0 if wp is None else wp.shape[1]
+    for k in range(nw):
+        head += [f"wp{k}_frame", f"wp{k}_px", f"wp{k}_py", f"wp{k}_pz"]
+    if nw:
+        head += ["plan_score", "direct_score", "legs_reached"]
+    kind = episodes.kind()
+    rows = []
+    for i in range(E):
+        row = [i, kind[i], int(episodes.source_episode[i]), int(episodes.start_frame[i]), int(episodes.steps_ahead[i]),
+               int(episodes.horizons[i])]
+        row += [float(x) for x in episodes.start_states[i]] + [float(x) for x in episodes.goals[i]]
+        row += [int(r["success"][i]), int(r["near_success"][i]), int(r["first_success_step"][i]), int(r["first_near_step"][i]),
+                int(r["steps"][i]), float(r["final_pos_err"][i]), float(r["final_vel_err"][i]), float(r["final_rot_err"][i]),
+                float(r["min_pos_err"][i])]
+        for k in range(nw):
+            row += [int(r["waypoint_frame"][i, k])] + [float(x) for x in wp[i, k, :3]]
+        if nw:
+            row += [float(r["plan_score"][i]), float(r["direct_score"][i]), int(r["legs_reached"][i])]
+        rows.append(row)
+    return head, rows
+
+
+def to_csv(head, rows) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(head)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def write_episodes(out_dir, step: int, episodes, r: dict) -> Path:
+    return write_text(Path(out_dir) / f"episodes-step-{step:09d}.csv", to_csv(*episode_rows(episodes, r)))
+
+
+def write_trajectories(out_dir, step: int, episodes, r: dict) -> Path:
+    path = Path(out_dir) / f"trajectories-step-{step:09d}.npz"
+    buf = io.BytesIO()
+    extra = {k: r[k] for k in ("waypoints", "planned_waypoints") if k in r}
+    np.savez_compressed(buf, positions=r["positions"], goals=episodes.goals, start_states=episodes.start_states,
+                        success=r["success"], near_success=r["near_success"], steps=r["steps"], **extra)
+    _atomic_write(path, buf.getvalue())
+    return path
+
+
+def kind_rates(episodes, r: dict) -> dict:
+    """Success rates per episode kind (reach-intermediate: 'desired' / 'intermediate')."""
+    kind = episodes.kind()
+    out = {}
+    if episodes.task == "reach-intermediate":
+        for k in ("desired", "intermediate"):
+            m = kind == k
+            if m.any():
+                out[f"success_{k}"] = float(r["success"][m].mean())
+    return out
+
+
+def summarize(per_ckpt: list[dict], *, run_dir, meta: dict, options, episodes, seconds: float) -> dict:
+    s = np.array([c["success"] for c in per_ckpt])
+    ns = np.array([c["near_success"] for c in per_ckpt])
+    from dataclasses import asdict
+
+    opts = {k: v for k, v in asdict(options).items() if k not in ("progress", "extra")}
+    return {
+        "format": "aerohrl-eval/1",
+        "run": str(run_dir),
+        "algo": (meta.get("config") or {}).get("algo"),
+        "preset": (meta.get("config") or {}).get("preset"),
+        "task": options.task,
+        "planner": options.planner,
+        "name": options.name(),
+        "episodes": len(episodes),
+        "horizon": int(episodes.horizons.max()),
+        "checkpoints": per_ckpt,
+        "success_mean": float(s.mean()),
+        "success_std": float(s.std()),
+        "near_success_mean": float(ns.mean()),
+        "near_success_std": float(ns.std()),
+        "dataset": meta.get("dataset"),
+        "options": opts,
+        "seconds": seconds,
+    }
+
+
+def write_summary(out_dir, summary: dict) -> Path:
+    return write_text(Path(out_dir) / "summary.json", json.dumps(summary, indent=2, sort_keys=True) + "\n")
+
+
+def read_summary(run_dir, name: str) -> dict | None:
+    p = Path(run_dir) / "eval" / name / "summary.json"
+    if not p.exists():
+        return None
+    try:
+        return json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise UserError(f"cannot read {p}: {e}") from None
+
+
+def _pm(mean, std) -> str:
+    return f"{100 * mean:.1f} ± {100 * std:.1f}"
+
+
+def _algo_of(run_dir) -> str:
+    try:
+        return json.loads((Path(run_dir) / "config.json").read_text())["config"]["algo"]
+    except (OSError, KeyError, json.JSONDecodeError):
+        return Path(run_dir).name
+
+
+def tables(run_dirs) -> dict:
+    """Table 3.1 / 3.2 analogues from the runs' evaluation summaries.
+
+    Returns ``{"t31": (head, rows), "t32": (head, rows)}``; UserError if no run has any."""
+    if not run_dirs:
+        raise UserError("no runs given")
+    t31, t32 = [], []
+    for rd in run_dirs:
+        if not Path(rd).is_dir():
+            raise UserError(f"no run at {rd}")
+        algo = _algo_of(rd)
+        th = THESIS_T31.get(algo, {})
+        cells = []
+        for name in ("reach-desired", "reach-intermediate"):
+            s = read_summary(rd, name)
+            cells.append(_pm(s["success_mean"], s["success_std"]) if s else "—")
+            cells.append(f"{s['near_success_mean'] * 100:.1f}" if s else "—")
+            cells.append(f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—")
+            cells.append(f"{len(s['checkpoints'])} x {s['episodes']}" if s else "0")
+        if any(c != "—" for c in cells[::4] + cells[1::4]):
+            t31.append([ALGO_NAMES.get(algo, algo), str(rd)] + cells)
+        evals = sorted(p.name for p in (Path(rd) / "eval").glob("ood-*") if (p / "summary.json").exists())
+        for name in evals:
+            s = read_summary(rd, name)
+            th2 = THESIS_T32.get(s["planner"]) if algo == "gcsl" and name in ("ood-none", "ood-single") else None
+            t32.append([ALGO_NAMES.get(algo, algo), str(rd), name[4:], _pm(s["success_mean"], s["success_std"]),
+                        _pm(s["near_success_mean"], s["near_success_std"]),
+                        f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—", f"{len(s['checkpoints'])} x {s['episodes']}"])
+    if not t31 and not t32:
+        raise UserError("none of the runs has evaluation results (run `aerohrl eval --task ... --run RUN` first)")
+    h31 = ["algorithm", "run", "Reach-Desired success %", "near %", "thesis %", "ckpts x episodes",
+           "Reach-Intermediate success %", "near %", "thesis %", "ckpts x episodes"]
+    h32 = ["algorithm", "run", "planner", "success %", "near success %", "thesis success %", "thesis near %", "ckpts x episodes"]
+    return {"t31": (h31, t31), "t32": (h32, t32)}
+
+
+def markdown(head, rows) -> str:
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def tables_markdown(t: dict) -> str:
+    out = []
+    if t["t31"][1]:
+        out += ["**Table 3.1 analogue** (success %, mean ± std over the evaluated checkpoints; near = near success, mean; "
+                "thesis values beside: last 10 checkpoints x 250 episodes)\n", markdown(*t["t31"])]
+    if t["t32"][1]:
+        out += ["**Table 3.2 analogue** (OOD goals; mean ± std over checkpoints; thesis values for GCSL)\n", markdown(*t["t32"])]
+    return "\n".join(out)
+
+
+__all__ = ["write_episodes", "write_trajectories", "write_summary", "read_summary", "summarize", "tables", "tables_markdown",
+           "markdown", "to_csv", "THESIS_T31", "THESIS_T32"]

@@ -1,0 +1,200 @@
+"""Batched closed-loop evaluation through the Gymnasium vector environment.
+
+All episodes of a task fly together in one :class:`~aerohrl.eval.gym_env.QuadrotorReachVectorEnv`
+(one batched simulator step and one policy call per control step; the Python loop is
+over time only). The policy sees the environment's ``desired_goal``: the task goal, or
+during a planned flight the current intermediate goal (the vehicle "flies to g, then
+to G", SPEC.md / thesis §3.5). A leg ends when the environment reports it terminated
+(the intermediate goal is reached; ``waypoint_tol`` scales the tolerances of
+that test, 1 = the goal-reached test) or truncated (its ``leg_horizon`` budget is used);
+then the next goal is set with :meth:`set_desired_goals`, after re-planning the
+remaining intermediate goals from the vehicle's actual state when ``replan`` is on.
+``replan_every = K`` also re-plans every K steps during intermediate legs, with the
+option of dropping the remaining intermediate goals when flying straight to G scores
+higher (Eq. 3.6 with n = 0).
+
+Outcomes are judged against the *task* goal G at every step of every leg (SPEC.md:
+success = the goal-reached test holds at any step within the horizon, and the episode
+ends there; near success = the test with tolerances x 2.5 at any step).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from aerohrl import task
+from aerohrl.eval.tasks import EpisodeSet
+
+
+class PolicyFn:
+    """``algo.act`` on NumPy states/goals, clipped to the policy's action range (the
+    data range widened by 10%, as the training normaliser maps it) and made finite."""
+
+    def __init__(self, algo):
+        self.algo = algo
+        self.device = next(algo.parameters()).device
+        n = algo.normalizer
+        self.lo = (n.act_center - n.act_half).double().cpu().numpy()
+        self.hi = (n.act_center + n.act_half).double().cpu().numpy()
+
+    @torch.no_grad()
+    def __call__(self, states: np.ndarray, goals: np.ndarray) -> np.ndarray:
+        s = torch.as_tensor(states, dtype=torch.float32, device=self.device)
+        g = torch.as_tensor(goals, dtype=torch.float32, device=self.device)
+        a = self.algo.act(s, g).double().cpu().numpy()
+        return np.clip(np.nan_to_num(a, nan=0.0), self.lo, self.hi)
+
+
+def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, leg_horizon: int | None = None,
+            replan: bool = True, replan_every: int = 0, waypoint_tol: float = 1.0, record: bool = False, vehicle: str = "hummingbird",
+            fps: int = 100, substeps: int = 5, progress: bool = False, desc: str = "rollout") -> dict:
+    """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
+
+    ``planner`` (a :class:`~aerohrl.eval.planner.Planner`) with ``n_waypoints >= 1``
+    plans intermediate goals before take-off (thesis Eq. 3.7 / 3.6). Returns a dict of
+    (E,)-arrays (success, near_success, first_success_step, first_near_step, steps,
+    final_pos_err / final_vel_err / final_rot_err at the episode's last step,
+    min_pos_err) plus the plan (``waypoints`` (E, n, 15), ``waypoint_frame``,
+    ``plan_score``, ``legs_reached``) and, with ``record``, ``positions`` (E, T+1, 3).
+    """
+    from tqdm import tqdm
+
+    from aerohrl.eval.gym_env import QuadrotorReachVectorEnv
+
+    was_training = algo.training
+    algo.eval()
+    policy = PolicyFn(algo)
+    E = len(episodes)
+    G = episodes.goals.astype(np.float64)
+    total = episodes.horizons.astype(np.int64)
+    T = int(total.max())
+    nw = int(n_waypoints) if planner is not None else 0
+    leg_h = int(leg_horizon or episodes.meta.get("leg_horizon", T))
+    env = QuadrotorReachVectorEnv(E, vehicle=vehicle, fps=fps, substeps=substeps, autoreset=False, horizon=T,
+                                  tolerance_scale=waypoint_tol)
+    out: dict = {}
+    t_plan = 0.0
+    if nw:
+        t0 = time.perf_counter()
+        plan = planner.plan(episodes.start_states, G, n=nw)
+        t_plan += time.perf_counter() - t0
+        wp = plan.goals.copy()  # (E, nw, 15), rewritten by re-planning
+        out.update(plan_score=plan.score, direct_score=plan.direct_score, planned_frame=plan.frame.copy(),
+                   planned_waypoints=plan.goals.copy())
+        wp_frame = plan.frame.copy()
+    leg = np.zeros(E, np.int64)  # index of the goal being flown to (nw = the task goal)
+    legs_reached = np.zeros(E, np.int64)  # intermediate goals reached (env terminated, not truncated)
+    first_goal = wp[:, 0] if nw else G
+    first_budget = np.minimum(leg_h, total) if nw else total
+    obs, _ = env.reset(options={"start_states": episodes.start_states, "goals": first_goal, "horizons": first_budget})
+    success = np.zeros(E, bool)
+    near = np.zeros(E, bool)
+    first_success = np.full(E, -1, np.int64)
+    first_near = np.full(E, -1, np.int64)
+    finished = np.zeros(E, bool)
+    steps = total.copy()
+    final = np.zeros((E, 3))
+    min_pos = np.full(E, np.inf)
+    pos = np.zeros((E, T + 1, 3), np.float32) if record else None
+    if record:
+        pos[:, 0] = obs["observation"][:, :3]
+    bar = tqdm(total=T, desc=desc, unit="step", disable=not progress, leave=False, dynamic_ncols=True)
+    try:
+        for t in range(T):
+            active = ~finished
+            a = np.zeros((E, 4))
+            idx = np.flatnonzero(active)
+            a[idx] = policy(obs["observation"][idx], obs["desired_goal"][idx])
+            a[~active] = [9.81, 0.0, 0.0, 0.0]  # finished vehicles hover (their results are fixed)
+            obs, _, term, trunc, _ = env.step(a)
+            ag = obs["achieved_goal"]
+            if record:
+                pos[:, t + 1] = obs["observation"][:, :3]
+            dp, dv, dr = task.goal_errors(ag, G)
+            min_pos = np.where(active, np.minimum(min_pos, dp), min_pos)
+            hit = task.goal_reached(ag, G) & active
+            nr = task.near_success(ag, G) & active
+            first_success[hit] = t + 1
+            first_near[nr & ~near] = t + 1
+            success |= hit
+            near |= nr
+            ending = active & (hit | (t + 1 >= total))
+            final[ending] = np.stack([dp, dv, dr], 1)[ending]
+            steps[ending] = t + 1
+            finished |= ending
+            if nw:  # leg bookkeeping
+                switch = active & ~finished & (leg < nw) & (term | trunc)
+                legs_reached += switch & term
+                if replan_every and (t + 1) % replan_every == 0:
+                    flying_wp = active & ~finished & ~switch & (leg < nw)
+                    if flying_wp.any():
+                        t0 = time.perf_counter()
+                        wp, wp_frame, leg_to_direct = _replan(planner, obs, G, wp, wp_frame, leg, flying_wp, nw, direct_option=True)
+                        t_plan += time.perf_counter() - t0
+                        leg[leg_to_direct] = nw
+                        env.set_desired_goals(np.where((leg < nw)[:, None], wp[np.arange(E), np.minimum(leg, nw - 1)], G),
+                                              flying_wp, horizons=np.where(leg < nw, leg_h, total - (t + 1)))
+                if switch.any():
+                    leg[switch] += 1
+                    if replan and nw > 1:
+                        more = switch & (leg < nw)
+                        if more.any():
+                            t0 = time.perf_counter()
+                            wp, wp_frame, _ = _replan(planner, obs, G, wp, wp_frame, leg, more, nw, direct_option=False)
+                            t_plan += time.perf_counter() - t0
+                    goal = np.where((leg < nw)[:, None], wp[np.arange(E), np.minimum(leg, nw - 1)], G)
+                    budget = np.where(leg < nw, np.minimum(leg_h, total - (t + 1)), total - (t + 1))
+                    obs = env.set_desired_goals(goal, switch, horizons=budget)
+            bar.update(1)
+            if finished.all():
+                break
+    finally:
+        bar.close()
+        algo.train(was_training)
+    out.update(success=success, near_success=near | success, first_success_step=first_success, first_near_step=first_near,
+               steps=steps, final_pos_err=final[:, 0], final_vel_err=final[:, 1], final_rot_err=final[:, 2], min_pos_err=min_pos,
+               plan_seconds=np.full(E, t_plan / max(E, 1)))
+    if nw:
+        out.update(waypoints=wp, waypoint_frame=wp_frame, legs_reached=legs_reached, final_leg=leg)
+    if record:
+        out["positions"] = pos
+    return out
+
+
+def _replan(planner, obs, G, wp, wp_frame, leg, mask, nw, direct_option):
+    """Re-plan the remaining ``nw - leg`` intermediate goals of the episodes in ``mask``
+    from their current states. With ``direct_option``, episodes whose straight flight to
+    G scores higher than their best plan go straight to G (returned mask)."""
+    wp, wp_frame = wp.copy(), wp_frame.copy()
+    to_direct = np.zeros(len(G), bool)
+    for remaining in np.unique(nw - leg[mask]):  # at most nw groups, each planned in one batched pass
+        sel = np.flatnonzero(mask & (nw - leg == remaining))
+        p = planner.plan(obs["observation"][sel], G[sel], n=int(remaining))
+        for r in range(int(remaining)):
+            wp[sel, nw - remaining + r] = p.goals[:, r]
+            wp_frame[sel, nw - remaining + r] = p.frame[:, r]
+        if direct_option:
+            to_direct[sel[p.direct_score > p.score]] = True
+    return wp, wp_frame, to_direct
+
+
+def rollout_reach(algo, goals: np.ndarray, *, horizon: int = 500, vehicle: str = "hummingbird", fps: int = 100,
+                  substeps: int = 5, start_states: np.ndarray | None = None) -> dict:
+    """Reach-Desired style summary (success, near success, mean steps to success) for
+    ``goals`` (N, 15) from hover at the origin or ``start_states``: the trainer's hook."""
+    from aerohrl.eval.tasks import hover_states
+
+    goals = np.asarray(goals, np.float64)
+    n = len(goals)
+    eps = EpisodeSet("reach-desired", hover_states(n) if start_states is None else np.asarray(start_states, np.float64), goals,
+                     np.full(n, int(horizon), np.int64), np.full(n, -1, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64))
+    r = rollout(algo, eps, vehicle=vehicle, fps=fps, substeps=substeps)
+    s = r["success"]
+    return {"success": float(s.mean()), "near_success": float(r["near_success"].mean()),
+            "mean_steps_to_success": float(r["first_success_step"][s].mean()) if s.any() else float("nan")}
+
+
+__all__ = ["rollout", "rollout_reach", "PolicyFn"]

@@ -1,0 +1,162 @@
+"""Episode sets of the evaluation tasks (SPEC.md "Evaluation tasks", thesis §3.5).
+
+An :class:`EpisodeSet` is everything a closed-loop evaluation needs, fixed before any
+policy runs: per episode a start state (18), a goal (15) and a horizon (steps), plus
+where they came from (dataset episode, start frame, steps ahead). Sets are a function
+of the dataset and the seed alone, so every checkpoint of every algorithm flies the
+same episodes.
+
+* ``reach-desired``: hover at the origin, a desired goal of rho_D (the dataset's
+  episodes' goals), horizon 500. With ``n`` equal to the dataset's goal count (250)
+  every goal is flown once, in order; otherwise a seeded draw (without replacement
+  while possible).
+* ``reach-intermediate``: a seeded expert episode and a start frame ``j`` uniform on it;
+  the start state is that frame's state. One third of the episodes (``round(n/3)``, the
+  first ones) aim at the trajectory's desired goal with horizon 500; the other two
+  thirds at the achieved goal ``d`` steps ahead, ``d`` uniform in ``1..min(45, steps
+  left)`` (the achieved goal of frame ``j+d-1`` = the state at ``j+d``), horizon 100.
+* ``ood``: hover at the origin, goals outside rho_D: ``|p_i| ~ U(2, 3.5)`` m per axis
+  with a random sign, velocity and acceleration from the dataset's spec ranges (the
+  SPEC defaults when the dataset has none), attitude by flatness, drawn with
+  :func:`aerohrl.datagen.goals.sample_goals` from seed ``OOD_SEED_OFFSET + seed`` (a
+  different stream from any dataset seed). Horizon 1000 steps (two legs of 500: the
+  thesis flies to one intermediate goal, then to G) for every variant, with or without
+  planner, so that they are compared at equal flight time (see eval/README.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aerohrl import task
+from aerohrl.errors import UserError
+
+TASKS = ("reach-desired", "reach-intermediate", "ood")
+HORIZON_DESIRED = 500
+HORIZON_INTERMEDIATE = 100
+MAX_AHEAD = 45
+OOD_POS_RANGE = (2.0, 3.5)
+OOD_SEED_OFFSET = 1_000_003
+DEFAULT_VEL_RANGE = (-2.5, 2.5)
+DEFAULT_ACC_RANGE = (-5.0, 5.0)
+
+
+@dataclass
+class EpisodeSet:
+    """The episodes of one task (all arrays have ``n`` rows)."""
+
+    task: str
+    start_states: np.ndarray  # (n, 18) float64
+    goals: np.ndarray  # (n, 15) float64
+    horizons: np.ndarray  # (n,) int64, steps
+    source_episode: np.ndarray  # (n,) int64, dataset episode (-1: none)
+    start_frame: np.ndarray  # (n,) int64, frame within that episode (-1: none)
+    steps_ahead: np.ndarray  # (n,) int64, achieved goal this many steps ahead (0: desired goal / none)
+    seed: int = 0
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.goals)
+
+    def kind(self) -> np.ndarray:
+        """Per episode: 'desired', 'intermediate' or 'ood'."""
+        if self.task == "ood":
+            return np.full(len(self), "ood")
+        return np.where(self.steps_ahead > 0, "intermediate", "desired")
+
+
+def hover_states(n: int) -> np.ndarray:
+    s = np.zeros((n, task.STATE_DIM))
+    s[:, task.ROT] = np.eye(3).ravel()
+    return s
+
+
+def _check_n(n) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise UserError(f"the number of episodes must be a positive integer, got {n!r}")
+    return int(n)
+
+
+def _episode_bounds(data) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) global frame indices (ends inclusive) of every dataset episode."""
+    ends = np.unique(data.episode_end.cpu().numpy())
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    return starts, ends
+
+
+def _pick(rng: np.random.Generator, pool: int, n: int) -> np.ndarray:
+    if pool < 1:
+        raise UserError("the goal set is empty (the dataset holds no episodes)")
+    if n == pool:
+        return np.arange(pool)
+    if n < pool:
+        return np.sort(rng.choice(pool, size=n, replace=False))
+    return np.concatenate([np.arange(pool), rng.choice(pool, size=n - pool, replace=True)])
+
+
+def reach_desired(data, n: int = 250, seed: int = 0) -> EpisodeSet:
+    """Reach-Desired (SPEC.md): origin -> a desired goal of the dataset, 500 steps."""
+    n = _check_n(n)
+    goals = data.desired_goals().cpu().numpy().astype(np.float64)
+    idx = _pick(np.random.default_rng([seed, 1]), len(goals), n)
+    return EpisodeSet("reach-desired", hover_states(n), goals[idx], np.full(n, HORIZON_DESIRED, np.int64),
+                      idx.astype(np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), seed)
+
+
+def reach_intermediate(data, n: int = 250, seed: int = 0, max_ahead: int = MAX_AHEAD) -> EpisodeSet:
+    """Reach-Intermediate (SPEC.md): start on an expert trajectory; 1/3 to its desired
+    goal (500 steps), 2/3 to the achieved goal <= ``max_ahead`` steps ahead (100 steps)."""
+    n = _check_n(n)
+    starts, ends = _episode_bounds(data)
+    if len(starts) < 1:
+        raise UserError("the goal set is empty (the dataset holds no episodes)")
+    rng = np.random.default_rng([seed, 2])
+    ep = rng.integers(0, len(starts), size=n)
+    length = ends[ep] - starts[ep] + 1
+    j = np.floor(rng.random(n) * length).astype(np.int64)  # frame within the episode
+    left = length - j  # achieved goals at frames j..end: 1..left steps ahead
+    d = 1 + np.floor(rng.random(n) * np.minimum(max_ahead, left)).astype(np.int64)
+    n_desired = int(round(n / 3))
+    d[:n_desired] = 0
+    frame = starts[ep] + j
+    state = data.state.cpu().numpy().astype(np.float64)[frame]
+    desired = data.goal.cpu().numpy().astype(np.float64)[frame]
+    achieved = task.achieved_goal(data.next_state.cpu().numpy().astype(np.float64)[np.maximum(frame + d - 1, frame)])
+    goals = np.where((d > 0)[:, None], achieved, desired)
+    horizons = np.where(d > 0, HORIZON_INTERMEDIATE, HORIZON_DESIRED).astype(np.int64)
+    return EpisodeSet("reach-intermediate", state, goals, horizons, ep.astype(np.int64), j, d, seed,
+                      meta={"max_ahead": int(max_ahead), "n_desired": n_desired})
+
+
+def ood_goals(n: int, seed: int = 0, *, pos_range=OOD_POS_RANGE, vel_range=None, acc_range=None) -> np.ndarray:
+    """(n, 15) out-of-distribution goals (SPEC.md "ood")."""
+    from aerohrl.datagen.goals import goal_vectors, sample_goals
+
+    n = _check_n(n)
+    g = sample_goals(np.random.default_rng(OOD_SEED_OFFSET + int(seed)), n, pos_range=pos_range,
+                     vel_range=vel_range or DEFAULT_VEL_RANGE, acc_range=acc_range or DEFAULT_ACC_RANGE)
+    return goal_vectors(g)
+
+
+def ood(data, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, legs: int = 2) -> EpisodeSet:
+    """OOD (SPEC.md): origin -> a goal with |p_i| in [2, 3.5] m; ``legs * leg_horizon`` steps in all."""
+    spec = (data.info.get("spec") or {}) if data is not None else {}
+    goals = ood_goals(n, seed, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"))
+    n = len(goals)
+    return EpisodeSet("ood", hover_states(n), goals, np.full(n, leg_horizon * legs, np.int64),
+                      np.full(n, -1, np.int64), np.full(n, -1, np.int64), np.zeros(n, np.int64), seed,
+                      meta={"leg_horizon": int(leg_horizon), "legs": int(legs), "pos_range": list(OOD_POS_RANGE),
+                            "seed_stream": OOD_SEED_OFFSET + int(seed)})
+
+
+def make_episodes(name: str, data, n: int = 250, seed: int = 0, **kw) -> EpisodeSet:
+    """The episode set of task ``name`` (one of :data:`TASKS`)."""
+    if name not in TASKS:
+        raise UserError(f"unknown task {name!r} (choose from {', '.join(TASKS)})")
+    fn = {"reach-desired": reach_desired, "reach-intermediate": reach_intermediate, "ood": ood}[name]
+    return fn(data, n, seed, **kw)
+
+
+__all__ = ["EpisodeSet", "TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "ood_goals", "hover_states"]

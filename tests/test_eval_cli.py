@@ -1,0 +1,142 @@
+"""`aerohrl eval` end to end on a tiny synthetic run: files, numbers traceable to
+episodes, tables, plots, one-line errors."""
+
+import csv
+import json
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from aerohrl.algorithms.config import make_config
+from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
+from aerohrl.algorithms.trainer import start_run
+from aerohrl.cli import main
+
+warnings.filterwarnings("ignore", category=UserWarning)
+TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20,
+            eval_every=20, eval_episodes=2, eval_horizon=20)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("evalcli")
+    ds = write_synthetic_dataset(root / "ds" / "a")
+    other = write_synthetic_dataset(root / "ds" / "b", straight_columns(seed=5), version="synthetic-2")
+    cfg = make_config("cpu", algo="gcsl", dataset=str(ds), **TINY)
+    tr = start_run(cfg, root / "runs" / "gcsl", progress=False)
+    tr.train()
+    empty = root / "runs" / "empty"
+    start_run(make_config("cpu", algo="td3bc", dataset=str(ds), **TINY), empty, progress=False)
+    return {"root": root, "ds": ds, "other": other, "run": root / "runs" / "gcsl", "empty": empty}
+
+
+def _err(capsys, argv):
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def test_reach_desired_files_trace_to_episodes(setup, capsys):
+    run = setup["run"]
+    assert main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "4", "--no-progress"]) == 0
+    assert "reach-desired: gcsl" in capsys.readouterr().out
+    d = run / "eval" / "reach-desired"
+    s = json.loads((d / "summary.json").read_text())
+    assert [c["step"] for c in s["checkpoints"]] == [20, 40] and s["episodes"] == 4
+    rates = []
+    for c in s["checkpoints"]:
+        rows = list(csv.DictReader(open(d / f"episodes-step-{c['step']:09d}.csv")))
+        assert len(rows) == 4 and {"goal_px", "start_px", "first_success_step", "final_pos_err"} <= set(rows[0])
+        rates.append(np.mean([int(r["success"]) for r in rows]))
+        assert c["success"] == rates[-1]
+    assert s["success_mean"] == pytest.approx(np.mean(rates)) and s["success_std"] == pytest.approx(np.std(rates))
+    assert (d / "trajectories-step-000000040.npz").exists()
+    assert not list(d.glob(".*tmp*"))
+
+
+def test_intermediate_ood_planners_table_and_plots(setup, capsys, tmp_path):
+    run = setup["run"]
+    common = ["--run", str(run), "--checkpoints", "1", "--no-progress"]
+    assert main(["eval", "--task", "reach-intermediate", "--episodes", "6", *common]) == 0
+    s = json.loads((run / "eval" / "reach-intermediate" / "summary.json").read_text())
+    assert set(s["checkpoints"][0]) >= {"success_desired", "success_intermediate"}
+    ood = ["--task", "ood", "--episodes", "3", "--horizon", "90", "--candidates", "40", *common]
+    assert main(["eval", *ood, "--planner", "none"]) == 0
+    assert main(["eval", *ood, "--planner", "single", "--alpha", "0.5"]) == 0
+    assert main(["eval", *ood, "--planner", "multi", "--waypoints", "2", "--beam", "3", "--replan-every", "10"]) == 0
+    names = sorted(p.name for p in (run / "eval").glob("ood-*"))
+    assert names == ["ood-multi2-replan10", "ood-none", "ood-single-a0.5"]
+    rows = list(csv.DictReader(open(next((run / "eval" / "ood-multi2-replan10").glob("episodes-*.csv")))))
+    assert {"wp0_frame", "wp1_frame", "plan_score", "legs_reached"} <= set(rows[0])
+    for name in names:  # every variant flies the same goals for the same time
+        r = list(csv.DictReader(open(next((run / "eval" / name).glob("episodes-*.csv")))))
+        assert [x["goal_px"] for x in r] == [x["goal_px"] for x in rows] and {x["horizon"] for x in r} == {"90"}
+    capsys.readouterr()
+    assert main(["eval", "table", str(run), "-o", str(tmp_path / "t")]) == 0
+    out = capsys.readouterr().out
+    assert "Table 3.1" in out and "GCSL" in out and "93.2 ± 3.78" in out and "Table 3.2" in out
+    assert (tmp_path / "t.md").exists() and (tmp_path / "t-t31.csv").exists() and (tmp_path / "t-t32.csv").exists()
+    assert main(["eval", "plot", "--task", "ood", "--run", str(run), "-o", str(tmp_path / "ood.png")]) == 0
+    assert main(["eval", "plot", "--task", "reach-desired", "--run", str(run), "-o", str(tmp_path / "rd.png")]) == 0
+    assert main(["eval", "plot", "--curves", str(run), "-o", str(tmp_path / "c.png")]) == 0
+    assert all((tmp_path / f).stat().st_size > 1000 for f in ("ood.png", "rd.png", "c.png"))
+
+
+@pytest.mark.parametrize("case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals"])
+def test_bad_input_is_one_line(setup, capsys, case):
+    run, empty = str(setup["run"]), str(setup["empty"])
+    argv, match = {
+        "task": (["eval", "--task", "reach-far", "--run", run], "unknown task 'reach-far'"),
+        "no-ckpt": (["eval", "--task", "reach-desired", "--run", empty], "has no checkpoints"),
+        "no-run": (["eval", "--task", "reach-desired", "--run", run + "-missing"], "no run at"),
+        "mismatch": (["eval", "--task", "reach-desired", "--run", run, "--dataset", str(setup["other"])], "does not belong"),
+        "empty-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "0"], "empty goal set"),
+        "planner-task": (["eval", "--task", "reach-desired", "--run", run, "--planner", "single"], "ood only"),
+        "no-evals": (["eval", "table", empty], "none of the runs has evaluation results"),
+    }[case]
+    code, err = _err(capsys, argv)
+    assert code == 2 and err.startswith("aerohrl eval: error: ") and match in err and "\n" not in err
+
+
+def test_checkpoint_from_another_dataset_is_refused(setup, tmp_path, capsys):
+    import shutil
+
+    run = tmp_path / "mixed"
+    shutil.copytree(setup["run"], run)
+    ck = torch.load(run / "checkpoints" / "step-000000040.pt", weights_only=False)
+    ck["dataset"]["checksum"] = "0" * 64
+    torch.save(ck, run / "checkpoints" / "step-000000040.pt")
+    code, err = _err(capsys, ["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2"])
+    assert code == 2 and "do not belong together" in err and "step-000000040.pt" in err
+
+
+def test_readme_block_is_replaced_between_markers(tmp_path):
+    from aerohrl.eval.reproduce import update_readme
+
+    p = tmp_path / "README.md"
+    p.write_text("# x\n<!-- results:begin -->\nold\n<!-- results:end -->\ntail\n")
+    assert update_readme(p, "new table\n")
+    assert p.read_text() == "# x\n<!-- results:begin -->\nnew table\n<!-- results:end -->\ntail\n"
+    q = tmp_path / "NOMARK.md"
+    q.write_text("# y\n")
+    assert not update_readme(q, "t") and q.read_text() == "# y\n"
+
+
+@pytest.mark.slow
+def test_make_results_pipeline_end_to_end(tmp_path):
+    """`make results` in miniature: build, train two algorithms, evaluate, tables into a README."""
+    import subprocess
+    import sys
+
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- results:begin -->\n<!-- results:end -->\n")
+    p = subprocess.run([sys.executable, "-m", "aerohrl.eval.reproduce", "--steps", "60", "--episodes", "6", "--checkpoints", "2",
+                        "--algos", "gcsl", "td3bc", "--datasets", str(tmp_path / "ds"), "--runs", str(tmp_path / "runs"),
+                        "--out", str(tmp_path / "res"), "--readme", str(readme)], capture_output=True, text=True, timeout=900)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
+    text = readme.read_text()
+    assert "Table 3.1 analogue" in text and "Table 3.2 analogue" in text and "wall time" in text and "TD3-BC" in text
+    assert (tmp_path / "res" / "tables-t31.csv").exists() and (tmp_path / "res" / "ood-gcsl.png").exists()
