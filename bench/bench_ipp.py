@@ -1,4 +1,6 @@
-"""IPP speed: batched environment steps/s and planning ms per decision per planner.
+"""IPP speed: batched environment steps/s and planning ms per decision per planner
+(baselines and the learned policy with its per-primitive features, untrained weights:
+the cost does not depend on them), target search and semantic detection.
 
     .venv/bin/python bench/bench_ipp.py [--quick]
 """
@@ -11,8 +13,8 @@ import time
 import numpy as np
 
 from aerohrl.ipp.baselines import PLANNERS, PlannerConfig, make_planner
-from aerohrl.ipp.env import EnvConfig, SearchEnv
-from aerohrl.ipp.lattice import default_lattice
+from aerohrl.ipp.env import EnvConfig, SearchEnv, create_env, sample_for, semantic_config
+from aerohrl.ipp.lattice import default_lattice, semantic_lattice
 from aerohrl.ipp.world import sample_worlds
 
 
@@ -35,11 +37,23 @@ def env_steps_per_s(lat, n: int, steps: int) -> tuple[float, float]:
     return n * steps / dt, 1000 * t_obs
 
 
-def planning_ms(lat, name: str, n: int, decisions: int) -> float:
-    cfg = EnvConfig()
-    env = SearchEnv(cfg, lat)
-    env.reset(sample_worlds(cfg.world, 0, range(n)))
-    pl = make_planner(name, env, PlannerConfig())
+def _rl_planner(env):
+    import torch
+
+    from aerohrl.ipp.features import N_FEAT
+    from aerohrl.ipp.policy import ActorCritic, PolicyConfig, RLPlanner
+    torch.set_num_threads(1)
+    obs = env.observe()
+    model = ActorCritic(obs["maps"].shape[1], obs["maps"].shape[2], obs["vec"].shape[1],
+                        env.lat.n_actions, PolicyConfig(), n_feat=N_FEAT).eval()
+    return RLPlanner(env, model)
+
+
+def planning_ms(lat, name: str, n: int, decisions: int, cfg=None) -> float:
+    cfg = cfg or EnvConfig()
+    env = create_env(cfg, lat)
+    env.reset(sample_for(cfg, 0, range(n)))
+    pl = _rl_planner(env) if name == "rl" else make_planner(name, env, PlannerConfig())
     total, served = 0.0, 0
     for _ in range(decisions):
         live = int((~env.done).sum())
@@ -67,8 +81,14 @@ def main() -> None:
     n, dec = (10, 5) if a.quick else (20, 10)
     print(f"\nplanning ms per decision ({n} envs batched, first {dec} decisions)")
     print("| planner | ms/decision |\n|---|---|")
-    for name in PLANNERS:
+    for name in PLANNERS + ("rl",):
         print(f"| {name} | {planning_ms(lat, name, n, dec):.2f} |")
+    slat, scfg = semantic_lattice(), semantic_config()
+    n, dec = (2, 3) if a.quick else (4, 5)
+    print(f"\nsemantic 256 x 256: planning ms per decision ({n} envs batched, first {dec} decisions)")
+    print("| planner | ms/decision |\n|---|---|")
+    for name in PLANNERS + ("rl",):
+        print(f"| {name} | {planning_ms(slat, name, n, dec, scfg):.2f} |")
 
 
 if __name__ == "__main__":

@@ -97,19 +97,20 @@ class TreePlanner(Planner):
 
     # utility of cells: b belief, c covered, lp previous lam in sequence, lam this prim
     def _util(self, b, c, lp, lam):
+        env = self.env
         if self.kind == "info":
-            g = info_gain(b, lp + lam)
+            g = env.plan_ig(b, lp + lam)
             seen = lp > 0
             if seen.any():
-                g[seen] -= info_gain(b[seen], lp[seen])
+                g[seen] -= env.plan_ig(b[seen], lp[seen])
             return g
         new = (~c) & (lp == 0)
         if self.kind == "coverage":
             return new.astype(float)
         if self.kind == "prio":
-            return new * (self.cfg.eps + b)
+            return new * (self.cfg.eps + env.plan_prio(b))
         if self.kind == "greedy":
-            return self.cfg.f1 * b + self.cfg.f2 * entropy_bits(b)
+            return self.cfg.f1 * env.plan_prio(b) + self.cfg.f2 * env.plan_entropy(b)
         raise UserError(f"unknown utility {self.kind!r}")
 
     def act(self) -> np.ndarray:
@@ -117,7 +118,10 @@ class TreePlanner(Planner):
         N = env.n
         out = np.zeros(N, np.int64)
         A = env.lat.n_actions
-        per_env = A ** max(self.depth - 1, 0) * env.Hp * env.Hp
+        lat = env.lat
+        W = 2 * self._window_radius() + 1
+        C = getattr(env, "n_classes", 1)
+        per_env = A ** max(self.depth - 1, 0) * max(W * W, A * lat.cell_off.shape[1] * C)
         chunk = max(1, int(self.cfg.max_nodes // max(per_env, 1)))
         live = np.flatnonzero(~env.done)
         for s in range(0, len(live), chunk):
@@ -125,11 +129,20 @@ class TreePlanner(Planner):
             out[idx] = self._plan(idx)
         return out
 
+    def _window_radius(self) -> int:
+        """Cells sensed by the first ``depth-1`` primitives lie within this Chebyshev
+        radius of the agent: the overlap maps only need that window, not the map."""
+        lat = self.env.lat
+        return int((self.depth - 1) * np.abs(lat.prim_disp).max() + np.abs(lat.cell_off).max() + 1)
+
     def _plan(self, idx: np.ndarray) -> np.ndarray:
         env, lat = self.env, self.env.lat
         A, Hp, S = lat.n_actions, env.Hp, env.S
         n = len(idx)
-        b_all = sigmoid(env.L[idx]).reshape(n, -1)
+        Rw = self._window_radius()
+        Wn = 2 * Rw + 1
+        x0 = env.pos[idx, 0][:, None, None, None]
+        y0 = env.pos[idx, 1][:, None, None, None]
         c_all = env.cov[idx].reshape(n, -1)
         lamv = env.lam_levels
         # node state: (n, K) with K = A^k
@@ -153,27 +166,30 @@ class TreePlanner(Planner):
             y = pos[..., 1][:, :, None, None] + off[..., 1]
             inside = (x >= 0) & (x < S) & (y >= 0) & (y < S) & (cnt.sum(-1) > 0)
             flat = np.clip(y + env.pad, 0, Hp - 1) * Hp + np.clip(x + env.pad, 0, Hp - 1)
-            b = b_all[rows, flat]
+            # window-local index of each cell (the overlap maps live on the window)
+            wl = np.clip(y - y0 + Rw, 0, Wn - 1) * Wn + np.clip(x - x0 + Rw, 0, Wn - 1)
             c = c_all[rows, flat]
             if lmap is None:
                 lp = np.zeros_like(lam)
             else:
-                lp = lmap[np.arange(n)[:, None, None, None], np.arange(K)[None, :, None, None], flat]
+                lp = lmap[np.arange(n)[:, None, None, None], np.arange(K)[None, :, None, None], wl]
             uc = np.zeros(lam.shape)
-            uc[inside] = self._util(b[inside], c[inside], lp[inside], lam[inside])
+            b_in = None if self.kind == "coverage" else \
+                env.plan_cells(idx[np.nonzero(inside)[0]], flat[inside])
+            uc[inside] = self._util(b_in, c[inside], lp[inside], lam[inside])
             u = uc.sum(-1)  # (n, K, A)
             util = (util[..., None] + u).reshape(n, K * A)
             cost = (cost[..., None] + lat.prim_cost[pr]).reshape(n, K * A)
             alive = ok.reshape(n, K * A)
             if k + 1 < self.depth:
                 w = np.where(inside, lam, 0.0)
-                ii = (np.arange(n * K * A)[:, None] * (Hp * Hp)
-                      + flat.reshape(n * K * A, -1))
+                ii = (np.arange(n * K * A)[:, None] * (Wn * Wn)
+                      + wl.reshape(n * K * A, -1))
                 nl = np.bincount(ii.ravel(), weights=w.reshape(-1),
-                                 minlength=n * K * A * Hp * Hp).reshape(n, K, A, Hp * Hp)
+                                 minlength=n * K * A * Wn * Wn).reshape(n, K, A, Wn * Wn)
                 if lmap is not None:
                     nl += lmap[:, :, None, :]
-                lmap = nl.reshape(n, K * A, Hp * Hp)
+                lmap = nl.reshape(n, K * A, Wn * Wn)
             pos = (pos[:, :, None, :] + lat.prim_disp[pr]).reshape(n, K * A, 2)
             vert = lat.prim_to[pr].reshape(n, K * A)
         score = np.where(alive, util / cost, -np.inf)
@@ -224,7 +240,7 @@ class CMAESPlanner(Planner):
 
     def reset(self) -> None:
         self.queue = np.full((self.env.n, 0), -1, np.int64)
-        self.rng_seed = 0
+        self.replans = np.zeros(self.env.n, np.int64)  # per env: seeds do not depend on the batch
 
     def _decode(self, X: np.ndarray, env_idx: np.ndarray):
         """X (C, h) -> actions (C, h), info utility (C,), cost (C,) for envs env_idx (C,)."""
@@ -256,10 +272,14 @@ class CMAESPlanner(Planner):
             vert = lat.prim_to[pr]
         f = np.concatenate(flats, 1).ravel()
         w = np.concatenate(lams, 1).ravel()
-        tot = np.bincount(f, weights=w, minlength=C * Hp * Hp)
-        nz = np.flatnonzero(tot)
-        b = sigmoid(env.L[env_idx].reshape(C, -1)).ravel()[nz]
-        util = np.bincount(nz // (Hp * Hp), weights=info_gain(b, tot[nz]), minlength=C)
+        # total lam per (candidate, cell), sparse: memory ~ measurements, not map size
+        cells, inv = np.unique(f, return_inverse=True)
+        tot = np.bincount(inv, weights=w, minlength=len(cells))
+        keep = tot > 0
+        cells, tot = cells[keep], tot[keep]
+        cand = cells // (Hp * Hp)
+        b = env.plan_cells(env_idx[cand], cells % (Hp * Hp))
+        util = np.bincount(cand, weights=env.plan_ig(b, tot), minlength=C)
         return acts, util, cost
 
     def act(self) -> np.ndarray:
@@ -275,11 +295,11 @@ class CMAESPlanner(Planner):
             newq[:, : self.queue.shape[1]] = self.queue[:, :h] if self.queue.shape[1] else -1
             opts = []
             for j, n in enumerate(need):
-                self.rng_seed += 1
+                self.replans[n] += 1
                 opts.append(CMA(mean=np.full(h, 0.5), sigma=cfg.sigma0,
                                 bounds=np.tile([0.0, 1.0], (h, 1)),
                                 population_size=cfg.popsize,
-                                seed=int(env.worlds.seeds[n, 1] * 7919 + self.rng_seed)))
+                                seed=int(env.worlds.seeds[n, 1] * 7919 + self.replans[n])))
             best_f = np.full(len(need), np.inf)
             best_a = np.zeros((len(need), h), np.int64)
             P = cfg.popsize

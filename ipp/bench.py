@@ -18,9 +18,8 @@ from aerohrl.errors import UserError
 
 from ._io import atomic_path
 from .baselines import PLANNERS, THESIS_NAMES, PlannerConfig, make_planner
-from .env import EnvConfig, SearchEnv
+from .env import EnvConfig, SearchEnv, create_env, sample_for
 from .lattice import Lattice
-from .world import sample_worlds
 
 TEST_SEED = 1000
 
@@ -53,12 +52,13 @@ def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids=None, pr
     env = None
     for s in range(0, len(ids), cfg.batch):
         chunk = ids[s:s + cfg.batch]
-        env = SearchEnv(cfg.env, lattice)
-        env.reset(sample_worlds(cfg.env.world, cfg.seed, chunk))
+        env = create_env(cfg.env, lattice)
+        env.reset(sample_for(cfg.env, cfg.seed, chunk))
         if model is not None:
             from .policy import RLPlanner
             pl = RLPlanner(env, model)
         else:
+            env.lazy_obs = True  # baselines read the maps directly
             pl = make_planner(name, env, cfg.planner)
         pl.reset()
         prev_done = 0
@@ -91,21 +91,32 @@ def render_episode(env: SearchEnv, n: int, path, title: str = "") -> Path:
 
     lat, S = env.lat, env.S
     w = env.worlds
+    semantic = env.cfg.kind == "semantic"
     budget = np.array([b[n] for b in env.trace_budget]) / env.cfg.budget
     fig, axes = plt.subplots(1, 5, figsize=(17, 3.8))
     ext = (-0.5, S - 0.5, -0.5, S - 0.5)
-    axes[0].imshow(w.density[n], origin="lower", extent=ext, cmap="Greys")
-    ty, tx = np.nonzero(w.targets[n])
-    axes[0].scatter(tx, ty, c="r", s=8)
-    axes[0].set_title(f"truth ({len(tx)} targets)")
-    axes[1].imshow(w.prior[n], origin="lower", extent=ext, cmap="Blues", vmin=0, vmax=1)
-    axes[1].set_title(f"prior (KL {w.kl[n]:.2f})")
-    belief = env.belief()[n]
+    if semantic:  # Fig. 2.5 analogue: classes, prior (expected colour), final belief
+        from .semantic import PALETTE, class_rgb
+        axes[0].imshow(class_rgb(w.classes[n]), origin="lower", extent=ext)
+        axes[0].set_title(f"truth ({int(env.n_targets[n])} feature cells)")
+        prior_img = np.clip((w.prior[n] @ PALETTE[:w.prior.shape[-1]].astype(float)) / 255.0, 0, 1)
+        axes[1].imshow(prior_img, origin="lower", extent=ext)
+        axes[1].set_title(f"prior (CE {w.kl[n]:.2f} nats/cell)")
+        final_img = np.clip((env.probs()[n] @ PALETTE[:w.prior.shape[-1]].astype(float)) / 255.0, 0, 1)
+        alpha = 1.0
+    else:
+        axes[0].imshow(w.density[n], origin="lower", extent=ext, cmap="Greys")
+        ty, tx = np.nonzero(w.targets[n])
+        axes[0].scatter(tx, ty, c="r", s=8)
+        axes[0].set_title(f"truth ({len(tx)} targets)")
+        axes[1].imshow(w.prior[n], origin="lower", extent=ext, cmap="Blues", vmin=0, vmax=1)
+        axes[1].set_title(f"prior (KL {w.kl[n]:.2f})")
+        prior_img, final_img, alpha = w.prior[n], env.belief()[n], 0.6
     for ax, frac in zip(axes[2:], (0.7, 0.3, 0.0)):
         k = int(np.searchsorted(-budget, -frac, side="right"))  # steps taken at >= frac left
         k = min(k, len(env.trace_prim))
-        ax.imshow(belief if frac == 0.0 else w.prior[n], origin="lower", extent=ext,
-                  cmap="Blues", vmin=0, vmax=1, alpha=0.6)
+        ax.imshow(final_img if frac == 0.0 else prior_img, origin="lower", extent=ext,
+                  cmap=None if semantic else "Blues", vmin=0, vmax=1, alpha=alpha)
         for j in range(k):
             pr = int(env.trace_prim[j][n])
             if pr < 0:

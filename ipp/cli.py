@@ -6,6 +6,8 @@
     aerohrl ipp train --preset cpu                      # -> runs/<run>/
     aerohrl ipp bench --all --run runs/<run>            # baselines + learned policy
     aerohrl ipp show --env 7 --planner dp -o path.png
+    aerohrl ipp bench --all --world semantic --envs 30  # Table 2.2 analogue
+    aerohrl ipp bench --all --world semantic --raster campus.png   # a user's class raster
 
 Flags map one to one onto :class:`~aerohrl.ipp.lattice.LatticeConfig`,
 :class:`~aerohrl.ipp.env.EnvConfig`, :class:`~aerohrl.ipp.baselines.PlannerConfig` and
@@ -32,7 +34,7 @@ class _Parser(argparse.ArgumentParser):
 def _parser() -> argparse.ArgumentParser:
     from .baselines import PLANNERS
     from .bench import TEST_SEED
-    from .env import EnvConfig
+    from .env import SEMANTIC_BUDGET, EnvConfig
     from .lattice import LatticeConfig
 
     lc, ec = LatticeConfig(), EnvConfig()
@@ -54,10 +56,19 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--footprint-radius", type=int, default=lc.footprint_radius)
     b.add_argument("--sense-dt", type=float, default=lc.sense_dt)
 
+    def world_flags(q):
+        q.add_argument("--world", choices=("targets", "semantic"), default="targets",
+                       help="target search (Table 2.1) or semantic feature detection (Table 2.2)")
+        q.add_argument("--raster", help="semantic: class raster (.npy/.npz/.png) instead of "
+                       "procedural campus maps (see aerohrl.ipp.semantic)")
+        q.add_argument("--map-size", type=int, default=None,
+                       help=f"cells per side (default {ec.map_size}; semantic 256)")
+        q.add_argument("--budget", type=float, default=None,
+                       help=f"cost budget (default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
+
     def env_flags(q):
         q.add_argument("--lattice", help="lattice file (default: the shipped one)")
-        q.add_argument("--map-size", type=int, default=ec.map_size)
-        q.add_argument("--budget", type=float, default=ec.budget)
+        world_flags(q)
         q.add_argument("--start", choices=("center", "random"), default=ec.start)
         q.add_argument("--seed", type=int, default=TEST_SEED, help="test-suite seed")
         q.add_argument("--depth", type=int, default=None, help="tree depth (greedy/dp/coverage)")
@@ -74,16 +85,21 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--seed", type=int, default=None)
     tr.add_argument("--threads", type=int, default=None)
     tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
+    tr.add_argument("--lr", type=float, default=None)
+    tr.add_argument("--init", help="warm start from a trained run (fine-tuning)")
+    tr.add_argument("--start", choices=("center", "random"), default="random",
+                    help="training start cells (test suite: center)")
     tr.add_argument("--run-dir", help="output directory (default runs/ipp-<preset>-<time>)")
     tr.add_argument("--lattice", help="lattice file (default: the shipped one)")
-    tr.add_argument("--budget", type=float, default=ec.budget)
+    world_flags(tr)
     tr.add_argument("--no-progress", action="store_true")
 
     be = sub.add_parser("bench", help="Table 2.1 analogue on the seeded test suite")
     g = be.add_mutually_exclusive_group()
     g.add_argument("--planner", help=f"one of {', '.join(PLANNERS)} (default dp)")
     g.add_argument("--all", action="store_true", help="every baseline (+ rl with --run)")
-    be.add_argument("--envs", type=int, default=100)
+    be.add_argument("--envs", type=int, default=None,
+                    help="test environments (default 100; semantic 30, as the thesis)")
     be.add_argument("--batch", type=int, default=100, help="environments stepped together")
     be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
     be.add_argument("--no-progress", action="store_true")
@@ -99,18 +115,35 @@ def _parser() -> argparse.ArgumentParser:
 
 def _configs(a):
     from .baselines import PlannerConfig
-    from .env import EnvConfig
-    from .world import WorldConfig
 
-    if a.map_size < 1:
-        raise UserError(f"map size must be positive, got {a.map_size}")
-    env = EnvConfig(map_size=a.map_size, budget=a.budget, start=a.start,
-                    world=WorldConfig(map_size=a.map_size))
+    env = _env_config(a, a.start)
     pc = PlannerConfig(depth=a.depth, horizon=a.horizon, popsize=a.popsize,
                        generations=a.generations)
     if a.horizon < 1 or a.popsize < 2 or a.generations < 1:
         raise UserError("--horizon >= 1, --popsize >= 2 and --generations >= 1 are required")
     return env, pc
+
+
+def _env_config(a, start):
+    from .env import EnvConfig, semantic_config
+    from .world import WorldConfig
+
+    if a.map_size is not None and a.map_size < 1:
+        raise UserError(f"map size must be positive, got {a.map_size}")
+    if a.world == "semantic":
+        if a.raster is not None and not Path(a.raster).is_file():
+            raise UserError(f"class raster {a.raster} not found")
+        env = semantic_config(budget=a.budget, raster=a.raster, start=start,
+                              map_size=a.map_size or 256)
+        if a.raster is not None:  # fail early, one line, on a bad raster
+            from .semantic import load_class_raster
+            load_class_raster(a.raster, env.map_size, env.semantic.n_classes)
+        return env
+    if a.raster is not None:
+        raise UserError("--raster needs --world semantic")
+    size = a.map_size or EnvConfig().map_size
+    return EnvConfig(map_size=size, budget=EnvConfig().budget if a.budget is None else a.budget,
+                     start=start, world=WorldConfig(map_size=size))
 
 
 def _lattice_build(a) -> int:
@@ -129,7 +162,7 @@ def _lattice_build(a) -> int:
     return 0
 
 
-def _load_models(a) -> dict:
+def _load_models(a, kind: str = "targets") -> dict:
     """{row key: model} for the --run directories: 'rl' (GRU core) / 'rl_nolstm' (MLP)."""
     if not a.run:
         raise UserError("planner rl needs --run <trained run directory>")
@@ -137,6 +170,8 @@ def _load_models(a) -> dict:
     out = {}
     for path in a.run:
         m = load_policy(path)
+        if m.env_kind != kind:
+            raise UserError(f"{path}: policy was trained on {m.env_kind} worlds, not {kind}")
         key = "rl" if m.cfg.recurrent else "rl_nolstm"
         k, i = key, 2
         while k in out:
@@ -150,21 +185,23 @@ def _bench(a) -> int:
 
     from .baselines import PLANNERS, THESIS_NAMES, make_planner
     from .bench import BenchConfig, run_episodes
-    from .env import SearchEnv
+    from .env import create_env
     from .lattice import get_lattice
     from .metrics import (markdown_table, per_env_csv, plot_kl, summarise, summary_csv,
                           write_atomic)
 
     env, pc = _configs(a)
+    if a.envs is None:
+        a.envs = 30 if env.kind == "semantic" else 100
     names = tuple(PLANNERS) if a.all else (a.planner or "dp",)
     if a.all and a.run:
         names += ("rl",)
     cfg = BenchConfig(planners=names, envs=a.envs, seed=a.seed, batch=a.batch, env=env,
                       planner=pc)
     cfg.validate()
-    lat = get_lattice(a.lattice)
-    probe = SearchEnv(env, lat)  # validate map size / budget / planner flags up front
-    models = _load_models(a) if "rl" in names else {}
+    lat = get_lattice(a.lattice, env.kind)
+    probe = create_env(env, lat)  # validate map size / budget / planner flags up front
+    models = _load_models(a, env.kind) if "rl" in names else {}
     for name in names:
         if name != "rl":
             make_planner(name, probe, pc)
@@ -177,13 +214,15 @@ def _bench(a) -> int:
         bar.close()
         r["summary"] = summarise(r["per_env"])
         results[name] = r
-    md = markdown_table(results, THESIS_NAMES)
+    md = markdown_table(results, THESIS_NAMES, env.kind)
     print(md, end="")
     out = Path(a.out_dir)
     write_atomic(out / "ipp_bench.md", md)
-    write_atomic(out / "ipp_bench.csv", summary_csv(results))
+    write_atomic(out / "ipp_bench.csv", summary_csv(results, env.kind))
     write_atomic(out / "ipp_bench_envs.csv", per_env_csv(results))
-    plot_kl(results, THESIS_NAMES, out / "ipp_kl.png")
+    plot_kl(results, THESIS_NAMES, out / "ipp_kl.png",
+            xlabel="prior cross-entropy (nats/cell), quantile bins" if env.kind == "semantic"
+            else "KL(truth || prior) (nats), quantile bins")
     print(f"wrote {out}/ipp_bench.md, ipp_bench.csv, ipp_bench_envs.csv, ipp_kl.png")
     return 0
 
@@ -197,13 +236,16 @@ def _train(a) -> int:
     from .train import preset, train
 
     cfg = preset(a.preset, n_envs=a.n_envs, iterations=a.iterations, seed=a.seed,
-                 threads=a.threads, recurrent=False if a.no_rnn else None)
-    cfg = replace(cfg, env=replace(cfg.env, budget=a.budget))
+                 threads=a.threads, recurrent=False if a.no_rnn else None, lr=a.lr,
+                 init=a.init)
+    if cfg.lr <= 0 or not cfg.lr < 1:
+        raise UserError(f"--lr must be in (0, 1), got {cfg.lr}")
+    cfg = replace(cfg, env=_env_config(a, a.start))
     if cfg.n_envs < 1 or cfg.iterations < 1:
         raise UserError("--envs and --iterations must be >= 1")
-    lat = get_lattice(a.lattice)
-    from .env import SearchEnv
-    SearchEnv(cfg.env, lat)
+    lat = get_lattice(a.lattice, cfg.env.kind)
+    from .env import create_env
+    create_env(cfg.env, lat)
     run = Path(a.run_dir or f"runs/ipp-{a.preset}{'-nornn' if a.no_rnn else ''}-"
                f"{time.strftime('%Y%m%d-%H%M%S')}")
     bar = tqdm(total=cfg.iterations, desc="train", file=sys.stderr, disable=a.no_progress)
@@ -226,8 +268,9 @@ def _show(a) -> int:
         raise UserError("--env must be >= 0")
     env, pc = _configs(a)
     cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc)
-    lat = get_lattice(a.lattice)
-    key, model = next(iter(_load_models(a).items())) if a.planner == "rl" else (a.planner, None)
+    lat = get_lattice(a.lattice, env.kind)
+    key, model = next(iter(_load_models(a, env.kind).items())) if a.planner == "rl" \
+        else (a.planner, None)
     r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model)
     m = r["per_env"]
     title = (f"{THESIS_NAMES.get(key, key)} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "

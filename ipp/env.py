@@ -39,6 +39,7 @@ from aerohrl.errors import UserError
 from .lattice import Lattice
 from .sensor import (SensorConfig, entropy_bits, hashed_uniform, logit,
                      logodds_step, measure, sigmoid)
+from .semantic import SemanticConfig
 from .world import WorldConfig, Worlds, sample_worlds
 
 TERMS = ("entropy", "coverage", "target", "cost", "invalid")
@@ -61,6 +62,8 @@ class EnvConfig:
     obs_scales: tuple[int, ...] = (1, 2, 4)
     sensor: SensorConfig = field(default_factory=SensorConfig)
     world: WorldConfig = field(default_factory=WorldConfig)
+    kind: str = "targets"          # "targets" (Table 2.1) or "semantic" (Table 2.2)
+    semantic: SemanticConfig = field(default_factory=SemanticConfig)
 
     def validate(self, lattice: Lattice) -> None:
         if self.map_size < 2 * lattice.config.footprint_radius + 2:
@@ -75,8 +78,15 @@ class EnvConfig:
             raise UserError(f"unknown start {self.start!r} (center|random)")
         if not 0.5 < self.found_threshold < 1:
             raise UserError("found_threshold must be in (0.5, 1)")
-        if self.world.map_size != self.map_size:
+        if self.kind not in ("targets", "semantic"):
+            raise UserError(f"unknown world kind {self.kind!r} (targets|semantic)")
+        if self.kind == "targets" and self.world.map_size != self.map_size:
             raise UserError("world.map_size must equal map_size")
+        if self.kind == "semantic":
+            if self.semantic.map_size != self.map_size:
+                raise UserError("semantic.map_size must equal map_size")
+            if not 2 <= self.semantic.n_classes <= 16:
+                raise UserError("semantic worlds need 2..16 classes (background included)")
 
 
 def viability(lattice: Lattice, size: int) -> np.ndarray:
@@ -137,6 +147,7 @@ class SearchEnv:
         self.inner = inner
         self.boundary = (~inner).astype(np.float32)
         self.n = 0
+        self.lazy_obs = False  # True: step() returns obs=None (planners that do not need it)
 
     # ----------------------------------------------------------------- set-up
     def reset(self, worlds: Worlds, start: np.ndarray | None = None) -> dict:
@@ -156,6 +167,13 @@ class SearchEnv:
         self.planes = np.zeros((N, 3, self.Hp, self.Hp), np.float32)
         self.planes[:, 0][sl] = worlds.prior
         self.planes[:, 2] = self.boundary
+        self._common_reset(worlds, start)
+        self.n_targets = worlds.targets.reshape(N, -1).sum(1)
+        return self.observe()
+
+    def _common_reset(self, worlds, start) -> None:
+        """Start cells, lattice state, budget, entropy, counters (both env kinds)."""
+        cfg, S, N = self.cfg, self.S, self.n
         if start is None:
             if cfg.start == "center":
                 start = np.full((N, 2), S // 2)
@@ -172,7 +190,6 @@ class SearchEnv:
         self.remaining = np.full(N, float(cfg.budget))
         self.steps = np.zeros(N, np.int64)
         self.done = np.zeros(N, bool)
-        self.n_targets = worlds.targets.reshape(N, -1).sum(1)
         self.H0 = self._entropy()
         self.H = self.H0.copy()
         self.n_cov = np.zeros(N, np.int64)
@@ -182,7 +199,6 @@ class SearchEnv:
         self.trace_budget = [self.remaining.copy()]
         self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) \
             + worlds.seeds[:, 1].astype(np.uint64)
-        return self.observe()
 
     # ---------------------------------------------------------------- queries
     def belief(self) -> np.ndarray:
@@ -219,6 +235,11 @@ class SearchEnv:
             "steps": self.steps.copy(),
         }
 
+    def action_features(self) -> np.ndarray:
+        """(N, A, F) per-primitive look-ahead features (:mod:`.features`)."""
+        from .features import action_features
+        return action_features(self)
+
     # ------------------------------------------------------------------- step
     def step(self, actions: np.ndarray):
         """Execute one primitive per environment. Returns (obs, reward, terms, done).
@@ -245,45 +266,12 @@ class SearchEnv:
         idx = np.flatnonzero(valid)
         if len(idx):
             pr = prim[idx]
-            lev = lat.meas_level[pr].astype(np.int64)  # (k, M)
-            off = lat.meas_off[pr].astype(np.int64)
-            flat = self.flat_index(off, idx)
-            x = self.pos[idx, 0, None] + off[..., 0]
-            y = self.pos[idx, 1, None] + off[..., 1]
-            use = (lev >= 0) & (x >= 0) & (x < self.S) & (y >= 0) & (y < self.S)
-            levc = np.maximum(lev, 0)
-            slot = np.arange(lev.shape[1])[None, :]
-            u = hashed_uniform(self._seed_key[idx, None], self.steps[idx, None], slot)
-            z = measure(self.truth.ravel()[flat], self.err_levels[levc], u)
-            dl = np.where(z, 1.0, -1.0) * self.lam_levels[levc]
-            f, w = flat[use], dl[use]
-            # Eq. 2.2 summed per touched cell; everything below touches only those cells
-            cells, inv = np.unique(f, return_inverse=True)
-            Lf = self.L.reshape(-1)
-            old = Lf[cells]
-            new = np.clip(old + np.bincount(inv, weights=w, minlength=len(cells)),
-                          -cfg.sensor.logodds_clip, cfg.sensor.logodds_clip)
-            Lf[cells] = new
-            env_of = cells // (self.Hp * self.Hp)
-            dH = entropy_bits(sigmoid(new)) - entropy_bits(sigmoid(old))
-            Hn = self.H + np.bincount(env_of, weights=dH, minlength=self.n)
-            covf = self.cov.reshape(-1)
-            newcov = ~covf[cells]
-            covf[cells] = True
-            ncov = self.n_cov + np.bincount(env_of[newcov], minlength=self.n)
-            pl = self.planes.reshape(-1)
-            pidx = env_of * (3 * self.Hp * self.Hp) + cells % (self.Hp * self.Hp)
-            pl[pidx] = sigmoid(new)
-            pl[pidx + self.Hp * self.Hp] = 1.0
-            foundf = self.found.reshape(-1)
-            hit = (new >= logit(cfg.found_threshold)) & self.truth.reshape(-1)[cells] \
-                & ~foundf[cells]
-            foundf[cells[hit]] = True
-            nf = np.bincount(env_of[hit], minlength=self.n)
+            Hn, ncov, nf, rt = self._apply(idx, pr)
             self.pos[idx] += lat.prim_disp[pr]
             self.vert[idx] = lat.prim_to[pr]
         else:
-            Hn, ncov, nf = self.H, self.n_cov, np.zeros(self.n, np.int64)
+            Hn, ncov = self.H, self.n_cov
+            nf, rt = np.zeros(self.n, np.int64), np.zeros(self.n)
         self.last_action[act] = a[act]
         self.remaining[act] -= cost[act]
         self.steps[act] += 1
@@ -293,7 +281,7 @@ class SearchEnv:
         terms[:, 1] = cfg.r_coverage * (ncov - self.n_cov) / (self.S * self.S)
         self.n_cov = ncov
         self.n_found += nf
-        terms[:, 2] = cfg.r_target * nf
+        terms[:, 2] = rt
         # termination: budget spent, or (cannot happen from viable states) no valid move
         stuck = act & ~self.done & (self.remaining > 0) & ~self.valid_mask().any(1)
         if stuck.any():  # forfeit the rest of the budget so the cost term still sums to -20
@@ -303,14 +291,89 @@ class SearchEnv:
         self.trace.append(self.pos.copy())
         self.trace_prim.append(np.where(valid, prim, -1))
         self.trace_budget.append(np.maximum(self.remaining, 0.0))
-        return self.observe(), terms.sum(1), terms, self.done.copy()
+        obs = None if self.lazy_obs else self.observe()
+        return obs, terms.sum(1), terms, self.done.copy()
+
+    def _apply(self, idx: np.ndarray, pr: np.ndarray):
+        """Sense along primitives ``pr`` from the cells of envs ``idx`` and update the maps.
+
+        Returns the new map entropy (N,), covered-cell counts (N,), newly found targets
+        (N,) and the target reward (N,). Eq. 2.2 per touched cell, batched.
+        """
+        cfg, lat = self.cfg, self.lat
+        lev = lat.meas_level[pr].astype(np.int64)  # (k, M)
+        off = lat.meas_off[pr].astype(np.int64)
+        flat = self.flat_index(off, idx)
+        x = self.pos[idx, 0, None] + off[..., 0]
+        y = self.pos[idx, 1, None] + off[..., 1]
+        use = (lev >= 0) & (x >= 0) & (x < self.S) & (y >= 0) & (y < self.S)
+        levc = np.maximum(lev, 0)
+        slot = np.arange(lev.shape[1])[None, :]
+        u = hashed_uniform(self._seed_key[idx, None], self.steps[idx, None], slot)
+        z = measure(self.truth.ravel()[flat], self.err_levels[levc], u)
+        dl = np.where(z, 1.0, -1.0) * self.lam_levels[levc]
+        f, w = flat[use], dl[use]
+        # Eq. 2.2 summed per touched cell; everything below touches only those cells
+        cells, inv = np.unique(f, return_inverse=True)
+        Lf = self.L.reshape(-1)
+        old = Lf[cells]
+        new = np.clip(old + np.bincount(inv, weights=w, minlength=len(cells)),
+                      -cfg.sensor.logodds_clip, cfg.sensor.logodds_clip)
+        Lf[cells] = new
+        env_of = cells // (self.Hp * self.Hp)
+        dH = entropy_bits(sigmoid(new)) - entropy_bits(sigmoid(old))
+        Hn = self.H + np.bincount(env_of, weights=dH, minlength=self.n)
+        covf = self.cov.reshape(-1)
+        newcov = ~covf[cells]
+        covf[cells] = True
+        ncov = self.n_cov + np.bincount(env_of[newcov], minlength=self.n)
+        pl = self.planes.reshape(-1)
+        pidx = env_of * (3 * self.Hp * self.Hp) + cells % (self.Hp * self.Hp)
+        pl[pidx] = sigmoid(new)
+        pl[pidx + self.Hp * self.Hp] = 1.0
+        foundf = self.found.reshape(-1)
+        hit = (new >= logit(cfg.found_threshold)) & self.truth.reshape(-1)[cells] \
+            & ~foundf[cells]
+        foundf[cells[hit]] = True
+        nf = np.bincount(env_of[hit], minlength=self.n)
+        return Hn, ncov, nf, cfg.r_target * nf
+
+    # ------------------------------------------------- planner hooks (baselines.py)
+    def plan_cells(self, n_idx: np.ndarray, flat: np.ndarray) -> np.ndarray:
+        """Belief at padded flat cell indices ``flat`` of envs ``n_idx`` (broadcast)."""
+        return sigmoid(self.L.reshape(self.n, -1)[n_idx, flat])
+
+    def plan_ig(self, b: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """Expected information gain (bits) of sensing cells ``b`` with total ``lam``."""
+        from .baselines import info_gain
+        return info_gain(b, lam)
+
+    def plan_prio(self, b: np.ndarray) -> np.ndarray:
+        """Probability that the cell holds something of interest (a target)."""
+        return b
+
+    def plan_entropy(self, b: np.ndarray) -> np.ndarray:
+        return entropy_bits(b)
+
+    def prio_map(self) -> np.ndarray:
+        """(N, Hp, Hp) float32 :meth:`plan_prio` of every cell (valid on the inner map)."""
+        return self.planes[:, 0]
+
+    def plan_detect(self, b: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """P(the cell is a target and is detected) after sensing with ``lam`` (as one
+        measurement with error ``sigma(-lam)``)."""
+        L = logit(np.clip(b, 1e-12, 1 - 1e-12))
+        thr = logit(self.cfg.found_threshold)
+        e = sigmoid(-lam)
+        return b * ((1 - e) * (L + lam >= thr) + e * (L - lam >= thr))
 
     # ----------------------------------------------------------- observations
     def observe(self) -> dict[str, np.ndarray]:
         """Egocentric multi-scale maps and the vector features (SPEC "Observations").
 
-        ``maps`` (N, 3*len(scales), 2R, 2R) float32: for each scale s the 2Rs x 2Rs
-        window of belief, coverage and boundary around the agent, max-pooled by s.
+        ``maps`` (N, C*len(scales), 2R, 2R) float32: for each scale s the 2Rs x 2Rs
+        window of the C planes (belief, coverage, boundary; semantic: one belief plane
+        per class, coverage, boundary) around the agent, max-pooled by s.
         ``vec`` (N, 2 + (A+1) + V + 1): position / map size, one-hot last action
         (slot A = none yet), one-hot lattice vertex, remaining budget fraction.
         """
@@ -321,7 +384,8 @@ class SearchEnv:
         ys = (self.pos[:, 1] + self.pad)[:, None] + g
         xs = (self.pos[:, 0] + self.pad)[:, None] + g
         n = np.arange(self.n)[:, None, None]
-        win = self.planes[n, :, ys[:, :, None], xs[:, None, :]]  # (N, 2h, 2h, 3)
+        C = self.planes.shape[1]
+        win = self.planes[n, :, ys[:, :, None], xs[:, None, :]]  # (N, 2h, 2h, C)
         outs = []
         for s in cfg.obs_scales:
             w = R * s
@@ -332,7 +396,7 @@ class SearchEnv:
                                   np.maximum(crop[:, 0::2, 1::2], crop[:, 1::2, 1::2]))
                 k //= 2
             if k > 1:
-                crop = crop.reshape(self.n, 2 * R, k, 2 * R, k, 3).max(axis=4).max(axis=2)
+                crop = crop.reshape(self.n, 2 * R, k, 2 * R, k, C).max(axis=4).max(axis=2)
             outs.append(crop)
         maps = np.ascontiguousarray(np.concatenate(outs, 3).transpose(0, 3, 1, 2))
         A, V = self.lat.n_actions, self.lat.n_vertices
@@ -345,8 +409,42 @@ class SearchEnv:
         return {"maps": maps, "vec": vec, "valid": self.valid_mask()}
 
 
+SEMANTIC_BUDGET = 30000.0  # about 200 primitives: a third of the map by coverage
+
+
+def semantic_config(budget: float | None = None, raster: str | None = None,
+                    start: str = "center", map_size: int = 256) -> EnvConfig:
+    """The thesis's semantic setting (§2.5.2, §2.6.3): 256 x 256 cells of 4 m, C class
+    maps; 48/96/192-cell egocentric windows pooled to 24 x 24 (scales 2, 4, 8); a
+    15 x 15-cell (60 m) footprint whose label error grows 0.10 -> 0.45 from its centre
+    to its edge (used with :data:`aerohrl.ipp.lattice.SEMANTIC_LATTICE`). The noise is
+    high enough that one pass does not always identify a cell (revisits matter)."""
+    return EnvConfig(kind="semantic", map_size=map_size,
+                     budget=SEMANTIC_BUDGET if budget is None else budget, start=start,
+                     obs_radius=12, obs_scales=(2, 4, 8),
+                     sensor=SensorConfig(err0=0.1, err_slope=0.05),
+                     world=WorldConfig(map_size=map_size),
+                     semantic=SemanticConfig(map_size=map_size, raster=raster))
+
+
+def create_env(cfg: EnvConfig, lattice: Lattice) -> SearchEnv:
+    """A :class:`SearchEnv` or (``cfg.kind == "semantic"``) a ``SemanticEnv``."""
+    if cfg.kind == "semantic":
+        from .semantic_env import SemanticEnv
+        return SemanticEnv(cfg, lattice)
+    return SearchEnv(cfg, lattice)
+
+
+def sample_for(cfg: EnvConfig, seed: int, indices):
+    """Worlds ``indices`` of suite ``seed`` of the config's kind."""
+    if cfg.kind == "semantic":
+        from .semantic import sample_semantic_worlds
+        return sample_semantic_worlds(cfg.semantic, seed, indices)
+    return sample_worlds(cfg.world, seed, indices)
+
+
 def make_env(cfg: EnvConfig, lattice: Lattice, seed: int, indices) -> tuple[SearchEnv, dict]:
     """Convenience: an env reset on worlds ``indices`` of suite ``seed``."""
-    env = SearchEnv(cfg, lattice)
-    obs = env.reset(sample_worlds(cfg.world, seed, indices))
+    env = create_env(cfg, lattice)
+    obs = env.reset(sample_for(cfg, seed, indices))
     return env, obs

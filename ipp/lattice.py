@@ -71,6 +71,7 @@ from ._io import atomic_path
 FORMAT = "aerohrl-ipp-lattice"
 VERSION = 1
 DEFAULT_PATH = Path(__file__).resolve().parent / "data" / "lattice_default.npz"
+SEMANTIC_PATH = Path(__file__).resolve().parent / "data" / "lattice_semantic.npz"
 
 
 @dataclass(frozen=True)
@@ -108,6 +109,10 @@ class LatticeConfig:
             raise UserError("lattice: footprint_radius >= 0 and sense_dt > 0 required")
         if any(m < 1 or m > self.reach for m in self.hover_moves):
             raise UserError("lattice: hover_moves must lie in 1..reach")
+
+
+# Semantic setting (4 m cells): 5 cells/s = 20 m/s, reach 10 cells, 15 x 15-cell footprint
+SEMANTIC_LATTICE = LatticeConfig(v_max=5.0, a_max=5.0, reach=10, footprint_radius=7)
 
 
 # --------------------------------------------------------------------------- math
@@ -299,7 +304,7 @@ def _select_edges(cfg: LatticeConfig, verts, I, J, D, T, C) -> list[int]:
         for j in range(len(verts)):
             cj = idx[J[idx] == j]
             if len(cj):
-                seeds.append(int(cj[np.argmin(C[cj])]))
+                seeds.append(int(cj[np.argmin(np.round(C[cj], 6))]))
         if i == 0:
             for m in cfg.hover_moves:
                 for d in ((m, 0), (-m, 0), (0, m), (0, -m)):
@@ -312,7 +317,8 @@ def _select_edges(cfg: LatticeConfig, verts, I, J, D, T, C) -> list[int]:
         sel = [pos[s] for s in seeds]
         dmin = np.min(np.linalg.norm(feat[:, None] - feat[sel][None], axis=-1), axis=1)
         while len(sel) < min(cfg.max_edges, len(idx)):
-            k = int(np.argmax(dmin))
+            # rounded: ties between mirror images break by index, not by the last bit
+            k = int(np.argmax(np.round(dmin, 9)))
             if dmin[k] <= 0:
                 break
             sel.append(k)
@@ -347,8 +353,10 @@ def build_lattice(cfg: LatticeConfig | None = None) -> Lattice:
     if len(I) == 0:
         raise UserError("lattice: no feasible primitive; raise t_max, v_max or a_max")
     chosen = _select_edges(cfg, verts, I, J, D, T, C)
-    # order primitives by (from vertex, cost)
-    chosen = sorted(chosen, key=lambda k: (I[k], C[k]))
+    # order primitives by (from vertex, cost, displacement). Costs are rounded first: mirror-image
+    # primitives have equal costs up to the last bit, and which bit wins depends on the machine's
+    # SIMD summation order; unrounded, the shipped file's order would change from CPU to CPU.
+    chosen = sorted(chosen, key=lambda k: (I[k], round(float(C[k]), 6), D[k, 0], D[k, 1], J[k]))
     I, J, D, T, C = I[chosen], J[chosen], D[chosen], T[chosen], C[chosen]
     P, V = len(I), len(verts)
     coef = quintic_coefficients(0.0, verts[I], D.astype(float), verts[J], T)
@@ -478,8 +486,18 @@ def default_lattice() -> Lattice:
     return _cached_build(LatticeConfig())
 
 
-def get_lattice(path: str | os.PathLike | None) -> Lattice:
-    return default_lattice() if path is None else load_lattice(path)
+def semantic_lattice() -> Lattice:
+    """The shipped semantic lattice (ipp/data/lattice_semantic.npz = SEMANTIC_LATTICE):
+    cells of 4 m, so 5 cells/s = 20 m/s, a 15 x 15-cell (60 m) footprint."""
+    if SEMANTIC_PATH.is_file():
+        return load_lattice(SEMANTIC_PATH)
+    return _cached_build(SEMANTIC_LATTICE)
+
+
+def get_lattice(path: str | os.PathLike | None, kind: str = "targets") -> Lattice:
+    if path is not None:
+        return load_lattice(path)
+    return semantic_lattice() if kind == "semantic" else default_lattice()
 
 
 # ---------------------------------------------------------------------------- plot

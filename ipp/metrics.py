@@ -30,31 +30,48 @@ THESIS_TABLE = {
 }
 
 
+# thesis Table 2.2 (semantic feature detection, 30 environments), same layout
+THESIS_TABLE_2_2 = {
+    "greedy": ((14.21, 2.27), (2.57, 1.48), (6.53, 1.98)),
+    "dp": ((67.83, 7.21), (30.08, 3.73), (53.03, 5.38)),
+    "cmaes": ((33.64, 19.95), (8.72, 8.42), (20.54, 15.31)),
+    "coverage": ((88.67, 0.0), (30.77, 4.43), (60.07, 2.47)),
+    "prio_coverage": ((69.13, 11.75), (15.24, 4.91), (34.51, 8.27)),
+    "rl_nolstm": ((74.88, 2.59), (32.16, 4.91), (59.56, 2.74)),
+    "rl": ((83.78, 3.43), (34.24, 6.10), (63.61, 3.08)),
+}
+
+
+def thesis_table(kind: str = "targets") -> dict:
+    return THESIS_TABLE_2_2 if kind == "semantic" else THESIS_TABLE
+
+
 def summarise(per_env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
     return {k: (float(np.mean(per_env[k])), float(np.std(per_env[k]))) for k in METRICS}
 
 
-def markdown_table(results: dict[str, dict], names: dict[str, str]) -> str:
-    """``results[planner] = {"summary": ..., "ms_per_decision": ..., "n": ...}``."""
+def markdown_table(results: dict[str, dict], names: dict[str, str], kind: str = "targets") -> str:
+    """``results[planner] = {"summary": ..., "ms_per_decision": ..., "n": ...}``; the
+    thesis column is Table 2.1 (``kind="targets"``) or Table 2.2 (``"semantic"``)."""
     head = ("| planner | coverage % | entropy red. % | search eff. % | thesis cov / ent / eff "
             "| ms/decision | envs |\n|---|---|---|---|---|---|---|\n")
     rows = []
     for p, r in results.items():
         s = r["summary"]
-        th = THESIS_TABLE.get(p)
+        th = thesis_table(kind).get(p)
         ths = " / ".join(f"{m:.1f}±{sd:.1f}" for m, sd in th) if th else "—"
         rows.append(f"| {names.get(p, p)} | " + " | ".join(f"{s[k][0]:.1f} ± {s[k][1]:.1f}" for k in METRICS)
                     + f" | {ths} | {r['ms_per_decision']:.2f} | {r['n']} |")
     return head + "\n".join(rows) + "\n"
 
 
-def summary_csv(results: dict[str, dict]) -> str:
+def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(["planner", "n_envs"] + [f"{k}_{s}" for k in METRICS for s in ("mean", "std")]
                + [f"thesis_{k}_{s}" for k in METRICS for s in ("mean", "std")] + ["ms_per_decision"])
     for p, r in results.items():
-        th = THESIS_TABLE.get(p)
+        th = thesis_table(kind).get(p)
         thv = [v for m in th for v in m] if th else [""] * 6
         w.writerow([p, r["n"]] + [f"{v:.4f}" for k in METRICS for v in r["summary"][k]]
                    + thv + [f"{r['ms_per_decision']:.4f}"])
@@ -80,7 +97,8 @@ def write_atomic(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
-def plot_kl(results: dict[str, dict], names: dict[str, str], path, bins: int = 5) -> Path:
+def plot_kl(results: dict[str, dict], names: dict[str, str], path, bins: int = 5,
+            xlabel: str = "KL(truth || prior) (nats), quantile bins") -> Path:
     """Fig. 2.4 analogue: search efficiency against KL(truth || prior), binned, per planner."""
     import matplotlib
     matplotlib.use("Agg")
@@ -99,7 +117,7 @@ def plot_kl(results: dict[str, dict], names: dict[str, str], path, bins: int = 5
         sd = np.array([eff[b == i].std() if (b == i).any() else np.nan for i in range(bins)])
         off = (j - len(results) / 2) * 0.01 * (edges[-1] - edges[0])
         ax.errorbar(centre + off, mu, yerr=sd, marker="o", capsize=3, label=names.get(p, p))
-    ax.set_xlabel("KL(truth || prior) (nats), quantile bins")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("search efficiency (%)")
     ax.legend(fontsize=8)
     ax.set_title("Robustness to the prior (Fig. 2.4 analogue)")

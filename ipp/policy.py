@@ -9,6 +9,12 @@ and an MLP over the vector features, a GRU core (``recurrent=False`` gives the
   the state value is their sum;
 * valid-primitive logits ``phi(o_t)`` trained with the asymmetric binary cross entropy
   of Eq. 2.7 against the environment's valid mask.
+
+With ``n_feat > 0`` the policy also reads per-primitive look-ahead features
+(:mod:`.features`): each action slot's feature vector is embedded by a shared MLP; the
+mean and max of the embeddings join the trunk (so the core and the value heads see
+them) and a per-slot scoring head adds ``w . relu(emb_a + ctx(h))`` to the slot's logit
+(a pointer-style head, one set of weights for every slot).
 """
 
 from __future__ import annotations
@@ -31,20 +37,28 @@ class PolicyConfig:
     hidden: int = 128
     recurrent: bool = True
     mask_invalid: bool = True   # sample only valid primitives (see train.py)
+    features: bool = True       # per-primitive look-ahead features (features.py)
 
 
 class ActorCritic(nn.Module):
     def __init__(self, map_ch: int, map_hw: int, vec_dim: int, n_actions: int,
-                 cfg: PolicyConfig = PolicyConfig()):
+                 cfg: PolicyConfig = PolicyConfig(), n_feat: int = 0):
         super().__init__()
         self.cfg = cfg
+        self.n_feat = n_feat
         h = cfg.hidden
         self.conv = nn.Sequential(
             nn.Conv2d(map_ch, 32, 3, padding=1), nn.ReLU(),
             nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten())
         conv_out = 64 * ((map_hw + 1) // 2) ** 2
         self.vec = nn.Sequential(nn.Linear(vec_dim, 64), nn.ReLU())
-        self.fuse = nn.Sequential(nn.Linear(conv_out + 64, 2 * h), nn.ReLU(),
+        fe = 0
+        if n_feat:
+            fe = 64
+            self.feat = nn.Sequential(nn.Linear(n_feat, fe), nn.ReLU(), nn.Linear(fe, fe), nn.ReLU())
+            self.ctx = nn.Linear(h, fe)
+            self.score = nn.Linear(fe, 1)
+        self.fuse = nn.Sequential(nn.Linear(conv_out + 64 + 2 * fe, 2 * h), nn.ReLU(),
                                   nn.Linear(2 * h, h), nn.ReLU())
         self.core = nn.GRU(h, h, batch_first=False) if cfg.recurrent else \
             nn.Sequential(nn.Linear(h, h), nn.ReLU())
@@ -57,17 +71,26 @@ class ActorCritic(nn.Module):
     def initial_state(self, n: int) -> torch.Tensor:
         return torch.zeros(1, n, self.cfg.hidden)
 
-    def forward(self, maps, vec, h):
-        """maps (T, N, C, H, W), vec (T, N, D), h (1, N, hidden) -> heads over (T, N)."""
+    def forward(self, maps, vec, h, feat=None):
+        """maps (T, N, C, H, W), vec (T, N, D), h (1, N, hidden), feat (T, N, A, F)
+        -> (policy logits, per-term values, valid logits, h) over (T, N)."""
         T, N = maps.shape[:2]
-        x = torch.cat([self.conv(maps.reshape(T * N, *maps.shape[2:])),
-                       self.vec(vec.reshape(T * N, -1))], -1)
-        x = self.fuse(x).reshape(T, N, -1)
+        parts = [self.conv(maps.reshape(T * N, *maps.shape[2:])), self.vec(vec.reshape(T * N, -1))]
+        if self.n_feat:
+            if feat is None:
+                raise UserError("this policy needs per-primitive features (feat)")
+            e = self.feat(feat.reshape(T * N, feat.shape[2], -1))  # (TN, A, fe)
+            parts += [e.mean(1), e.max(1).values]
+        x = self.fuse(torch.cat(parts, -1)).reshape(T, N, -1)
         if self.cfg.recurrent:
             x, h = self.core(x, h)
         else:
             x = self.core(x)
-        return self.pi(x), self.v(x), self.valid(x), h
+        logits = self.pi(x)
+        if self.n_feat:
+            c = self.ctx(x).reshape(T * N, 1, -1)
+            logits = logits + self.score(torch.relu(e + c)).reshape(T, N, -1)
+        return logits, self.v(x), self.valid(x), h
 
 
 def valid_loss(phi_logits, valid, beta1: float = 1.0, beta2: float = 0.2):
@@ -77,11 +100,11 @@ def valid_loss(phi_logits, valid, beta1: float = 1.0, beta2: float = 0.2):
     return -(beta1 * (1 - y) * ls(-phi_logits) + beta2 * y * ls(phi_logits)).mean()
 
 
-def save_policy(model: ActorCritic, dims: dict, path) -> None:
+def save_policy(model: ActorCritic, dims: dict, path, env_kind: str = "targets") -> None:
     from ._io import atomic_path
     with atomic_path(path, ".pt") as tmp:
         torch.save({"state_dict": model.state_dict(), "dims": dims,
-                    "config": asdict(model.cfg)}, tmp)
+                    "config": asdict(model.cfg), "env_kind": env_kind}, tmp)
 
 
 def load_policy(path) -> ActorCritic:
@@ -93,9 +116,14 @@ def load_policy(path) -> ActorCritic:
     try:
         ck = torch.load(path, map_location="cpu", weights_only=True)
         model = ActorCritic(**ck["dims"], cfg=PolicyConfig(**ck["config"]))
+        model.env_kind = ck.get("env_kind", "targets")
         model.load_state_dict(ck["state_dict"])
     except Exception as e:
         raise UserError(f"{path}: not a policy checkpoint ({type(e).__name__})") from None
+    from .features import N_FEAT
+    if model.n_feat not in (0, N_FEAT):
+        raise UserError(f"{path}: policy reads {model.n_feat} primitive features, this version "
+                        f"computes {N_FEAT} (retrain it)")
     model.eval()
     return model
 
@@ -119,8 +147,11 @@ class RLPlanner(Planner):
         if self.h is None or self.h.shape[1] != env.n:
             self.h = self.model.initial_state(env.n)
         obs = env.observe()
+        feat = None
+        if self.model.n_feat:
+            feat = torch.from_numpy(env.action_features())[None]
         logits, _, _, h = self.model(torch.from_numpy(obs["maps"])[None],
-                                     torch.from_numpy(obs["vec"])[None], self.h)
+                                     torch.from_numpy(obs["vec"])[None], self.h, feat)
         live = torch.from_numpy(~env.done)
         self.h = torch.where(live[None, :, None], h, self.h)
         logits = logits[0]

@@ -31,16 +31,16 @@ import torch
 from aerohrl.errors import UserError
 
 from ._io import atomic_path
-from .env import TERMS, EnvConfig, SearchEnv
+from .env import TERMS, EnvConfig, create_env, sample_for
 from .lattice import Lattice
+from .features import N_FEAT
 from .policy import ActorCritic, PolicyConfig, save_policy, valid_loss
-from .world import sample_worlds
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     n_envs: int = 64
-    iterations: int = 300
+    iterations: int = 600
     lr: float = 3e-4
     gamma: float = 0.98
     lam: float = 0.8              # thesis: lambda = 0.8
@@ -56,6 +56,7 @@ class TrainConfig:
     seed: int = 7
     threads: int = 1
     log_every: int = 10
+    init: str | None = None       # warm start: a run directory / model.pt (fine-tuning)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     env: EnvConfig = field(default_factory=lambda: EnvConfig(start="random"))
 
@@ -89,11 +90,22 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None) -> d
     torch.set_num_threads(cfg.threads)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    env = SearchEnv(cfg.env, lattice)
-    obs = env.reset(sample_worlds(cfg.env.world, cfg.seed, range(cfg.n_envs)))
+    env = create_env(cfg.env, lattice)
+    obs = env.reset(sample_for(cfg.env, cfg.seed, range(cfg.n_envs)))
     dims = {"map_ch": obs["maps"].shape[1], "map_hw": obs["maps"].shape[2],
-            "vec_dim": obs["vec"].shape[1], "n_actions": lattice.n_actions}
+            "vec_dim": obs["vec"].shape[1], "n_actions": lattice.n_actions,
+            "n_feat": N_FEAT if cfg.policy.features else 0}
     model = ActorCritic(**dims, cfg=cfg.policy)
+    if cfg.init is not None:
+        from .policy import load_policy
+        src = load_policy(cfg.init)
+        if src.n_feat != dims["n_feat"] or src.cfg != cfg.policy or \
+                src.pi.out_features != dims["n_actions"]:
+            raise UserError(f"{cfg.init}: policy does not match this configuration")
+        try:
+            model.load_state_dict(src.state_dict())
+        except RuntimeError:
+            raise UserError(f"{cfg.init}: policy shapes do not match this environment") from None
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     with atomic_path(run_dir / "config.json") as tmp:
         Path(tmp).write_text(json.dumps({"train": asdict(cfg), "dims": dims,
@@ -105,30 +117,33 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None) -> d
     t0 = time.time()
     for it in range(cfg.iterations):
         ids = range(it * N, (it + 1) * N)
-        obs = env.reset(sample_worlds(cfg.env.world, cfg.seed, ids))
+        obs = env.reset(sample_for(cfg.env, cfg.seed, ids))
         h = model.initial_state(N)
-        M, Vv, Vd, A, LP, R, AL = [], [], [], [], [], [], []
+        M, Vv, Vd, A, LP, R, AL, F = [], [], [], [], [], [], [], []
         with torch.no_grad():
             while not env.done.all():
                 alive = torch.from_numpy(~env.done)
                 maps = torch.from_numpy(obs["maps"])
                 vec = torch.from_numpy(obs["vec"])
                 valid = torch.from_numpy(obs["valid"])
-                logits, _, _, h = model(maps[None], vec[None], h)
+                feat = torch.from_numpy(env.action_features()) if dims["n_feat"] else None
+                logits, _, _, h = model(maps[None], vec[None], h,
+                                        None if feat is None else feat[None])
                 logits = logits[0]
                 if cfg.policy.mask_invalid:
                     logits = logits.masked_fill(~valid, -1e9)
                 dist = torch.distributions.Categorical(logits=logits)
                 a = dist.sample()
                 M.append(maps), Vv.append(vec), Vd.append(valid), A.append(a)
-                LP.append(dist.log_prob(a)), AL.append(alive)
+                LP.append(dist.log_prob(a)), AL.append(alive), F.append(feat)
                 obs, _, terms, _ = env.step(a.numpy())
                 R.append(torch.from_numpy(terms).float() * cfg.reward_scale)
         maps, vec, valid = torch.stack(M), torch.stack(Vv), torch.stack(Vd)
         act, oldlp, rew = torch.stack(A), torch.stack(LP), torch.stack(R)
         alive = torch.stack(AL).float()
+        feats = torch.stack(F) if dims["n_feat"] else None
         with torch.no_grad():
-            _, v_old, _, _ = model(maps, vec, model.initial_state(N))
+            _, v_old, _, _ = model(maps, vec, model.initial_state(N), feats)
         adv_k, ret = _gae(rew, v_old, alive, cfg.gamma, cfg.lam)
         adv = adv_k.sum(-1)
         am = alive.bool()
@@ -137,7 +152,8 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None) -> d
         for _ in range(cfg.epochs):
             perm = torch.randperm(N)
             for mb in perm.chunk(cfg.minibatches):
-                logits, v, phi, _ = model(maps[:, mb], vec[:, mb], model.initial_state(len(mb)))
+                logits, v, phi, _ = model(maps[:, mb], vec[:, mb], model.initial_state(len(mb)),
+                                          None if feats is None else feats[:, mb])
                 if cfg.policy.mask_invalid:
                     logits = logits.masked_fill(~valid[:, mb], -1e9)
                 dist = torch.distributions.Categorical(logits=logits)
@@ -172,7 +188,7 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None) -> d
             progress.update(1)
             progress.set_postfix(ret=f"{last['return']:.1f}", eff=f"{last['search_efficiency']:.0f}")
         if (it + 1) % cfg.log_every == 0 or it + 1 == cfg.iterations:
-            save_policy(model, dims, run_dir / "model.pt")
+            save_policy(model, dims, run_dir / "model.pt", cfg.env.kind)
     return last
 
 

@@ -189,3 +189,14 @@ def test_bad_config():
         build_lattice(LatticeConfig(n_vertices=0))
     with pytest.raises(UserError):
         build_lattice(LatticeConfig(hover_moves=(9,), reach=4))
+
+
+@pytest.mark.slow
+def test_shipped_semantic_lattice_is_current():
+    from aerohrl.ipp.lattice import SEMANTIC_LATTICE, SEMANTIC_PATH
+    shipped = load_lattice(SEMANTIC_PATH)
+    fresh = build_lattice(SEMANTIC_LATTICE)
+    assert shipped.config == fresh.config
+    for k in ("vertices", "edges", "prim_disp", "prim_to", "meas_off", "meas_level", "cell_count"):
+        np.testing.assert_array_equal(getattr(shipped, k), getattr(fresh, k))
+    assert SEMANTIC_PATH.stat().st_size < 400_000

@@ -59,3 +59,50 @@ def test_bad_policy_and_preset(tmp_path):
         load_policy(tmp_path)
     with pytest.raises(UserError):
         preset("gpu-cluster")
+
+
+def test_action_features_by_hand():
+    from aerohrl.ipp.features import EPS, N_FEAT
+    lat = default_lattice()
+    env, _ = make_env(EnvConfig(), lat, 4, range(2))
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        env.step(np.array([rng.choice(np.flatnonzero(m)) for m in env.valid_mask()]))
+    f = env.action_features()
+    assert f.shape == (2, lat.n_actions, N_FEAT) and f.dtype == np.float32
+    n = 1
+    valid = env.valid_mask()[n]
+    np.testing.assert_array_equal(f[n, :, 9], valid)
+    b = env.belief()[n]
+    cov = env.cov[n, env.pad:env.pad + 30, env.pad:env.pad + 30]
+    cmean = lat.prim_cost.mean()
+
+    def new_cells(p, origin):
+        cells = np.unique(lat.sensed_cells(p, origin)[0], axis=0)
+        ok = (cells >= 0).all(1) & (cells < 30).all(1)
+        return cells[ok][~cov[cells[ok, 1], cells[ok, 0]]]
+
+    for a in np.flatnonzero(valid)[:4]:
+        p = int(lat.edges[env.vert[n], a])
+        c = new_cells(p, env.pos[n])
+        assert f[n, a, 3] == pytest.approx(len(c) / 25, rel=1e-5)
+        assert f[n, a, 10] == pytest.approx((EPS + b[c[:, 1], c[:, 0]]).sum() / 25, rel=1e-4)
+        # two-step feature: best next primitive's new-cell rate (overlap ignored)
+        end = env.pos[n] + lat.prim_disp[p]
+        v2 = lat.prim_to[p]
+        best = 0.0
+        for a2 in np.flatnonzero(env.ok[v2, :, end[1], end[0]]):
+            p2 = int(lat.edges[v2, a2])
+            best = max(best, len(new_cells(p2, end)) / 25 / (lat.prim_cost[p2] / cmean))
+        assert f[n, a, 13] == pytest.approx(best, rel=1e-4)
+    assert np.all(f[n, ~valid, :9] == 0)
+
+
+def test_warm_start_and_mismatch(tmp_path):
+    lat = default_lattice()
+    train(preset("test"), lat, tmp_path / "a")
+    last = train(preset("test", init=str(tmp_path / "a"), lr=1e-4), lat, tmp_path / "b")
+    assert np.isfinite(last["return"])
+    with pytest.raises(UserError, match="does not match"):
+        train(preset("test", init=str(tmp_path / "a"), policy=preset("test").policy.__class__(
+            hidden=16)), lat, tmp_path / "c")
