@@ -37,14 +37,35 @@ class Algorithm(nn.Module):
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:  # pragma: no cover - interface
         raise NotImplementedError
 
-    def policy_unit(self, observation: torch.Tensor) -> torch.Tensor:  # pragma: no cover - interface
-        """Deterministic action in [-1, 1] from normalised inputs."""
+    def policy_net(self) -> nn.Module:  # pragma: no cover - interface
+        """The deterministic policy as a module: normalised inputs -> action in [-1, 1]."""
         raise NotImplementedError
 
     # the TD3BCLoss holding the critic ensemble (see networks.make_critic_loss)
     critic_loss: nn.Module
 
     # --- shared -------------------------------------------------------------------
+    def setup_ema(self) -> None:
+        """With ``cfg.ema_decay > 0``, keep an exponential moving average of the policy's
+        weights (torch's ``AveragedModel`` with its EMA update), which ``act`` then uses:
+        BC's last iterates jitter by more than the goal tolerances ask for, the average
+        does not. Its weights live in the state dict (checkpointed, resumable)."""
+        self.policy_ema = None
+        if getattr(self.cfg, "ema_decay", 0.0) > 0:
+            from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+            self.policy_ema = AveragedModel(self.policy_net(), multi_avg_fn=get_ema_multi_avg_fn(self.cfg.ema_decay))
+
+    def ema_step(self) -> None:
+        """Call after every policy update."""
+        if self.policy_ema is not None:
+            self.policy_ema.update_parameters(self.policy_net())
+
+    def policy_unit(self, observation: torch.Tensor) -> torch.Tensor:
+        """Deterministic action in [-1, 1] from normalised inputs (the EMA weights when kept)."""
+        net = self.policy_ema.module if self.policy_ema is not None else self.policy_net()
+        return net(observation)
+
     @torch.no_grad()
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         x = self.normalizer.inputs(state, goal)

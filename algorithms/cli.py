@@ -12,6 +12,7 @@ diverged (NaN/inf: the last good checkpoint is kept), 130 interrupted.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from dataclasses import fields
 from pathlib import Path
@@ -32,6 +33,8 @@ HELP = {
     "hidden": "hidden layer sizes of the actor (and of the critics unless --critic-hidden)",
     "critic_hidden": "hidden layer sizes of the critics",
     "relabel_prob": "delta: probability of relabelling a goal with a later achieved goal",
+    "mc_lower_bound": "critic targets max(clipped TD target, discounted return observed in the data)",
+    "ema_decay": "act with an exponential moving average of the policy weights (0: off)",
     "tau": "soft target update rate",
     "num_critics": "size of the goal-conditioned critic ensemble",
     "alpha": "TD3-BC alpha",
@@ -58,7 +61,9 @@ def parser() -> ArgumentParser:
         flag = "--" + f.name.replace("_", "-")
         default = f.default
         h = HELP.get(f.name, f.name.replace("_", " "))
-        if isinstance(default, tuple):
+        if isinstance(default, bool):
+            ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=None, help=f"{h} [cpu: {default}]")
+        elif isinstance(default, tuple):
             ap.add_argument(flag, type=int, nargs="+", default=None, metavar="N", help=f"{h} [cpu: {' '.join(map(str, default))}]")
         else:
             ap.add_argument(flag, type=type(default), default=None, help=f"{h} [cpu: {default}]")
@@ -83,9 +88,9 @@ def run(a) -> int:
         tr = resume_run(a.resume, progress=progress, overrides=ov)
         print(f"resuming {a.resume} at step {tr.step}" + (f" from {tr.resumed_from}" if tr.resumed_from else ""), file=sys.stderr)
     else:
+        cfg = C.make_config(a.preset or "cpu", **ov)  # unknown algorithm/preset/values first
         if "dataset" not in ov:
             raise UserError("--dataset is required (or --resume RUN)")
-        cfg = C.make_config(a.preset or "cpu", **ov)
         run_dir = new_run_dir(cfg, a.out, a.name)
         tr = start_run(cfg, run_dir, progress=progress)
         print(f"run {run_dir}: {cfg.algo}, preset {cfg.preset}, dataset {tr.dataset['version']}", file=sys.stderr)

@@ -44,12 +44,14 @@ class TrainConfig:
     lr_actor: float = 1e-3
     lr_critic: float = 3e-4
     lr_schedule: str = "cosine"  # constant | cosine (to 5% of the base rate at the last step)
+    ema_decay: float = 0.0  # > 0: act() with an exponential moving average of the policy weights (0 = the weights as trained)
     # goal-conditioned RL (thesis Alg. 2)
     relabel_prob: float = 0.05  # delta: probability that a goal becomes a later achieved goal
     relabel_offset: str = "geometric"  # how far ahead (k - j): uniform (over the rest) | geometric (relabel.sample_future_index)
     relabel_window: int = 0  # cap on k - j in steps (0 = up to the episode's last step)
     relabel_mean_offset: float = 30.0  # geometric: mean of k - j in steps
     gamma: float = 0.99
+    mc_lower_bound: bool = False  # critic targets max(TD target, discounted return of the data) (MCAC; networks.ClippedTD0Estimator)
     tau: float = 0.005  # soft target update: phi' <- (1 - tau) phi' + tau phi  (beta = 1 - tau in Alg. 2)
     num_critics: int = 5
     # TD3-BC / TD3-AWBC
@@ -129,6 +131,8 @@ def check(cfg: TrainConfig) -> None:
         raise UserError(f"relabel mean offset must be >= 1 step, got {cfg.relabel_mean_offset}")
     if cfg.lr_schedule not in LR_SCHEDULES:
         raise UserError(f"unknown lr schedule {cfg.lr_schedule!r} (choose from {', '.join(LR_SCHEDULES)})")
+    if not 0.0 <= cfg.ema_decay < 1.0:
+        raise UserError(f"ema decay must be in [0, 1), got {cfg.ema_decay}")
     if cfg.num_critics < 2:
         raise UserError("need at least 2 critics")
     for name in ("log_every", "checkpoint_every", "policy_delay", "keep_checkpoints"):

@@ -28,6 +28,18 @@ from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.networks import EnsembleSoftUpdate, ACT_DIM, IN_DIM, make_critic, make_critic_loss, mlp, use_clipped_td0
 
 
+class _TanhLoc(nn.Module):
+    """The CQL policy's deterministic action: tanh of the TanhNormal's location."""
+
+    def __init__(self, net):
+        super().__init__()
+        self.net = net
+
+    def forward(self, observation):
+        loc, _ = self.net(observation)
+        return torch.tanh(loc)
+
+
 class CQL(Algorithm):
     name = "cql"
 
@@ -60,13 +72,16 @@ class CQL(Algorithm):
         self.cql_critic_opt = torch.optim.Adam(self.cql_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         self.alpha_opt = torch.optim.Adam([self.cql_loss.log_alpha], lr=cfg.lr_actor)
         self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+        # tanh(loc) as a module sharing the actor's weights; kept out of the module tree
+        # (its weights are the actor's, already in the state dict)
+        object.__setattr__(self, "_det_net", _TanhLoc(net))
+        self.setup_ema()
 
     def optimizers(self):
         return {"actor": self.actor_opt, "cql_critic": self.cql_critic_opt, "alpha": self.alpha_opt, "critic": self.critic_opt}
 
-    def policy_unit(self, observation):
-        loc, _ = self.actor.module[0].module(observation)
-        return torch.tanh(loc)
+    def policy_net(self):
+        return self._det_net
 
     def update(self, batch):
         # 1. CQL: actor, conservative critics, entropy temperature (disjoint gradients)
@@ -77,6 +92,7 @@ class CQL(Algorithm):
         loss.backward()
         for opt in (self.actor_opt, self.cql_critic_opt, self.alpha_opt):
             opt.step()
+        self.ema_step()
         # 2. the planner's 5-critic ensemble, Eq. 3.2, next action from the CQL policy
         loss_q, meta = self.critic_loss.qvalue_loss(batch)
         self.critic_opt.zero_grad(set_to_none=True)

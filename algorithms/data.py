@@ -184,8 +184,8 @@ class GoalBatchSampler:
     No Python loop over the batch; every random draw comes from ``generator``."""
 
     def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu",
-                 future: dict | None = None):
-        from aerohrl.algorithms.relabel import relabel_goals, reward_done
+                 future: dict | None = None, mc_gamma: float | None = None):
+        from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
         self._relabel, self._reward_done = relabel_goals, reward_done
         # The buffer, the draws and the relabelling stay on the CPU with the CPU generator
@@ -198,18 +198,29 @@ class GoalBatchSampler:
         self.future = dict(future or {})  # sample_future_index's strategy/window/mean
         self.generator = generator
         self.batch_size = batch_size
+        # mc_gamma set: each batch also carries "mc_lower_bound", the discounted return the
+        # data itself achieves for the (relabelled) goal (relabel.mc_lower_bound)
+        self.mc_gamma = mc_gamma
+        self.first_hit = first_hit_index(data.next_state, data.goal, data.episode_end) if mc_gamma is not None else None
 
     def sample(self) -> TensorDict:
         b = self.buffer.sample()
         index = b.get("index")
         state, next_state = b.get("state"), b.get("next_state")
-        goal, relabelled = self._relabel(
-            b.get("goal"), index, b.get("episode_end"), self.achieved_goals, self.delta, self.generator, **self.future
+        goal, relabelled, k = self._relabel(
+            b.get("goal"), index, b.get("episode_end"), self.achieved_goals, self.delta, self.generator,
+            return_index=True, **self.future
         )
         reward, done = self._reward_done(next_state, goal)
+        extra = {}
+        if self.mc_gamma is not None:
+            from aerohrl.algorithms.relabel import mc_lower_bound
+
+            extra["mc_lower_bound"] = mc_lower_bound(index, k, relabelled, self.first_hit, self.mc_gamma).unsqueeze(-1)
         if self.device.type != "cpu":
             dev = self.device
             state, next_state, goal, reward, done, relabelled = (t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, relabelled))
+            extra = {key: t.to(dev, non_blocking=True) for key, t in extra.items()}
             b = b.to(dev)
         norm = self.normalizer
         n = state.shape[0]
@@ -221,6 +232,7 @@ class GoalBatchSampler:
                 "goal": goal,
                 "next_state": next_state,
                 "relabelled": relabelled,
+                **extra,
                 "next": TensorDict(
                     {
                         "observation": norm.inputs(next_state, goal),

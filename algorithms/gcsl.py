@@ -37,12 +37,13 @@ class GCSL(Algorithm):
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr_actor)
         self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+        self.setup_ema()
 
     def optimizers(self):
         return {"actor": self.actor_opt, "critic": self.critic_opt}
 
-    def policy_unit(self, observation):
-        return self.actor.module(observation)
+    def policy_net(self):
+        return self.actor.module
 
     def update(self, batch):
         # 1. behaviour cloning on the (relabelled) goals, Eq. 3.1
@@ -50,6 +51,7 @@ class GCSL(Algorithm):
         self.actor_opt.zero_grad(set_to_none=True)
         loss_bc.backward()
         self.actor_opt.step()
+        self.ema_step()
         # 2. the critic ensemble, Eq. 3.2 (next action from the updated policy, no grad)
         loss_q, meta = self.critic_loss.qvalue_loss(batch)
         self.critic_opt.zero_grad(set_to_none=True)

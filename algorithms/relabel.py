@@ -63,9 +63,11 @@ def relabel_goals(
     achieved_goals: torch.Tensor,
     delta: float,
     generator=None,
+    return_index: bool = False,
     **future,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """(new goals (B, 15), relabelled mask (B,)).
+):
+    """(new goals (B, 15), relabelled mask (B,)) -- and, with ``return_index``, the
+    drawn later step ``k`` (B,) whose achieved goal a relabelled transition got.
 
     ``index`` are the transitions' global dataset indices, ``episode_end`` the global
     index of their episode's last step, ``achieved_goals`` the (F, 15) achieved goal of
@@ -76,7 +78,32 @@ def relabel_goals(
     k = sample_future_index(index, episode_end, generator, **future)
     mask = coin & (k > index)
     new = torch.where(mask.unsqueeze(-1), achieved_goals[k], goal)
-    return new, mask
+    return (new, mask, k) if return_index else (new, mask)
+
+
+def first_hit_index(next_state: torch.Tensor, goal: torch.Tensor, episode_end: torch.Tensor) -> torch.Tensor:
+    """For every frame ``j``: the first step ``t >= j`` of its episode whose achieved goal
+    reaches the frame's own goal (the episode's desired goal), or -1 when none does.
+    (F,) int64, one searchsorted over the frames that reach their goal."""
+    hits = torch.nonzero(task.goal_reached(task.achieved_goal(next_state), goal)).flatten()
+    j = torch.arange(len(goal))
+    if hits.numel() == 0:
+        return torch.full_like(j, -1)
+    pos = torch.searchsorted(hits, j).clamp_max(hits.numel() - 1)
+    t = hits[pos]
+    return torch.where((t >= j) & (t <= episode_end), t, torch.full_like(t, -1))
+
+
+def mc_lower_bound(index, k, relabelled, first_hit, gamma: float) -> torch.Tensor:
+    """A lower bound on the discounted return of the data's own continuation (MCAC,
+    Wilcox et al. 2022), per transition ``j`` with sparse reward and termination at the
+    first success: ``gamma^(k - j)`` for a goal relabelled with the achieved goal of step
+    ``k`` (that step reaches it, maybe an earlier one already), ``gamma^(t - j)`` for the
+    desired goal first reached at step ``t`` (:func:`first_hit_index`), 0 when the data
+    never reaches it. (B,) float."""
+    t = torch.where(relabelled, k, first_hit[index])
+    lb = torch.pow(torch.full(t.shape, float(gamma)), (t - index).clamp_min(0).float())
+    return torch.where(t >= index, lb, torch.zeros_like(lb))
 
 
 def reward_done(next_state: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -85,4 +112,4 @@ def reward_done(next_state: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Ten
     return reached.to(next_state.dtype), reached
 
 
-__all__ = ["FUTURE_STRATEGIES", "sample_future_index", "relabel_goals", "reward_done"]
+__all__ = ["FUTURE_STRATEGIES", "sample_future_index", "relabel_goals", "first_hit_index", "mc_lower_bound", "reward_done"]

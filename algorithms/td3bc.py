@@ -38,12 +38,13 @@ class TD3BC(Algorithm):
         self.actor_opt = torch.optim.Adam(self.critic_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)
         self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         self._last_actor = {}
+        self.setup_ema()
 
     def optimizers(self):
         return {"actor": self.actor_opt, "critic": self.critic_opt}
 
-    def policy_unit(self, observation):
-        return self.actor.module(observation)
+    def policy_net(self):
+        return self.actor.module
 
     def update(self, batch):
         loss_q, meta = self.critic_loss.qvalue_loss(batch)
@@ -56,6 +57,7 @@ class TD3BC(Algorithm):
             self.actor_opt.zero_grad(set_to_none=True)
             loss_pi.backward()
             self.actor_opt.step()
+            self.ema_step()
             self.target_updater.step()
             self._last_actor = {"loss_actor": loss_pi.detach(), "bc_loss": ameta["bc_loss"], **self._actor_extras(ameta)}
         return {

@@ -129,3 +129,69 @@ def test_loader_rejects_bad_columns():
         load_dataset(nan)
     with pytest.raises(UserError, match="no 'action'"):
         load_dataset({k: v for k, v in cols.items() if k != "action"})
+
+
+@pytest.mark.parametrize("algo", ALGORITHMS)
+def test_ema_policy_acts_and_round_trips(algo, data):
+    """--ema-decay: act() uses the averaged weights, which trail the trained ones and are
+    part of the state dict (a checkpoint restores the same actions)."""
+    torch.set_num_threads(1)
+    a, s = _build(algo, data, ema_decay=0.9)
+    for _ in range(6):
+        a.update(s.sample())
+    st, g = data.state[:5], data.goal[:5]
+    x = a.normalizer.inputs(st, g)
+    with torch.no_grad():
+        raw = a.policy_net()(x)
+        ema = a.policy_ema.module(x)
+    assert not torch.allclose(raw, ema)
+    assert torch.allclose(a.normalizer.action_to_unit(a.act(st, g)), ema, atol=1e-5)
+    b, _ = _build(algo, data, ema_decay=0.9)
+    b.load_state_dict(a.state_dict())
+    assert torch.allclose(b.act(st, g), a.act(st, g))
+
+
+def test_mc_lower_bound_raises_targets_to_the_data_return(data):
+    """--mc-lower-bound: each target is at least gamma^(steps until the data reaches the
+    goal), and exactly the clipped TD target where that is larger."""
+    cfg = make_config("cpu", hidden=(16, 16), critic_hidden=(16, 16), batch_size=256, relabel_prob=0.5, mc_lower_bound=True)
+    norm = fit_normalizer(data, cfg.relabel_prob)
+    torch.manual_seed(0)
+    a = build_algorithm(cfg, norm)
+    s = GoalBatchSampler(data, norm, cfg.batch_size, cfg.relabel_prob, torch.Generator().manual_seed(0), mc_gamma=cfg.gamma)
+    b = s.sample()
+    lb = b.get("mc_lower_bound").squeeze(-1)
+    assert (lb > 0).all() and (lb <= 1).all()  # every straight-line episode reaches its goal
+    r = b.get(("next", "reward")).squeeze(-1) > 0
+    desired = ~b.get("relabelled")
+    assert (r & desired).any() and torch.allclose(lb[r & desired], torch.tensor(1.0))
+    _, meta = a.critic_loss.qvalue_loss(b)
+    tgt = meta["target_value"]
+    assert torch.allclose(tgt[r], torch.tensor(1.0))
+    assert (tgt >= lb - 1e-6).all()
+    b2 = b.exclude("mc_lower_bound")
+    _, meta2 = a.critic_loss.qvalue_loss(b2)
+    assert torch.allclose(tgt, torch.maximum(meta2["target_value"], lb))
+    assert (tgt > meta2["target_value"] + 1e-3).any()  # fresh critics: the bound is what lifts them
+
+
+def test_first_hit_index_by_hand():
+    from aerohrl.algorithms.relabel import first_hit_index, mc_lower_bound
+
+    # two episodes of 4 frames; the goal is the origin state; frame 2 and frame 5 reach it
+    F = 8
+    goal = torch.zeros(F, 15)
+    goal[:, 6:15] = torch.eye(3).flatten()
+    nxt = torch.zeros(F, 18)
+    nxt[:, 6:15] = torch.eye(3).flatten()
+    nxt[:, 0] = 5.0
+    nxt[2, 0] = 0.0
+    nxt[5, 0] = 0.0
+    end = torch.tensor([3, 3, 3, 3, 7, 7, 7, 7])
+    hit = first_hit_index(nxt, goal, end)
+    assert hit.tolist() == [2, 2, 2, -1, 5, 5, -1, -1]
+    idx = torch.arange(F)
+    k = torch.tensor([3, 3, 3, 3, 7, 6, 7, 7])
+    relab = torch.tensor([False, True, False, False, False, False, True, False])
+    lb = mc_lower_bound(idx, k, relab, hit, 0.5)
+    assert lb.tolist() == [0.25, 0.25, 1.0, 0.0, 0.5, 1.0, 0.5, 0.0]
