@@ -12,7 +12,7 @@ PYTHON312 ?= $(shell for p in python3.12 $$(ls -d $${PYENV_ROOT:-$$HOME/.pyenv}/
   $$p -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' >/dev/null 2>&1 && { command -v $$p; break; }; done)
 STAMP := $(VENV)/.installed
 
-.PHONY: venv demo test test-fast bench lock clean
+.PHONY: venv demo test test-fast bench results lock clean
 
 venv: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt
@@ -37,6 +37,10 @@ test: venv
 
 test-fast: venv
 	$(BIN)/python -m pytest
+
+# The whole chapter-3 reproduction (dataset -> 4 trained algorithms -> Tables 3.1/3.2 in README.md); about 1.5 h on 2 cores
+results: venv
+	$(BIN)/python -m aerohrl.eval.reproduce
 
 bench: venv
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

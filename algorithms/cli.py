@@ -34,6 +34,7 @@ HELP = {
     "critic_hidden": "hidden layer sizes of the critics",
     "relabel_prob": "delta: probability of relabelling a goal with a later achieved goal",
     "mc_lower_bound": "critic targets max(clipped TD target, discounted return observed in the data)",
+    "amp": "mixed precision: none | bf16 (autocast; about 2x faster on CPUs with AVX512-BF16)",
     "ema_decay": "act with an exponential moving average of the policy weights (0: off)",
     "tau": "soft target update rate",
     "num_critics": "size of the goal-conditioned critic ensemble",

@@ -25,6 +25,7 @@ from aerohrl.errors import UserError
 
 ALGORITHMS = ("gcsl", "td3bc", "td3awbc", "cql")
 LR_SCHEDULES = ("constant", "cosine")
+AMP_MODES = ("none", "bf16")
 RELABEL_OFFSETS = ("uniform", "geometric")  # = relabel.FUTURE_STRATEGIES
 
 
@@ -44,6 +45,7 @@ class TrainConfig:
     lr_actor: float = 1e-3
     lr_critic: float = 3e-4
     lr_schedule: str = "cosine"  # constant | cosine (to 5% of the base rate at the last step)
+    amp: str = "none"  # none | bf16: mixed-precision training (torch.autocast); weights, EMA and act() stay float32
     ema_decay: float = 0.0  # > 0: act() with an exponential moving average of the policy weights (0 = the weights as trained)
     # goal-conditioned RL (thesis Alg. 2)
     relabel_prob: float = 0.05  # delta: probability that a goal becomes a later achieved goal
@@ -131,6 +133,8 @@ def check(cfg: TrainConfig) -> None:
         raise UserError(f"relabel mean offset must be >= 1 step, got {cfg.relabel_mean_offset}")
     if cfg.lr_schedule not in LR_SCHEDULES:
         raise UserError(f"unknown lr schedule {cfg.lr_schedule!r} (choose from {', '.join(LR_SCHEDULES)})")
+    if cfg.amp not in AMP_MODES:
+        raise UserError(f"unknown amp mode {cfg.amp!r} (choose from {', '.join(AMP_MODES)})")
     if not 0.0 <= cfg.ema_decay < 1.0:
         raise UserError(f"ema decay must be in [0, 1), got {cfg.ema_decay}")
     if cfg.num_critics < 2:

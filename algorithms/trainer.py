@@ -335,7 +335,11 @@ class Trainer:
                     for o, lrs in zip(opts, base_lrs):
                         for g, lr in zip(o.param_groups, lrs):
                             g["lr"] = lr * f
-                metrics = self.algo.update(self.sampler.sample())
+                batch = self.sampler.sample()
+                # bf16 autocast (--amp bf16): ~2x faster matrix products on CPUs with AVX512-BF16 and on
+                # GPUs; parameters, optimiser states and the EMA stay float32
+                with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=cfg.amp == "bf16"):
+                    metrics = self.algo.update(batch)
                 vals = torch.stack([v.float() for v in metrics.values()])
                 if not bool(torch.isfinite(vals).all()):
                     bad = [k for k, v in metrics.items() if not math.isfinite(float(v))]

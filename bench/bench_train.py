@@ -45,13 +45,15 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="cpu")
     ap.add_argument("--steps", type=int, default=300, help="timed steps per measurement")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--amp", default=None, help="override the preset's mixed precision (none | bf16)")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     data = load_dataset(a.dataset) if a.dataset else load_dataset(straight_columns(n_eps=250, length=200))
-    print(f"torch {torch.__version__}, {a.threads} threads, dataset {data.info['version']} ({len(data)} frames), preset {a.preset}")
+    print(f"torch {torch.__version__}, {a.threads} threads, amp {a.amp or 'preset'}, dataset {data.info['version']} ({len(data)} frames), preset {a.preset}")
     print(f"{'algo':8s} {'steps/s':>8s} {'loop ms':>8s} {'update ms':>9s} {'overhd ms':>9s} {'sample ms':>9s} {'non-network':>11s}")
     for algo in a.algos:
-        cfg = make_config(a.preset, algo=algo, steps=10**9, eval_every=0, log_every=200, checkpoint_every=10**9)
+        cfg = make_config(a.preset, algo=algo, steps=10**9, eval_every=0, log_every=200, checkpoint_every=10**9, amp=a.amp)
+        amp = torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.amp == "bf16")
         with tempfile.TemporaryDirectory() as tmp:
             tr = start_run(cfg, f"{tmp}/run", data=data, progress=False)
             tr.train(until=20)  # warm-up
@@ -72,11 +74,12 @@ def main(argv=None) -> int:
         for _ in range(a.steps):
             s.sample()
         sample = (time.perf_counter() - t) / a.steps
-        for b in batches[:10]:
-            alg.update(b)
-        t = time.perf_counter()
-        for b in batches:
-            alg.update(b)
+        with amp:
+            for b in batches[:10]:
+                alg.update(b)
+            t = time.perf_counter()
+            for b in batches:
+                alg.update(b)
         update = (time.perf_counter() - t) / a.steps
         share = overhead / (overhead + update)
         print(f"{algo:8s} {1 / loop:8.1f} {1e3 * loop:8.2f} {1e3 * update:9.2f} {1e3 * overhead:9.2f} {1e3 * sample:9.2f} {100 * share:10.1f}%")

@@ -6,8 +6,8 @@
 
 1. ``datagen build --goals 250`` (seed 0; verified, not rebuilt, when it exists);
 2. ``train --algo A --preset cpu --checkpoint-every STEPS/30`` for GCSL, TD3-BC,
-   TD3-AWBC and CQL, one after the other (an existing run is resumed, a finished one is
-   left as it is); checkpoints every 1/30 of the run so that "the last 10 checkpoints"
+   TD3-AWBC and CQL, ``--jobs`` (2) at a time with one thread each (an existing run is
+   resumed, a finished one is left as it is); checkpoints every 1/30 of the run so that "the last 10 checkpoints"
    are the final third of training, as the thesis' last 10 epochs are its end;
 3. ``aerohrl eval`` Reach-Desired and Reach-Intermediate for every run (last 10
    checkpoints x 250 episodes), OOD without planner, with the single-goal planner
@@ -49,6 +49,29 @@ def _run(cmd: list[str], log) -> str:
     return p.stdout
 
 
+def _run_parallel(cmds: list[tuple[str, list[str]]], log, jobs: int) -> dict[str, float]:
+    """Run the named commands, ``jobs`` at a time (each with one thread); wall time of each.
+    The longest (CQL, listed last by default) is started first."""
+    import concurrent.futures as cf
+    import io
+
+    def one(item):
+        name, cmd = item
+        buf = io.StringIO()
+        t0 = time.perf_counter()
+        _run(cmd, buf)
+        return name, time.perf_counter() - t0, buf.getvalue()
+
+    out = {}
+    order = list(reversed(cmds)) if jobs > 1 else cmds
+    with cf.ThreadPoolExecutor(max_workers=max(1, jobs)) as ex:
+        for name, dt, text in ex.map(one, order):
+            log.write(text)
+            log.flush()
+            out[name] = dt
+    return {name: out[name] for name, _ in cmds}
+
+
 def update_readme(readme: Path, block: str) -> bool:
     if not readme.exists():
         return False
@@ -73,6 +96,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=None, help="override the cpu preset's training steps (smoke runs)")
     ap.add_argument("--episodes", type=int, default=250)
     ap.add_argument("--checkpoints", type=int, default=10)
+    ap.add_argument("--jobs", type=int, default=2, help="training runs at a time, one thread each [2 = the 2 cores]")
     ap.add_argument("--planner-algos", nargs="+", default=["gcsl"], help="runs evaluated on OOD with the planners [gcsl]")
     a = ap.parse_args(argv)
 
@@ -95,10 +119,9 @@ def main(argv=None) -> int:
             ds = _run([py, "-m", "aerohrl.datagen.cli", "build", "--goals", "250", "--seed", "0", "--out", a.datasets, "--quiet"],
                       log).strip().splitlines()[-1].strip()
             times["dataset"] = time.perf_counter() - t0
-            runs = []
+            runs, cmds = [], []
             for algo in a.algos:
                 rd = Path(a.runs) / f"{algo}-cpu"
-                t0 = time.perf_counter()
                 if (rd / "config.json").exists():
                     cmd = [py, "-m", "aerohrl.algorithms.cli", "--resume", str(rd), "--no-progress"]
                     if a.steps:
@@ -107,9 +130,9 @@ def main(argv=None) -> int:
                     cmd = [py, "-m", "aerohrl.algorithms.cli", "--algo", algo, "--dataset", ds, "--preset", "cpu", "--out", a.runs,
                            "--name", rd.name, "--no-progress", "--checkpoint-every", str(ckpt_every)] \
                         + (["--steps", str(a.steps)] if a.steps else [])
-                _run(cmd, log)
-                times[f"train {algo}"] = time.perf_counter() - t0
+                cmds.append((f"train {algo}", cmd))
                 runs.append(rd)
+            times.update(_run_parallel(cmds, log, a.jobs))
             ev = [py, "-m", "aerohrl.eval.cli"]
             common = ["--episodes", str(a.episodes), "--checkpoints", str(a.checkpoints), "--no-progress"]
             for rd, algo in zip(runs, a.algos):

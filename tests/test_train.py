@@ -39,10 +39,12 @@ def _same(a, b):
     return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
 
 
-@pytest.mark.parametrize("algo", ALGORITHMS)
-def test_resume_gives_same_weights(algo, data, tmp_path):
+@pytest.mark.parametrize("algo,extra", [(a, {}) for a in ALGORITHMS]
+                         + [(a, {"ema_decay": 0.9, "mc_lower_bound": True, "amp": "bf16"}) for a in ALGORITHMS])
+def test_resume_gives_same_weights(algo, extra, data, tmp_path):
+    """Also with the EMA policy, Monte-Carlo-bounded targets and bf16 autocast."""
     torch.set_num_threads(1)
-    cfg = make_config("cpu", algo=algo, dataset=str(data.info["path"]), **TINY)
+    cfg = make_config("cpu", algo=algo, dataset=str(data.info["path"]), **TINY, **extra)
     full = start_run(cfg, tmp_path / "full", data=data, progress=False)
     full.train()
     part = start_run(cfg, tmp_path / "part", data=data, progress=False)
