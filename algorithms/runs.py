@@ -1,8 +1,9 @@
 """``aerohrl runs show RUN``: config, dataset version, progress and the learning curve.
 
 The plot (``RUN/learning_curve.png`` unless ``-o``) follows thesis Fig. 3.3/3.4: the
-closed-loop success rate against training steps (one line per evaluation task), with
-the training losses beside it.
+closed-loop success rate against training steps (one line per evaluation task: the
+trainer's periodic evaluations and, when ``aerohrl eval`` has been run, its results of
+every evaluated checkpoint), with the training losses beside it.
 """
 
 from __future__ import annotations
@@ -40,6 +41,23 @@ def summary(run_dir) -> dict:
     }
 
 
+def _harness_curves(run_dir) -> dict[str, list[tuple[int, float, float]]]:
+    """Per-checkpoint (step, success %, near success %) of every ``aerohrl eval`` result
+    of the run (``RUN/eval/<name>/summary.json``), by result name."""
+    import json
+
+    out = {}
+    for f in sorted(Path(run_dir).glob("eval/*/summary.json")):
+        try:
+            rows = json.loads(f.read_text()).get("checkpoints", [])
+            pts = sorted((int(r["step"]), 100 * float(r["success"]), 100 * float(r["near_success"])) for r in rows)
+        except (OSError, ValueError, KeyError, TypeError):
+            continue  # a damaged or foreign file: the plot goes on without it
+        if pts:
+            out[f.parent.name] = pts
+    return out
+
+
 def plot_learning_curve(run_dir, out=None) -> Path:
     import matplotlib
 
@@ -58,6 +76,12 @@ def plot_learning_curve(run_dir, out=None) -> Path:
         near = [(r["step"], 100 * r[kn]) for r in metrics if kn in r]
         if near:
             ax1.plot(*zip(*near), ls="--", color=line.get_color(), alpha=0.6, label=f"{k.split('/')[1].replace('_', '-')} (near)")
+    harness = _harness_curves(run_dir)
+    for name, pts in harness.items():  # aerohrl eval: every evaluated checkpoint, all its episodes
+        steps, succ, near = zip(*pts)
+        (line,) = ax1.plot(steps, succ, marker="s", label=f"{name} (aerohrl eval)")
+        ax1.plot(steps, near, ls=":", color=line.get_color(), alpha=0.6, label=f"{name} (aerohrl eval, near)")
+    evals = evals + list(harness)
     ax1.set_xlabel("training step")
     ax1.set_ylabel("success rate (%)")
     ax1.set_ylim(-2, 102)

@@ -279,3 +279,14 @@ def test_relabel_offset_flags_reach_the_sampler(data, tmp_path):
         with pytest.raises(UserError, match=msg):
             make_config("cpu", **bad)
     assert cli.main(["--algo", "gcsl", "--dataset", str(data.info["path"]), "--relabel-offset", "final"]) == 2
+
+
+def test_learning_curve_reads_harness_results(tmp_path):
+    """`runs show` plots every checkpoint `aerohrl eval` evaluated (RUN/eval/<task>/summary.json)."""
+    d = tmp_path / "eval" / "reach-desired"
+    d.mkdir(parents=True)
+    rows = [{"step": 2000, "success": 0.5, "near_success": 0.8}, {"step": 1000, "success": 0.25, "near_success": 0.5}]
+    (d / "summary.json").write_text(json.dumps({"checkpoints": rows}))
+    (tmp_path / "eval" / "broken").mkdir()
+    (tmp_path / "eval" / "broken" / "summary.json").write_text("{not json")
+    assert runs._harness_curves(tmp_path) == {"reach-desired": [(1000, 25.0, 50.0), (2000, 50.0, 80.0)]}
