@@ -22,6 +22,11 @@ same episodes.
   different stream from any dataset seed). Horizon 1000 steps (two legs of 500: the
   thesis flies to one intermediate goal, then to G) for every variant, with or without
   planner, so that they are compared at equal flight time (see eval/README.md).
+* ``reach-novel`` (a diagnostic beyond the SPEC): hover at the origin, *new* goals drawn
+  from rho_D itself (the dataset spec's position, velocity and acceleration ranges) with
+  seed stream ``NOVEL_SEED_OFFSET + seed``, horizon 500: Reach-Desired on goals the
+  policy was not trained on, i.e. generalisation within the training distribution
+  rather than recall of the dataset's 250 trajectories.
 """
 
 from __future__ import annotations
@@ -33,12 +38,14 @@ import numpy as np
 from aerohrl import task
 from aerohrl.errors import UserError
 
-TASKS = ("reach-desired", "reach-intermediate", "ood")
+TASKS = ("reach-desired", "reach-intermediate", "ood", "reach-novel")
 HORIZON_DESIRED = 500
 HORIZON_INTERMEDIATE = 100
 MAX_AHEAD = 45
 OOD_POS_RANGE = (2.0, 3.5)
 OOD_SEED_OFFSET = 1_000_003
+NOVEL_SEED_OFFSET = 2_000_003
+DEFAULT_POS_RANGE = (1.0, 2.0)
 DEFAULT_VEL_RANGE = (-2.5, 2.5)
 DEFAULT_ACC_RANGE = (-5.0, 5.0)
 
@@ -130,14 +137,28 @@ def reach_intermediate(data, n: int = 250, seed: int = 0, max_ahead: int = MAX_A
                       meta={"max_ahead": int(max_ahead), "n_desired": n_desired})
 
 
-def ood_goals(n: int, seed: int = 0, *, pos_range=OOD_POS_RANGE, vel_range=None, acc_range=None) -> np.ndarray:
-    """(n, 15) out-of-distribution goals (SPEC.md "ood")."""
+def ood_goals(n: int, seed: int = 0, *, pos_range=OOD_POS_RANGE, vel_range=None, acc_range=None,
+              stream: int = OOD_SEED_OFFSET) -> np.ndarray:
+    """(n, 15) out-of-distribution goals (SPEC.md "ood"); another ``pos_range`` and
+    ``stream`` give other goal sets (``reach-novel``)."""
     from aerohrl.datagen.goals import goal_vectors, sample_goals
 
     n = _check_n(n)
-    g = sample_goals(np.random.default_rng(OOD_SEED_OFFSET + int(seed)), n, pos_range=pos_range,
+    g = sample_goals(np.random.default_rng(stream + int(seed)), n, pos_range=pos_range,
                      vel_range=vel_range or DEFAULT_VEL_RANGE, acc_range=acc_range or DEFAULT_ACC_RANGE)
     return goal_vectors(g)
+
+
+def reach_novel(data, n: int = 250, seed: int = 0) -> EpisodeSet:
+    """Reach-Novel (diagnostic): origin -> a *new* goal from the dataset's own ranges, 500 steps."""
+    spec = (data.info.get("spec") or {}) if data is not None else {}
+    pos = tuple(spec.get("pos_range") or DEFAULT_POS_RANGE)
+    goals = ood_goals(n, seed, pos_range=pos, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"),
+                      stream=NOVEL_SEED_OFFSET)
+    n = len(goals)
+    return EpisodeSet("reach-novel", hover_states(n), goals, np.full(n, HORIZON_DESIRED, np.int64),
+                      np.full(n, -1, np.int64), np.full(n, -1, np.int64), np.zeros(n, np.int64), seed,
+                      meta={"pos_range": list(pos), "seed_stream": NOVEL_SEED_OFFSET + int(seed)})
 
 
 def ood(data, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, legs: int = 2) -> EpisodeSet:
@@ -155,8 +176,9 @@ def make_episodes(name: str, data, n: int = 250, seed: int = 0, **kw) -> Episode
     """The episode set of task ``name`` (one of :data:`TASKS`)."""
     if name not in TASKS:
         raise UserError(f"unknown task {name!r} (choose from {', '.join(TASKS)})")
-    fn = {"reach-desired": reach_desired, "reach-intermediate": reach_intermediate, "ood": ood}[name]
+    fn = {"reach-desired": reach_desired, "reach-intermediate": reach_intermediate, "ood": ood, "reach-novel": reach_novel}[name]
     return fn(data, n, seed, **kw)
 
 
-__all__ = ["EpisodeSet", "TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "ood_goals", "hover_states"]
+__all__ = ["EpisodeSet", "TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "reach_novel", "ood_goals",
+           "hover_states"]

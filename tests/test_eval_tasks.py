@@ -59,6 +59,25 @@ def test_ood_goals_outside_rho_d(data):
     assert (eps.horizons == 1000).all()  # 2 legs of 500 steps by default
 
 
+def test_reach_novel_draws_new_goals_from_rho_d(tmp_path):
+    """reach-novel: fresh goals from the dataset spec's own ranges, never the dataset's goals."""
+    from aerohrl.algorithms.data import load_dataset as load
+    from aerohrl.datagen.build import build
+    from aerohrl.datagen.spec import DatasetSpec
+
+    root = build(DatasetSpec(goals=6, seed=0), tmp_path, progress=False, log=lambda *a: None).path
+    real = load(root)
+    eps = T.make_episodes("reach-novel", real, 200, seed=0)
+    p = np.abs(eps.goals[:, :3])
+    assert p.min() >= 1.0 and p.max() <= 2.0 and (eps.horizons == 500).all()
+    assert np.allclose(eps.start_states, T.hover_states(200))
+    desired = real.desired_goals().numpy().astype(np.float64)
+    assert np.abs(eps.goals[:, None, :] - desired[None]).max(-1).min() > 1e-3  # none is a training goal
+    assert np.array_equal(T.make_episodes("reach-novel", real, 200, seed=0).goals, eps.goals)
+    assert not np.array_equal(T.make_episodes("reach-novel", real, 200, seed=1).goals, eps.goals)
+    assert not np.array_equal(T.ood(real, 200, 0).goals[:, 3:], eps.goals[:, 3:])  # another stream than ood
+
+
 def test_bad_input(data):
     with pytest.raises(UserError, match="unknown task"):
         T.make_episodes("reach-far", data)
