@@ -8,6 +8,7 @@
     aerohrl eval table runs/gcsl runs/td3bc runs/td3awbc runs/cql -o results/table   # Markdown + CSV
     aerohrl eval plot --task ood --run runs/<run> -o ood.png     # 3D trajectories (Fig. 3.5 / 3.6)
     aerohrl eval plot --curves runs/gcsl runs/td3bc -o curves.png   # learning curves (Fig. 3.3 / 3.4)
+    aerohrl eval oracle --run runs/<run>                         # what any Eq. 3.7 planner could reach (eval/oracle.py)
 
 Exit status: 0 done, 2 bad input (one line ``aerohrl eval: error: ...``), 130 interrupted.
 """
@@ -28,7 +29,7 @@ def _eval_parser() -> ArgumentParser:
 
     d = EvalOptions()
     ap = ArgumentParser(prog=PROG, description="Evaluate the last checkpoints of a training run in the batched simulator "
-                        "(subcommands: `table RUN...`, `plot ...`).")
+                        "(subcommands: `table RUN...`, `plot ...`, `oracle ...`).")
     ap.add_argument("--task", required=True, help=f"{' | '.join(TASKS)}")
     ap.add_argument("--run", required=True, type=Path, help="training run folder (runs/<run>)")
     ap.add_argument("--episodes", type=int, default=d.episodes, help=f"episodes per checkpoint [{d.episodes}]")
@@ -122,6 +123,50 @@ def cmd_plot(a) -> int:
     return 0
 
 
+def _oracle_parser() -> ArgumentParser:
+    ap = ArgumentParser(prog=f"{PROG} oracle", description="Fly every first and second leg of the single-goal planner "
+                        "(Eq. 3.7) to bound what any planner over the achieved goals can reach with this policy.")
+    ap.add_argument("--run", type=Path, required=True)
+    ap.add_argument("--task", default="ood", help="goals of: ood | reach-novel [ood]")
+    ap.add_argument("--goals", type=int, default=40, help="task goals [40]")
+    ap.add_argument("--candidates", type=int, default=150, help="achieved goals (seeded subset) [150]")
+    ap.add_argument("--leg-horizon", type=int, default=500, help="steps per leg [500]")
+    ap.add_argument("--alpha", type=float, default=1.0, help="variance penalty of the Eq. 3.7 choice [1.0]")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--out", type=Path, default=None, help="report folder [RUN/eval/oracle-TASK]")
+    ap.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def cmd_oracle(a) -> int:
+    import json
+
+    import torch
+
+    from aerohrl.eval import results
+    from aerohrl.eval.harness import load_policy, load_run_dataset, run_checkpoints, sim_kwargs
+    from aerohrl.eval.oracle import format_report, oracle_single
+    from aerohrl.eval.tasks import make_episodes
+
+    if a.task not in ("ood", "reach-novel"):
+        raise UserError(f"oracle --task must be ood or reach-novel, got {a.task!r}")
+    if a.goals < 1 or a.candidates < 1 or a.leg_horizon < 1:
+        raise UserError("--goals, --candidates and --leg-horizon must be >= 1")
+    torch.set_num_threads(max(1, a.threads))
+    ckpt = run_checkpoints(a.run, 1)[-1]
+    data, _ = load_run_dataset(a.run)
+    algo, ck = load_policy(ckpt)
+    goals = make_episodes(a.task, data, a.goals, a.seed).goals
+    r = oracle_single(algo, data, goals, candidates=a.candidates, seed=a.seed, leg_horizon=a.leg_horizon, alpha=a.alpha,
+                      sim=sim_kwargs(data), progress=not a.no_progress and sys.stderr.isatty())
+    r.update(run=str(a.run), checkpoint=ckpt.name, step=int(ck["step"]), task=a.task, seed=a.seed)
+    out = a.out or Path(a.run) / "eval" / f"oracle-{a.task}"
+    path = results.write_text(out / "oracle.json", json.dumps(r, indent=2, sort_keys=True) + "\n")
+    print(f"oracle, {a.task}, {a.run} at step {ck['step']}:\n{format_report(r)}\nreport: {path}")
+    return 0
+
+
 def _io(fn):
     """File-system failures (unwritable output, full disk) as one-line errors."""
 
@@ -139,6 +184,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] == "table":
         a = _table_parser().parse_args(argv[1:])
         return run_cli(PROG, lambda: _io(cmd_table)(a))
+    if argv and argv[0] == "oracle":
+        a = _oracle_parser().parse_args(argv[1:])
+        return run_cli(PROG, lambda: _io(cmd_oracle)(a))
     if argv and argv[0] == "plot":
         a = _plot_parser().parse_args(argv[1:])
         return run_cli(PROG, lambda: _io(cmd_plot)(a))
