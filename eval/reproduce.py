@@ -9,9 +9,11 @@
    TD3-AWBC and CQL, ``--jobs`` (2) at a time with one thread each (an existing run is
    resumed, a finished one is left as it is); checkpoints every 1/30 of the run so that "the last 10 checkpoints"
    are the final third of training, as the thesis' last 10 epochs are its end;
-3. ``aerohrl eval`` Reach-Desired and Reach-Intermediate for every run (last 10
-   checkpoints x 250 episodes), OOD without planner, with the single-goal planner
-   (Eq. 3.7) and with 2 planned goals (Eq. 3.6, beam search, re-planning) for GCSL;
+3. ``aerohrl eval`` Reach-Desired, Reach-Intermediate and the Reach-Novel diagnostic for
+   every run (last 10 checkpoints x 250 episodes), OOD without planner, with the
+   single-goal planner (Eq. 3.7) and with 2 planned goals (Eq. 3.6, beam search,
+   re-planning) for GCSL, and ``aerohrl eval oracle`` (what any single-goal planner could
+   reach with that policy);
 4. ``aerohrl eval table`` -> ``OUT/tables.md`` + CSV, trajectory plots and learning
    curves under ``OUT/``, and the tables with the wall time of every stage written into
    ``README`` between the lines ``<!-- results:begin -->`` and ``<!-- results:end -->``
@@ -96,6 +98,8 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=None, help="override the cpu preset's training steps (smoke runs)")
     ap.add_argument("--episodes", type=int, default=250)
     ap.add_argument("--checkpoints", type=int, default=10)
+    ap.add_argument("--oracle-goals", type=int, default=40, help="OOD goals of the planner oracle [40]")
+    ap.add_argument("--oracle-candidates", type=int, default=150, help="candidates of the planner oracle [150]")
     ap.add_argument("--jobs", type=int, default=2, help="training runs at a time, one thread each [2 = the 2 cores]")
     ap.add_argument("--planner-algos", nargs="+", default=["gcsl"], help="runs evaluated on OOD with the planners [gcsl]")
     a = ap.parse_args(argv)
@@ -134,14 +138,20 @@ def main(argv=None) -> int:
                 runs.append(rd)
             times.update(_run_parallel(cmds, log, a.jobs))
             ev = [py, "-m", "aerohrl.eval.cli"]
+            oracles = []
             common = ["--episodes", str(a.episodes), "--checkpoints", str(a.checkpoints), "--no-progress"]
             for rd, algo in zip(runs, a.algos):
                 t0 = time.perf_counter()
-                for t in ("reach-desired", "reach-intermediate"):
+                for t in ("reach-desired", "reach-intermediate", "reach-novel"):
                     _run(ev + ["--task", t, "--run", str(rd)] + common, log)
                 if algo in a.planner_algos:
                     for pl in (["none"], ["single"], ["multi", "--waypoints", "2"]):
                         _run(ev + ["--task", "ood", "--run", str(rd), "--planner"] + pl + common, log)
+                    rep = _run(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
+                                     str(a.oracle_candidates), "--no-progress"], log)
+                    oracles.append(f"Oracle of the single-goal planner for {algo} (`aerohrl eval oracle --run {rd} --goals "
+                                   f"{a.oracle_goals} --candidates {a.oracle_candidates}`, eval/oracle.py):\n\n```\n"
+                                   + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:")) + "\n```\n")
                     _run(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{algo}.png")], log)
                 _run(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{algo}.png")], log)
                 times[f"eval {algo}"] = time.perf_counter() - t0
@@ -152,7 +162,7 @@ def main(argv=None) -> int:
         wall = ", ".join(f"{k} {v / 60:.1f} min" for k, v in times.items())
         block = (f"Reproduced by `make results` on {stamp} (dataset `{ds}`, cpu preset"
                  + (f", {a.steps} training steps" if a.steps else "") + f", {a.episodes} episodes x last {a.checkpoints} checkpoints)"
-                 f"; wall time {total / 60:.1f} min ({wall}).\n\n" + tables)
+                 f"; wall time {total / 60:.1f} min ({wall}).\n\n" + tables + "".join("\n" + o for o in oracles))
         (out / "results.md").write_text(block)
         where = a.readme if update_readme(Path(a.readme), block) else f"{out / 'results.md'} (no results markers in {a.readme})"
         print(f"tables written to {where}; total {total / 60:.1f} min")

@@ -191,7 +191,9 @@ def tables(run_dirs) -> dict:
             cells.append(f"{s['near_success_mean'] * 100:.1f}" if s else "—")
             cells.append(f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—")
             cells.append(f"{len(s['checkpoints'])} x {s['episodes']}" if s else "0")
-        if any(c != "—" for c in cells[::4] + cells[1::4]):
+        nov = read_summary(rd, "reach-novel")  # the generalisation diagnostic, beyond the thesis
+        cells.append(f"{_pm(nov['success_mean'], nov['success_std'])} (near {100 * nov['near_success_mean']:.1f})" if nov else "—")
+        if any(c != "—" for c in cells[:8:4] + cells[1:8:4]):
             t31.append([ALGO_NAMES.get(algo, algo), str(rd)] + cells)
         evals = sorted(p.name for p in (Path(rd) / "eval").glob("ood-*") if (p / "summary.json").exists())
         for name in evals:
@@ -203,7 +205,7 @@ def tables(run_dirs) -> dict:
     if not t31 and not t32:
         raise UserError("none of the runs has evaluation results (run `aerohrl eval --task ... --run RUN` first)")
     h31 = ["algorithm", "run", "Reach-Desired success %", "near %", "thesis %", "ckpts x episodes",
-           "Reach-Intermediate success %", "near %", "thesis %", "ckpts x episodes"]
+           "Reach-Intermediate success %", "near %", "thesis %", "ckpts x episodes", "Reach-Novel % (diagnostic)"]
     h32 = ["algorithm", "run", "planner", "success %", "near success %", "thesis success %", "thesis near %", "ckpts x episodes"]
     return {"t31": (h31, t31), "t32": (h32, t32)}
 
