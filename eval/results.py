@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -38,21 +37,11 @@ THESIS_T32 = {"single": (11.6, 29.2), "none": (0.0, 4.4)}  # (success %, near su
 ALGO_NAMES = {"gcsl": "GCSL", "td3bc": "TD3-BC", "td3awbc": "TD3-AWBC", "cql": "CQL"}
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def write_text(path, text: str) -> Path:
+    from aerohrl.algorithms.trainer import atomic_write_bytes  # temporary name, fsync, rename
+
     path = Path(path)
-    _atomic_write(path, text.encode())
+    atomic_write_bytes(path, text.encode())
     return path
 
 
@@ -104,7 +93,9 @@ def write_trajectories(out_dir, step: int, episodes, r: dict) -> Path:
     extra = {k: r[k] for k in ("waypoints", "planned_waypoints") if k in r}
     np.savez_compressed(buf, positions=r["positions"], goals=episodes.goals, start_states=episodes.start_states,
                         success=r["success"], near_success=r["near_success"], steps=r["steps"], **extra)
-    _atomic_write(path, buf.getvalue())
+    from aerohrl.algorithms.trainer import atomic_write_bytes
+
+    atomic_write_bytes(path, buf.getvalue())
     return path
 
 
