@@ -2,7 +2,12 @@
 (baselines and the learned policy with its per-primitive features, untrained weights:
 the cost does not depend on them), target search and semantic detection.
 
-    .venv/bin/python bench/bench_ipp.py [--quick]
+    .venv/bin/python bench/bench_ipp.py [--quick] [--batch N] [--run RUN]
+
+``--batch`` sets how many target-search environments are stepped together for the
+planning table (``ipp bench`` batches 100); ``--run`` times a trained policy instead of
+untrained weights of the default architecture. ``detect`` is the training-time teacher
+(not a thesis baseline).
 """
 
 from __future__ import annotations
@@ -12,7 +17,7 @@ import time
 
 import numpy as np
 
-from aerohrl.ipp.baselines import PLANNERS, PlannerConfig, make_planner
+from aerohrl.ipp.baselines import PLANNERS, TEACHERS, PlannerConfig, make_planner
 from aerohrl.ipp.env import EnvConfig, SearchEnv, create_env, sample_for, semantic_config
 from aerohrl.ipp.lattice import default_lattice, semantic_lattice
 from aerohrl.ipp.world import sample_worlds
@@ -37,23 +42,25 @@ def env_steps_per_s(lat, n: int, steps: int) -> tuple[float, float]:
     return n * steps / dt, 1000 * t_obs
 
 
-def _rl_planner(env):
+def _rl_planner(env, run=None):
     import torch
 
     from aerohrl.ipp.features import N_FEAT
-    from aerohrl.ipp.policy import ActorCritic, PolicyConfig, RLPlanner
+    from aerohrl.ipp.policy import ActorCritic, PolicyConfig, RLPlanner, load_policy
     torch.set_num_threads(1)
     obs = env.observe()
+    if run is not None and env.cfg.kind == "targets":
+        return RLPlanner(env, load_policy(run))
     model = ActorCritic(obs["maps"].shape[1], obs["maps"].shape[2], obs["vec"].shape[1],
                         env.lat.n_actions, PolicyConfig(), n_feat=N_FEAT).eval()
     return RLPlanner(env, model)
 
 
-def planning_ms(lat, name: str, n: int, decisions: int, cfg=None) -> float:
+def planning_ms(lat, name: str, n: int, decisions: int, cfg=None, run=None) -> float:
     cfg = cfg or EnvConfig()
     env = create_env(cfg, lat)
     env.reset(sample_for(cfg, 0, range(n)))
-    pl = _rl_planner(env) if name == "rl" else make_planner(name, env, PlannerConfig())
+    pl = _rl_planner(env, run) if name == "rl" else make_planner(name, env, PlannerConfig())
     total, served = 0.0, 0
     for _ in range(decisions):
         live = int((~env.done).sum())
@@ -70,6 +77,8 @@ def planning_ms(lat, name: str, n: int, decisions: int, cfg=None) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--batch", type=int, default=None, help="target-search planning batch")
+    ap.add_argument("--run", help="trained policy (run directory or .pt) for the rl rows")
     a = ap.parse_args()
     lat = default_lattice()
     print(f"lattice: {lat.n_vertices} vertices, {lat.n_prims} primitives, {lat.n_actions} slots")
@@ -79,15 +88,16 @@ def main() -> None:
         sps, obs_ms = env_steps_per_s(lat, n, 20 if a.quick else 40)
         print(f"| {n} | {sps:,.0f} | {obs_ms:.2f} |")
     n, dec = (10, 5) if a.quick else (20, 10)
+    n = a.batch or n
     print(f"\nplanning ms per decision ({n} envs batched, first {dec} decisions)")
     print("| planner | ms/decision |\n|---|---|")
-    for name in PLANNERS + ("rl",):
-        print(f"| {name} | {planning_ms(lat, name, n, dec):.2f} |")
+    for name in PLANNERS + TEACHERS + ("rl",):
+        print(f"| {name} | {planning_ms(lat, name, n, dec, run=a.run):.2f} |")
     slat, scfg = semantic_lattice(), semantic_config()
     n, dec = (2, 3) if a.quick else (4, 5)
     print(f"\nsemantic 256 x 256: planning ms per decision ({n} envs batched, first {dec} decisions)")
     print("| planner | ms/decision |\n|---|---|")
-    for name in PLANNERS + ("rl",):
+    for name in PLANNERS + TEACHERS + ("rl",):
         print(f"| {name} | {planning_ms(slat, name, n, dec, scfg):.2f} |")
 
 

@@ -15,7 +15,16 @@ cmaes          5      the same information gain; CMA-ES (``cmaes`` package) over
                       sequence, executed open-loop for 5 primitives, then replanned
 coverage       2      1 for a cell neither covered nor sensed earlier in the sequence
 prio_coverage  2      ``eps + b`` for such a cell (coverage prioritised by belief)
+detect         2      expected *new detections* of the sequence (``env.plan_detect_gain``,
+                      overlap exact as for ``dp``), budget-aware (below): not a thesis
+                      baseline; the teacher of the learned planner's warm start (train.py)
 =============  =====  =================================================================
+
+Budget-aware scoring (``PlannerConfig.budget_aware``; default on for ``detect`` only):
+the primitive that crosses the end of the budget is executed in full but charged only
+the remainder, and primitives after it never happen, so a sequence scores
+``utility of the primitives started with budget left / min(cost, remaining budget)``.
+The thesis baselines divide by the full cost (``--budget-aware`` turns it on for them).
 
 Information gain of a cell sensed with total log-odds magnitude ``lam`` (the sum of
 ``log((1-e)/e)`` over its measurements) is computed as for one measurement with error
@@ -40,10 +49,12 @@ from aerohrl.errors import UserError
 from .env import SearchEnv
 from .sensor import entropy_bits, sigmoid
 
-PLANNERS = ("greedy", "dp", "cmaes", "coverage", "prio_coverage")
+PLANNERS = ("greedy", "dp", "cmaes", "coverage", "prio_coverage")  # thesis Table 2.1
+TEACHERS = ("detect",)  # training-time teachers; `ipp bench --planner detect`, not in --all
 THESIS_NAMES = {"greedy": "Greedy-IPP", "dp": "DP-IPP", "cmaes": "CMAES-IPP",
                 "coverage": "Coverage", "prio_coverage": "Prioritised Coverage",
-                "rl_nolstm": "Ours-noLSTM", "rl": "Ours-LSTM"}
+                "rl_nolstm": "Ours-noLSTM", "rl": "Ours-LSTM",
+                "detect": "Detection tree (teacher)"}
 
 
 @dataclass(frozen=True)
@@ -59,6 +70,7 @@ class PlannerConfig:
     generations: int = 15          # CMA-ES generations per replan
     sigma0: float = 0.3            # CMA-ES initial step size on [0, 1]^horizon
     max_nodes: int = 2_000_000     # memory bound per chunk for dense overlap maps
+    budget_aware: bool | None = None  # tree planners: None = planner default (detect only)
 
 
 def info_gain(b: np.ndarray, lam: np.ndarray) -> np.ndarray:
@@ -87,10 +99,15 @@ class Planner:
 class TreePlanner(Planner):
     """Exhaustive search over primitive sequences of length ``depth`` (batched)."""
 
-    def __init__(self, env, cfg=None, kind="info", depth=2):
+    def __init__(self, env, cfg=None, kind="info", depth=2, budget_aware=False):
         super().__init__(env, cfg)
         self.kind = kind
-        self.depth = int(self.cfg.depth or depth)
+        # budget-aware scoring: a primitive started with budget left is executed in full
+        # but charged only the remainder; later ones never happen. Off for the thesis
+        # baselines (their score is utility / full cost), on for the detect teacher.
+        self.budget_aware = bool(budget_aware if self.cfg.budget_aware is None
+                                 else self.cfg.budget_aware)
+        self.depth = int(depth if self.cfg.depth is None else self.cfg.depth)
         if not 1 <= self.depth <= 4:
             raise UserError(f"planner depth must be in 1..4, got {self.depth}")
         self.name = kind
@@ -98,6 +115,8 @@ class TreePlanner(Planner):
     # utility of cells: b belief, c covered, lp previous lam in sequence, lam this prim
     def _util(self, b, c, lp, lam):
         env = self.env
+        if self.kind == "detect":
+            return env.plan_detect_gain(b, lp, lam)
         if self.kind == "info":
             g = env.plan_ig(b, lp + lam)
             seen = lp > 0
@@ -178,6 +197,8 @@ class TreePlanner(Planner):
                 env.plan_cells(idx[np.nonzero(inside)[0]], flat[inside])
             uc[inside] = self._util(b_in, c[inside], lp[inside], lam[inside])
             u = uc.sum(-1)  # (n, K, A)
+            if self.budget_aware:  # steps that start after the budget is spent count 0
+                u = u * (cost < env.remaining[idx, None])[..., None]
             util = (util[..., None] + u).reshape(n, K * A)
             cost = (cost[..., None] + lat.prim_cost[pr]).reshape(n, K * A)
             alive = ok.reshape(n, K * A)
@@ -192,6 +213,8 @@ class TreePlanner(Planner):
                 lmap = nl.reshape(n, K * A, Wn * Wn)
             pos = (pos[:, :, None, :] + lat.prim_disp[pr]).reshape(n, K * A, 2)
             vert = lat.prim_to[pr].reshape(n, K * A)
+        if self.budget_aware:
+            cost = np.minimum(cost, env.remaining[idx, None])
         score = np.where(alive, util / cost, -np.inf)
         first = score.reshape(n, A, -1).max(-1)  # best continuation per first action
         best = first.argmax(1)
@@ -332,9 +355,12 @@ def make_planner(name: str, env: SearchEnv, cfg: PlannerConfig | None = None) ->
         p = TreePlanner(env, cfg, "coverage", 2)
     elif name == "prio_coverage":
         p = TreePlanner(env, cfg, "prio", 2)
+    elif name == "detect":
+        p = TreePlanner(env, cfg, "detect", 2, budget_aware=True)
     elif name == "cmaes":
         p = CMAESPlanner(env, cfg)
     else:
-        raise UserError(f"unknown planner {name!r} (choose from {', '.join(PLANNERS)})")
+        raise UserError(f"unknown planner {name!r} (choose from "
+                        f"{', '.join(PLANNERS + TEACHERS)})")
     p.name = name
     return p

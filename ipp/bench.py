@@ -17,7 +17,7 @@ import numpy as np
 from aerohrl.errors import UserError
 
 from ._io import atomic_path
-from .baselines import PLANNERS, THESIS_NAMES, PlannerConfig, make_planner
+from .baselines import PLANNERS, TEACHERS, THESIS_NAMES, PlannerConfig, make_planner
 from .env import EnvConfig, SearchEnv, create_env, sample_for
 from .lattice import Lattice
 
@@ -39,8 +39,9 @@ class BenchConfig:
         if self.envs < 1 or self.batch < 1:
             raise UserError("--envs and --batch must be >= 1")
         for p in self.planners:
-            if p not in PLANNERS + ("rl",):
-                raise UserError(f"unknown planner {p!r} (choose from {', '.join(PLANNERS)})")
+            if p not in PLANNERS + TEACHERS + ("rl",):
+                raise UserError(f"unknown planner {p!r} (choose from "
+                                f"{', '.join(PLANNERS + TEACHERS)}, rl)")
 
 
 def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids=None, progress=None,

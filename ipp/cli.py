@@ -4,6 +4,8 @@
     aerohrl ipp bench --planner dp --envs 100
     aerohrl ipp bench --all --envs 100                  # Markdown + CSV + KL plot
     aerohrl ipp train --preset cpu                      # -> runs/<run>/
+    aerohrl ipp train --resume runs/<run>               # continue from its checkpoint
+    aerohrl ipp curve runs/<run>                        # -> runs/<run>/learning_curve.png
     aerohrl ipp bench --all --run runs/<run>            # baselines + learned policy
     aerohrl ipp show --env 7 --planner dp -o path.png
     aerohrl ipp bench --all --world semantic --envs 30  # Table 2.2 analogue
@@ -32,7 +34,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    from .baselines import PLANNERS
+    from .baselines import PLANNERS, TEACHERS
     from .bench import TEST_SEED
     from .env import SEMANTIC_BUDGET, EnvConfig
     from .lattice import LatticeConfig
@@ -75,28 +77,55 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--horizon", type=int, default=5, help="CMA-ES horizon")
         q.add_argument("--popsize", type=int, default=12)
         q.add_argument("--generations", type=int, default=15)
+        q.add_argument("--budget-aware", action=argparse.BooleanOptionalAction, default=None,
+                       help="tree planners: score by min(cost, remaining budget) (default: "
+                       "on for detect only)")
         q.add_argument("--run", action="append", default=None,
                        help="trained policy run directory (planner rl); bench takes several")
 
+    from .train import PRESETS, TEACHER_PLANNERS
     tr = sub.add_parser("train", help="train the learned recurrent policy")
-    tr.add_argument("--preset", default="cpu", help="cpu | quick | test")
+    tr.add_argument("--preset", default="cpu", help=" | ".join(PRESETS))
+    tr.add_argument("--resume", metavar="RUN",
+                    help="continue RUN from its checkpoint.pt with its config.json "
+                    "(only --iterations, --lattice, --no-progress may be given)")
     tr.add_argument("--envs", type=int, default=None, dest="n_envs")
-    tr.add_argument("--iterations", type=int, default=None)
+    tr.add_argument("--iterations", type=int, default=None, help="PPO iterations")
+    tr.add_argument("--bc-iterations", type=int, default=None,
+                    help="DAgger warm-start iterations before PPO (0: none)")
+    tr.add_argument("--teacher", default=None, help=" | ".join(TEACHER_PLANNERS))
+    tr.add_argument("--teacher-depth", type=int, default=None)
+    tr.add_argument("--adv-weights", type=_floats, default=None,
+                    help="per-term advantage weights, comma-separated: entropy,coverage,"
+                    "target,cost,invalid (thesis: 1,1,1,1,1)")
     tr.add_argument("--seed", type=int, default=None)
     tr.add_argument("--threads", type=int, default=None)
     tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
+    tr.add_argument("--no-features", action="store_true",
+                    help="map observations only (thesis), no per-primitive features")
     tr.add_argument("--lr", type=float, default=None)
+    tr.add_argument("--bc-lr", type=float, default=None)
+    tr.add_argument("--bc-anchor", type=float, default=None,
+                    help="PPO: weight of a cross entropy to the teacher (0: off)")
+    tr.add_argument("--entropy-coef", type=float, default=None)
+    tr.add_argument("--eval-every", type=int, default=None,
+                    help="validate the greedy policy every N iterations (0: never)")
     tr.add_argument("--init", help="warm start from a trained run (fine-tuning)")
-    tr.add_argument("--start", choices=("center", "random"), default="random",
-                    help="training start cells (test suite: center)")
+    tr.add_argument("--start", choices=("center", "random"), default=None,
+                    help="training start cells (default random; test suite: center)")
     tr.add_argument("--run-dir", help="output directory (default runs/ipp-<preset>-<time>)")
     tr.add_argument("--lattice", help="lattice file (default: the shipped one)")
     world_flags(tr)
     tr.add_argument("--no-progress", action="store_true")
+    tr.set_defaults(_defaults={a.dest: a.default for a in tr._actions})
+
+    cu = sub.add_parser("curve", help="learning curve of a training run (PNG)")
+    cu.add_argument("run", help="training run directory")
+    cu.add_argument("-o", "--output", help="figure path (default RUN/learning_curve.png)")
 
     be = sub.add_parser("bench", help="Table 2.1 analogue on the seeded test suite")
     g = be.add_mutually_exclusive_group()
-    g.add_argument("--planner", help=f"one of {', '.join(PLANNERS)} (default dp)")
+    g.add_argument("--planner", help=f"one of {', '.join(PLANNERS + TEACHERS)}, rl (default dp)")
     g.add_argument("--all", action="store_true", help="every baseline (+ rl with --run)")
     be.add_argument("--envs", type=int, default=None,
                     help="test environments (default 100; semantic 30, as the thesis)")
@@ -113,12 +142,19 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of numbers: {text!r}")
+
+
 def _configs(a):
     from .baselines import PlannerConfig
 
     env = _env_config(a, a.start)
     pc = PlannerConfig(depth=a.depth, horizon=a.horizon, popsize=a.popsize,
-                       generations=a.generations)
+                       generations=a.generations, budget_aware=a.budget_aware)
     if a.horizon < 1 or a.popsize < 2 or a.generations < 1:
         raise UserError("--horizon >= 1, --popsize >= 2 and --generations >= 1 are required")
     return env, pc
@@ -170,6 +206,8 @@ def _load_models(a, kind: str = "targets") -> dict:
     out = {}
     for path in a.run:
         m = load_policy(path)
+        pp = Path(path)
+        m.run_label = pp.name if pp.is_dir() else f"{pp.parent.name}/{pp.name}"
         if m.env_kind != kind:
             raise UserError(f"{path}: policy was trained on {m.env_kind} worlds, not {kind}")
         key = "rl" if m.cfg.recurrent else "rl_nolstm"
@@ -187,8 +225,8 @@ def _bench(a) -> int:
     from .bench import BenchConfig, run_episodes
     from .env import create_env
     from .lattice import get_lattice
-    from .metrics import (markdown_table, per_env_csv, plot_kl, summarise, summary_csv,
-                          write_atomic)
+    from .metrics import (markdown_table, paired_markdown, per_env_csv, plot_kl, summarise,
+                          summary_csv, write_atomic)
 
     env, pc = _configs(a)
     if a.envs is None:
@@ -214,13 +252,21 @@ def _bench(a) -> int:
         bar.close()
         r["summary"] = summarise(r["per_env"])
         results[name] = r
-    md = markdown_table(results, THESIS_NAMES, env.kind)
+    labels = dict(THESIS_NAMES)
+    if pc.budget_aware is not None:  # a non-default scoring: say so in the table
+        for n in names:
+            if n not in ("rl", "cmaes") and pc.budget_aware != (n == "detect"):
+                labels[n] = f"{labels[n]} ({'' if pc.budget_aware else 'not '}budget-aware)"
+    for k, m in models.items():
+        if k not in labels:  # second and further runs: label them by their directory
+            labels[k] = f"{THESIS_NAMES['rl' if m.cfg.recurrent else 'rl_nolstm']} ({m.run_label})"
+    md = markdown_table(results, labels, env.kind) + paired_markdown(results, labels, PLANNERS)
     print(md, end="")
     out = Path(a.out_dir)
     write_atomic(out / "ipp_bench.md", md)
     write_atomic(out / "ipp_bench.csv", summary_csv(results, env.kind))
     write_atomic(out / "ipp_bench_envs.csv", per_env_csv(results))
-    plot_kl(results, THESIS_NAMES, out / "ipp_kl.png",
+    plot_kl(results, labels, out / "ipp_kl.png",
             xlabel="prior cross-entropy (nats/cell), quantile bins" if env.kind == "semantic"
             else "KL(truth || prior) (nats), quantile bins")
     print(f"wrote {out}/ipp_bench.md, ipp_bench.csv, ipp_bench_envs.csv, ipp_kl.png")
@@ -233,37 +279,70 @@ def _train(a) -> int:
     from tqdm import tqdm
 
     from .lattice import get_lattice
-    from .train import preset, train
+    from .train import load_run_config, preset, train
 
-    cfg = preset(a.preset, n_envs=a.n_envs, iterations=a.iterations, seed=a.seed,
-                 threads=a.threads, recurrent=False if a.no_rnn else None, lr=a.lr,
-                 init=a.init)
-    if cfg.lr <= 0 or not cfg.lr < 1:
-        raise UserError(f"--lr must be in (0, 1), got {cfg.lr}")
-    cfg = replace(cfg, env=_env_config(a, a.start))
-    if cfg.n_envs < 1 or cfg.iterations < 1:
-        raise UserError("--envs and --iterations must be >= 1")
-    lat = get_lattice(a.lattice, cfg.env.kind)
+    if a.resume:
+        allowed = {"resume", "iterations", "lattice", "no_progress", "cmd", "_defaults"}
+        given = sorted(k for k, v in a._defaults.items()
+                       if k not in allowed and hasattr(a, k) and getattr(a, k) != v)
+        if given:
+            raise UserError("--resume continues a run with its own config.json; only "
+                            "--iterations, --lattice and --no-progress may be given (got "
+                            + ", ".join("--" + k.replace("_", "-") for k in given) + ")")
+        run = Path(a.resume)
+        cfg = load_run_config(run)
+        if a.iterations is not None:
+            cfg = replace(cfg, iterations=a.iterations)
+        lat = get_lattice(a.lattice, cfg.env.kind)
+        import json
+        from dataclasses import asdict
+        saved = json.loads((run / "config.json").read_text()).get("lattice")
+        if saved is not None and saved != json.loads(json.dumps(asdict(lat.config))):
+            raise UserError(f"{run}: trained on another lattice (pass the same --lattice)")
+    else:
+        cfg = preset(a.preset, n_envs=a.n_envs, iterations=a.iterations, seed=a.seed,
+                     threads=a.threads, recurrent=False if a.no_rnn else None, lr=a.lr,
+                     init=a.init, bc_iterations=a.bc_iterations, teacher=a.teacher,
+                     teacher_depth=a.teacher_depth, adv_weights=a.adv_weights,
+                     bc_lr=a.bc_lr, bc_anchor=a.bc_anchor, entropy_coef=a.entropy_coef,
+                     eval_every=a.eval_every,
+                     features=False if a.no_features else None)
+        cfg = replace(cfg, env=_env_config(a, a.start or "random"))
+        run = Path(a.run_dir or f"runs/ipp-{a.preset}{'-nornn' if a.no_rnn else ''}-"
+                   f"{time.strftime('%Y%m%d-%H%M%S')}")
+        lat = get_lattice(a.lattice, cfg.env.kind)
+    if a.threads is not None and a.threads < 1:
+        raise UserError(f"--threads must be >= 1, got {a.threads}")
+    if cfg.teacher_depth is not None and not 1 <= cfg.teacher_depth <= 4:
+        raise UserError(f"--teacher-depth must be in 1..4, got {cfg.teacher_depth}")
+    cfg.validate()
     from .env import create_env
     create_env(cfg.env, lat)
-    run = Path(a.run_dir or f"runs/ipp-{a.preset}{'-nornn' if a.no_rnn else ''}-"
-               f"{time.strftime('%Y%m%d-%H%M%S')}")
-    bar = tqdm(total=cfg.iterations, desc="train", file=sys.stderr, disable=a.no_progress)
-    last = train(cfg, lat, run, progress=bar)
+    bar = tqdm(total=cfg.total_iterations, desc="train", file=sys.stderr, disable=a.no_progress)
+    last = train(cfg, lat, run, progress=bar, resume=bool(a.resume))
     bar.close()
-    print(f"trained {cfg.iterations} iterations x {cfg.n_envs} envs: return {last['return']:.1f}, "
-          f"coverage {last['coverage']:.1f}%, search eff. {last['search_efficiency']:.1f}% "
-          f"-> {run}")
+    print(f"trained {last['iteration']} iterations x {cfg.n_envs} envs "
+          f"({cfg.bc_iterations} DAgger + {cfg.iterations} PPO) in {last['time_s'] / 60:.1f} min: "
+          f"return {last['return']:.1f}, search eff. {last['search_efficiency']:.1f}% (train "
+          f"worlds) -> {run} (model.pt, checkpoint.pt, metrics.jsonl, learning_curve.png)")
+    return 0
+
+
+def _curve(a) -> int:
+    from .train import plot_learning_curve
+    out = plot_learning_curve(a.run, a.output)
+    print(f"learning curve -> {out}")
     return 0
 
 
 def _show(a) -> int:
-    from .baselines import PLANNERS, THESIS_NAMES
+    from .baselines import PLANNERS, TEACHERS, THESIS_NAMES
     from .bench import BenchConfig, render_episode, run_episodes
     from .lattice import get_lattice
 
-    if a.planner not in PLANNERS + ("rl",):
-        raise UserError(f"unknown planner {a.planner!r} (choose from {', '.join(PLANNERS)}, rl)")
+    if a.planner not in PLANNERS + TEACHERS + ("rl",):
+        raise UserError(f"unknown planner {a.planner!r} "
+                        f"(choose from {', '.join(PLANNERS + TEACHERS)}, rl)")
     if a.env < 0:
         raise UserError("--env must be >= 0")
     env, pc = _configs(a)
@@ -291,6 +370,8 @@ def _dispatch(argv) -> int:
         return _show(a)
     if a.cmd == "train":
         return _train(a)
+    if a.cmd == "curve":
+        return _curve(a)
     raise UserError(f"unknown command {a.cmd!r}")
 
 

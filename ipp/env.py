@@ -367,6 +367,30 @@ class SearchEnv:
         e = sigmoid(-lam)
         return b * ((1 - e) * (L + lam >= thr) + e * (L - lam >= thr))
 
+    def plan_open(self, b: np.ndarray) -> np.ndarray:
+        """Cells the agent does not yet believe found (belief below the threshold)."""
+        return b < self.cfg.found_threshold
+
+    def plan_detect_gain(self, b: np.ndarray, lp: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """Expected new detections of sensing cells (belief ``b``, already sensed with
+        ``lp`` earlier in the sequence) with ``lam`` more: ``detect(b, lp + lam) -
+        detect(b, lp)`` on cells not believed found, else 0 (the ``detect`` planner's
+        utility and feature 14)."""
+        g = self.plan_detect(b, lp + lam) - self.plan_detect(b, lp)
+        return np.where(self.plan_open(b), g, 0.0)
+
+    def plan_detect_gain_flat(self, gflat: np.ndarray, lp: np.ndarray,
+                              lam: np.ndarray) -> np.ndarray:
+        """:meth:`plan_detect_gain` at flat indices into the ``(N, Hp, Hp)`` maps; reads
+        the log-odds directly (no ``logit``): the hot path of feature 14."""
+        L = self.L.reshape(-1)[gflat]
+        thr = logit(self.cfg.found_threshold)
+        lt = lp + lam
+        et, ep = sigmoid(-lt), sigmoid(-lp)
+        g = (1 - et) * (L + lt >= thr) + et * (L - lt >= thr) \
+            - (1 - ep) * (L + lp >= thr) - ep * (L - lp >= thr)
+        return np.where(L < thr, sigmoid(L) * g, 0.0)
+
     # ----------------------------------------------------------- observations
     def observe(self) -> dict[str, np.ndarray]:
         """Egocentric multi-scale maps and the vector features (SPEC "Observations").

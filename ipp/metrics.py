@@ -65,6 +65,44 @@ def markdown_table(results: dict[str, dict], names: dict[str, str], kind: str = 
     return head + "\n".join(rows) + "\n"
 
 
+def paired_differences(results: dict[str, dict], baselines, metric: str = "search_efficiency"):
+    """Paired differences of ``metric`` between every non-baseline row and every baseline
+    row, over the environments both ran: ``{row: {baseline: (mean, standard error, n)}}``
+    plus the best baseline by mean. Rows must share their ``env_ids``."""
+    base = [p for p in results if p in baselines]
+    others = [p for p in results if p not in baselines]
+    if not base or not others:
+        return {}, None
+    best = max(base, key=lambda p: float(np.mean(results[p]["per_env"][metric])))
+    out = {}
+    for p in others:
+        out[p] = {}
+        for q in base:
+            if not np.array_equal(results[p]["env_ids"], results[q]["env_ids"]):
+                raise ValueError(f"{p} and {q} ran on different environments")
+            d = results[p]["per_env"][metric] - results[q]["per_env"][metric]
+            se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
+            out[p][q] = (float(d.mean()), se, len(d))
+    return out, best
+
+
+def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines) -> str:
+    """Markdown table of :func:`paired_differences` of search efficiency ('' if there is
+    nothing to pair)."""
+    diffs, best = paired_differences(results, baselines)
+    if not diffs:
+        return ""
+    base = [p for p in results if p in baselines]
+    head = ("\nPaired search-efficiency difference (row − baseline, percentage points, mean ± "
+            "standard error over the same environments); best baseline: "
+            f"{names.get(best, best)}\n\n| planner | " + " | ".join(
+                names.get(q, q) + (" (best)" if q == best else "") for q in base)
+            + " |\n|---|" + "---|" * len(base) + "\n")
+    rows = [f"| {names.get(p, p)} | " + " | ".join(f"{d[q][0]:+.2f} ± {d[q][1]:.2f}" for q in base)
+            + " |" for p, d in diffs.items()]
+    return head + "\n".join(rows) + "\n"
+
+
 def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
     buf = io.StringIO()
     w = csv.writer(buf)

@@ -156,6 +156,14 @@ class SemanticEnv(SearchEnv):
         ok = post >= self.cfg.found_threshold
         return (b * (1 - e) * ok)[..., 1:].sum(-1)
 
+    def plan_detect_gain_flat(self, gflat, lp, lam):
+        HH = self.Hp * self.Hp
+        return self.plan_detect_gain(self.plan_cells(gflat // HH, gflat % HH), lp, lam)
+
+    def plan_open(self, b):
+        """Cells whose most likely feature class is still below the threshold."""
+        return b[..., 1:].max(-1) < self.cfg.found_threshold
+
 
 
 __all__ = ["SemanticEnv"]

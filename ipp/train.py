@@ -1,4 +1,5 @@
-"""Train the learned planner: synchronous PPO on batched environments (thesis §2.5.3).
+"""Train the learned planner: synchronous PPO on batched environments (thesis §2.5.3),
+optionally warm-started by behaviour cloning from a teacher planner (DAgger).
 
 The thesis trained with A3C (asynchronous workers, one episode each). Here ``n_envs``
 environments run in one batch, every iteration collects one full episode per
@@ -7,7 +8,9 @@ back-propagation through the whole episode with the clipped PPO objective, which
 "sound parallel actor-critic on batched environments" (SPEC.md). Losses:
 
 * critic: ``sum_delta (G^lambda_delta - V_delta)^2`` per reward term (Eq. 2.6 per head);
-* actor: clipped surrogate on GAE(lambda) advantages of the summed reward;
+* actor: clipped surrogate on GAE(lambda) advantages; the advantage is the sum of the
+  per-term GAEs weighted by ``adv_weights`` (thesis: all 1, i.e. the GAE of the summed
+  reward; the per-term heads make any other weighting free);
 * entropy bonus ``alpha_1 L_ent`` and the valid-primitive loss ``L_val`` (Eq. 2.7),
   combined as Eq. 2.8.
 
@@ -15,11 +18,34 @@ Deviation: primitives are sampled only among valid ones (``mask_invalid``); the 
 found masking brittle with asynchronous updates, which do not occur here. The valid
 head is still trained (Eq. 2.7) and reported.
 
-Training worlds come from suite seed ``seed`` (never the test seed) with random starts.
+**Warm start (deviation, off in the ``thesis`` preset).** With ``bc_iterations > 0``
+the first iterations are DAgger (Ross et al. 2011) from a teacher tree planner
+(``teacher``, default ``detect``: depth-2 search for expected new detections, see
+:mod:`.baselines`): each iteration rolls out one episode per environment in which the
+teacher acts with probability ``beta_i = bc_beta0 * bc_beta_decay**i`` per step and the
+(sampled) student otherwise, labels every visited state with the teacher's choice,
+adds the batch to a buffer of the last ``bc_buffer`` iterations and fits the whole
+network on it: cross entropy of the (valid-masked) policy against the teacher's
+primitive, the per-term critics against the discounted returns of the rollouts, and
+the valid loss. PPO then continues from these weights (iterations
+``bc_iterations .. bc_iterations + iterations - 1``).
+
+Training worlds come from suite seed ``seed`` (never the test seed) with random starts
+(iteration ``i`` uses worlds ``i*N .. (i+1)*N - 1``). With ``eval_every > 0`` the greedy
+policy is also scored on a fixed validation suite (seed ``eval_seed``, centre start, not
+the test seed) and the best one so far is kept as ``best.pt``.
+
+**Bookkeeping.** ``checkpoint.pt`` (every ``log_every`` iterations and at the end) holds
+the weights, the optimiser state, the iteration, the RNG states (torch and numpy), the
+DAgger buffer and the best validation score; ``train(..., resume=True)`` continues from
+it and gives the same weights as an uninterrupted run (CPU, same thread count).
+``metrics.jsonl`` has one line per iteration; ``learning_curve.png`` is drawn at the end
+(:func:`plot_learning_curve`, ``aerohrl ipp curve RUN``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -32,15 +58,20 @@ from aerohrl.errors import UserError
 
 from ._io import atomic_path
 from .env import TERMS, EnvConfig, create_env, sample_for
-from .lattice import Lattice
 from .features import N_FEAT
+from .lattice import Lattice
 from .policy import ActorCritic, PolicyConfig, save_policy, valid_loss
+
+CHECKPOINT_FORMAT = "aerohrl-ipp-train-checkpoint"
+CHECKPOINT_VERSION = 1
+TEACHER_PLANNERS = ("detect", "dp", "prio_coverage", "coverage", "greedy")  # stateless trees
+VAL_SEED = 500  # validation suite (training: TrainConfig.seed, test: bench.TEST_SEED = 1000)
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     n_envs: int = 64
-    iterations: int = 600
+    iterations: int = 600         # PPO iterations (after the bc_iterations)
     lr: float = 3e-4
     gamma: float = 0.98
     lam: float = 0.8              # thesis: lambda = 0.8
@@ -53,19 +84,75 @@ class TrainConfig:
     valid_beta: tuple[float, float] = (1.0, 0.2)   # Eq. 2.7 beta1 (invalid), beta2 (valid)
     reward_scale: float = 0.05    # rewards / 20: one target = 1
     grad_clip: float = 5.0
+    adv_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0)  # per TERMS; thesis: all 1
     seed: int = 7
     threads: int = 1
-    log_every: int = 10
+    log_every: int = 10           # checkpoint (and model.pt) cadence, iterations
     init: str | None = None       # warm start: a run directory / model.pt (fine-tuning)
+    # behaviour-cloning warm start (DAgger), see the module docstring
+    bc_iterations: int = 0
+    teacher: str = "detect"
+    teacher_depth: int | None = None
+    bc_beta0: float = 1.0
+    bc_beta_decay: float = 0.7
+    bc_epochs: int = 2
+    bc_lr: float = 1e-3
+    bc_buffer: int = 20
+    bc_anchor: float = 0.0        # PPO: + bc_anchor * cross entropy to the teacher's labels
+    # validation on a fixed suite (never the test seed)
+    eval_every: int = 0
+    eval_envs: int = 64
+    eval_seed: int = VAL_SEED
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     env: EnvConfig = field(default_factory=lambda: EnvConfig(start="random"))
 
+    @property
+    def total_iterations(self) -> int:
+        return self.bc_iterations + self.iterations
+
+    def validate(self) -> None:
+        from .bench import TEST_SEED
+        if self.n_envs < 1 or self.iterations < 0 or self.bc_iterations < 0 \
+                or self.total_iterations < 1:
+            raise UserError("--envs and --iterations + --bc-iterations must be >= 1")
+        if not (0 < self.lr < 1 and 0 < self.bc_lr < 1):
+            raise UserError(f"--lr and --bc-lr must be in (0, 1), got {self.lr}, {self.bc_lr}")
+        if len(self.adv_weights) != len(TERMS) or not all(np.isfinite(self.adv_weights)):
+            raise UserError(f"--adv-weights needs {len(TERMS)} finite numbers "
+                            f"({', '.join(TERMS)}), got {list(self.adv_weights)}")
+        if self.teacher not in TEACHER_PLANNERS:
+            raise UserError(f"unknown teacher {self.teacher!r} "
+                            f"(choose from {', '.join(TEACHER_PLANNERS)})")
+        if not (self.bc_anchor >= 0 and np.isfinite(self.bc_anchor)):
+            raise UserError(f"--bc-anchor must be >= 0, got {self.bc_anchor}")
+        if not 0 <= self.bc_beta0 <= 1 or not 0 <= self.bc_beta_decay <= 1:
+            raise UserError("--bc-beta0 and --bc-beta-decay must be in [0, 1]")
+        if self.bc_epochs < 1 or self.bc_buffer < 1 or self.log_every < 1 \
+                or self.epochs < 1 or self.minibatches < 1:
+            raise UserError("epochs, minibatches, buffer and log cadence must be >= 1")
+        if self.eval_every < 0 or self.eval_envs < 1:
+            raise UserError("--eval-every must be >= 0 and --eval-envs >= 1")
+        if TEST_SEED in (self.seed, self.eval_seed):
+            raise UserError(f"seed {TEST_SEED} is the test suite's: train and validate "
+                            "on other seeds")
+
 
 PRESETS = {
-    "cpu": TrainConfig(),
-    "quick": TrainConfig(n_envs=32, iterations=60),
-    "test": TrainConfig(n_envs=4, iterations=2, epochs=1, minibatches=1,
-                        policy=PolicyConfig(hidden=32)),
+    # the shipped recipe: 30 DAgger iterations from the budget-aware detection tree
+    # (64 x 30 = 1920 episodes). PPO after it (--iterations N) uses these settings; it
+    # lowered validation search efficiency in every setting tried (README), so the
+    # preset stops after the warm start
+    "cpu": TrainConfig(bc_iterations=30, iterations=0, lr=3e-5, entropy_coef=0.001,
+                       adv_weights=(0.25, 0.25, 1.0, 0.0, 0.0), bc_anchor=0.5,
+                       eval_every=10, eval_envs=100),
+    # thesis-faithful: map observations only, no warm start, equal term weights, and
+    # 64 x 782 = 50 048 episodes (the thesis: A3C with up to 50k episodes)
+    "thesis": TrainConfig(iterations=782, policy=PolicyConfig(features=False)),
+    "quick": TrainConfig(n_envs=32, bc_iterations=8, iterations=0, eval_every=4,
+                         eval_envs=32),
+    "test": TrainConfig(n_envs=4, iterations=1, epochs=1, minibatches=1, bc_iterations=2,
+                        bc_epochs=1, log_every=1, eval_every=2, eval_envs=3,
+                        policy=PolicyConfig(hidden=32), env=EnvConfig(start="random", budget=1500.0)),
 }
 
 
@@ -83,20 +170,280 @@ def _gae(rew, val, alive, gamma, lam):
     return adv, adv + val
 
 
-def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None) -> dict:
-    if cfg.n_envs < 1 or cfg.iterations < 1:
-        raise UserError("--envs and --iterations must be >= 1")
+def _discounted(rew, alive, gamma):
+    """Discounted reward-to-go per term (T, N, K), zero after an episode ends."""
+    out = torch.zeros_like(rew)
+    acc = torch.zeros_like(rew[0])
+    for t in reversed(range(rew.shape[0])):
+        acc = (rew[t] + gamma * acc) * alive[t, :, None]
+        out[t] = acc
+    return out
+
+
+# ------------------------------------------------------------------ config (de)serialising
+def config_from_dict(cls, d: dict):
+    """Rebuild a (nested, frozen) config dataclass from :func:`dataclasses.asdict` output
+    (as stored in ``config.json``); unknown keys are an error, missing keys default."""
+    if not isinstance(d, dict):
+        raise UserError(f"{cls.__name__}: expected a JSON object")
+    proto = cls()
+    kw = {}
+    names = {f.name for f in dataclasses.fields(cls)}
+    extra = set(d) - names
+    if extra:
+        raise UserError(f"{cls.__name__}: unknown keys {sorted(extra)}")
+    for f in dataclasses.fields(cls):
+        if f.name not in d:
+            continue
+        v, ref = d[f.name], getattr(proto, f.name)
+        if dataclasses.is_dataclass(ref):
+            v = config_from_dict(type(ref), v)
+        elif isinstance(ref, tuple):
+            if not isinstance(v, (list, tuple)):
+                raise UserError(f"{cls.__name__}.{f.name}: expected a list, got {v!r}")
+            v = tuple(_scalar(f"{cls.__name__}.{f.name}", x, ref[0] if ref else None)
+                      for x in v)
+        else:
+            v = _scalar(f"{cls.__name__}.{f.name}", v, ref)
+        kw[f.name] = v
+    return cls(**kw)
+
+
+def _scalar(name, v, ref):
+    """``v`` checked against the type of the default ``ref`` (None: str/number/None)."""
+    num = isinstance(v, (int, float)) and not isinstance(v, bool)
+    if ref is None:
+        ok = v is None or isinstance(v, str) or num
+    elif isinstance(ref, bool):
+        ok = isinstance(v, bool)
+    elif isinstance(ref, int):
+        ok = num and float(v).is_integer()
+        v = int(v) if ok else v
+    elif isinstance(ref, float):
+        ok = num
+        v = float(v) if ok else v
+    elif isinstance(ref, str):
+        ok = isinstance(v, str)
+    else:
+        ok = True
+    if not ok:
+        raise UserError(f"{name}: expected {type(ref).__name__ if ref is not None else 'a value'}"
+                        f", got {v!r}")
+    return v
+
+
+def load_run_config(run_dir) -> TrainConfig:
+    p = Path(run_dir) / "config.json"
+    if not p.is_file():
+        raise UserError(f"{run_dir}: no config.json (not a training run directory)")
+    try:
+        d = json.loads(p.read_text())
+        return config_from_dict(TrainConfig, d["train"])
+    except UserError as e:
+        raise UserError(f"{p}: {e}") from None
+    except (ValueError, KeyError, TypeError) as e:
+        raise UserError(f"{p}: not a training config ({type(e).__name__})") from None
+
+
+# --------------------------------------------------------------------------- rollouts
+def _step_inputs(env, obs, use_feat):
+    maps = torch.from_numpy(obs["maps"])
+    vec = torch.from_numpy(obs["vec"])
+    valid = torch.from_numpy(obs["valid"])
+    feat = torch.from_numpy(env.action_features()) if use_feat else None
+    return maps, vec, valid, feat
+
+
+def _rollout(model, env, obs, cfg, use_feat, teacher=None, beta=0.0):
+    """One episode per environment with the sampled policy; with a ``teacher`` each step
+    is taken by the teacher with probability ``beta`` and every step is labelled with
+    the teacher's primitive. Returns the stacked (T, N, ...) tensors."""
+    N = env.n
+    h = model.initial_state(N)
+    keys = ("maps", "vec", "valid", "feat", "act", "logp", "rew", "alive", "label")
+    buf = {k: [] for k in keys}
+    with torch.no_grad():
+        while not env.done.all():
+            alive = torch.from_numpy(~env.done)
+            maps, vec, valid, feat = _step_inputs(env, obs, use_feat)
+            logits, _, _, h = model(maps[None], vec[None], h, None if feat is None else feat[None])
+            logits = logits[0]
+            if cfg.policy.mask_invalid:
+                logits = logits.masked_fill(~valid, -1e9)
+            dist = torch.distributions.Categorical(logits=logits)
+            a = dist.sample()
+            if teacher is not None:
+                lab = torch.from_numpy(teacher.act())
+                use = torch.rand(N) < beta
+                a = torch.where(use, lab, a)
+                buf["label"].append(lab)
+            buf["maps"].append(maps), buf["vec"].append(vec), buf["valid"].append(valid)
+            buf["feat"].append(feat), buf["act"].append(a), buf["alive"].append(alive)
+            buf["logp"].append(dist.log_prob(a))
+            obs, _, terms, _ = env.step(a.numpy())
+            buf["rew"].append(torch.from_numpy(terms).float() * cfg.reward_scale)
+    out = {k: torch.stack(v) for k, v in buf.items() if v and v[0] is not None}
+    out["alive"] = out["alive"].float()
+    return out
+
+
+def _masked(logits, valid, cfg):
+    return logits.masked_fill(~valid, -1e9) if cfg.policy.mask_invalid else logits
+
+
+def _bc_update(model, opt, buffer, cfg, use_feat):
+    """Fit policy (cross entropy to the teacher), critics (discounted returns) and the
+    valid head on every stored DAgger batch; returns mean losses."""
+    stats = []
+    order = torch.randperm(len(buffer))
+    for _ in range(cfg.bc_epochs):
+        for bi in order.tolist():
+            b = buffer[bi]
+            N = b["maps"].shape[1]
+            for mb in torch.randperm(N).chunk(cfg.minibatches):
+                logits, v, phi, _ = model(b["maps"][:, mb], b["vec"][:, mb],
+                                          model.initial_state(len(mb)),
+                                          b["feat"][:, mb] if use_feat else None)
+                valid = b["valid"][:, mb]
+                w = b["alive"][:, mb]
+                nw = w.sum().clamp(min=1)
+                lp = torch.log_softmax(_masked(logits, valid, cfg), -1)
+                ce = -(lp.gather(-1, b["label"][:, mb, None]).squeeze(-1) * w).sum() / nw
+                l_critic = (((b["ret"][:, mb] - v) ** 2).sum(-1) * w).sum() / nw
+                l_val = valid_loss(phi[w.bool()], valid[w.bool()], *cfg.valid_beta)
+                loss = ce + cfg.value_coef * l_critic + cfg.valid_coef * l_val
+                opt.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+                opt.step()
+                acc = ((lp.argmax(-1) == b["label"][:, mb]).float() * w).sum() / nw
+                stats.append([ce.item(), l_critic.item(), l_val.item(), acc.item()])
+        order = torch.randperm(len(buffer))
+    return dict(zip(("loss_bc", "loss_critic", "loss_valid", "bc_accuracy"),
+                    np.mean(stats, 0).tolist()))
+
+
+def _ppo_update(model, opt, ro, cfg, use_feat):
+    N = ro["maps"].shape[1]
+    feats = ro.get("feat")
+    alive = ro["alive"]
+    with torch.no_grad():
+        _, v_old, _, _ = model(ro["maps"], ro["vec"], model.initial_state(N), feats)
+    adv_k, ret = _gae(ro["rew"], v_old, alive, cfg.gamma, cfg.lam)
+    adv = (adv_k * torch.tensor(cfg.adv_weights, dtype=adv_k.dtype)).sum(-1)
+    am = alive.bool()
+    adv = (adv - adv[am].mean()) / (adv[am].std() + 1e-8)
+    stats = []
+    for _ in range(cfg.epochs):
+        perm = torch.randperm(N)
+        for mb in perm.chunk(cfg.minibatches):
+            logits, v, phi, _ = model(ro["maps"][:, mb], ro["vec"][:, mb],
+                                      model.initial_state(len(mb)),
+                                      None if feats is None else feats[:, mb])
+            valid = ro["valid"][:, mb]
+            dist = torch.distributions.Categorical(logits=_masked(logits, valid, cfg))
+            lp = dist.log_prob(ro["act"][:, mb])
+            w = alive[:, mb]
+            nw = w.sum().clamp(min=1)
+            ratio = torch.exp(lp - ro["logp"][:, mb])
+            a_mb = adv[:, mb]
+            pg = -torch.min(ratio * a_mb, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * a_mb)
+            l_actor = (pg * w).sum() / nw
+            l_critic = (((ret[:, mb] - v) ** 2).sum(-1) * w).sum() / nw
+            l_ent = (dist.entropy() * w).sum() / nw
+            l_val = valid_loss(phi[w.bool()], valid[w.bool()], *cfg.valid_beta)
+            loss = l_actor + cfg.value_coef * l_critic - cfg.entropy_coef * l_ent \
+                + cfg.valid_coef * l_val  # Eq. 2.8 (+ critic)
+            if cfg.bc_anchor > 0:  # stay close to the teacher where PPO has no signal
+                lab = ro["label"][:, mb]
+                ce = -(dist.log_prob(lab) * w).sum() / nw
+                loss = loss + cfg.bc_anchor * ce
+            opt.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+            opt.step()
+            stats.append([l_actor.item(), l_critic.item(), l_ent.item(), l_val.item()])
+    return dict(zip(("loss_actor", "loss_critic", "entropy", "loss_valid"),
+                    np.mean(stats, 0).tolist()))
+
+
+def evaluate(model, lattice: Lattice, env_cfg: EnvConfig, seed: int, n: int) -> dict:
+    """Greedy policy on worlds ``0..n-1`` of suite ``seed`` from the centre start: mean
+    Table 2.1 metrics (used for validation; never pass the test seed while training)."""
+    from .policy import RLPlanner
+    env = create_env(replace(env_cfg, start="center"), lattice)
+    env.reset(sample_for(env_cfg, seed, range(n)))
+    was = model.training
+    model.eval()
+    pl = RLPlanner(env, model)
+    while not env.done.all():
+        env.step(pl.act())
+    model.train(was)
+    m = env.metrics()
+    return {k: float(m[k].mean()) for k in ("coverage", "entropy_reduction",
+                                            "search_efficiency")}
+
+
+# ------------------------------------------------------------------------ checkpoints
+def _save_checkpoint(path, model, opt, it, buffer, best, elapsed, dims, kind):
+    with atomic_path(path, ".pt") as tmp:
+        torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
+                    "iteration": it, "model": model.state_dict(), "opt": opt.state_dict(),
+                    "torch_rng": torch.get_rng_state(),
+                    "numpy_rng": _np_rng_state(),
+                    "buffer": buffer, "best": best, "elapsed": elapsed, "dims": dims,
+                    "env_kind": kind}, tmp)
+
+
+def _np_rng_state() -> dict:
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+            "has_gauss": int(has_gauss), "cached": float(cached)}
+
+
+def _set_np_rng_state(d: dict) -> None:
+    np.random.set_state((d["name"], d["keys"].numpy().astype(np.uint32), d["pos"],
+                         d["has_gauss"], d["cached"]))
+
+
+def _load_checkpoint(path) -> dict:
+    if not Path(path).is_file():
+        raise UserError(f"{path.parent}: no checkpoint.pt to resume from")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise UserError(f"{path}: not a training checkpoint ({type(e).__name__})") from None
+    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
+        raise UserError(f"{path}: not a training checkpoint")
+    if ck.get("version") != CHECKPOINT_VERSION:
+        raise UserError(f"{path}: checkpoint version {ck.get('version')} is not supported")
+    return ck
+
+
+def _dims(env, obs, cfg):
+    return {"map_ch": obs["maps"].shape[1], "map_hw": obs["maps"].shape[2],
+            "vec_dim": obs["vec"].shape[1], "n_actions": env.lat.n_actions,
+            "n_feat": N_FEAT if cfg.policy.features else 0}
+
+
+def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None,
+          resume: bool = False) -> dict:
+    """Train (or, with ``resume``, continue the run in ``run_dir``); returns the last
+    iteration's log entry. ``progress``: a tqdm-like object (``update``/``set_postfix``)."""
+    from .baselines import PlannerConfig, make_planner
+
+    cfg.validate()
     torch.manual_seed(cfg.seed)
+    np.random.seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     env = create_env(cfg.env, lattice)
     obs = env.reset(sample_for(cfg.env, cfg.seed, range(cfg.n_envs)))
-    dims = {"map_ch": obs["maps"].shape[1], "map_hw": obs["maps"].shape[2],
-            "vec_dim": obs["vec"].shape[1], "n_actions": lattice.n_actions,
-            "n_feat": N_FEAT if cfg.policy.features else 0}
+    dims = _dims(env, obs, cfg)
+    use_feat = bool(dims["n_feat"])
     model = ActorCritic(**dims, cfg=cfg.policy)
-    if cfg.init is not None:
+    if cfg.init is not None and not resume:
         from .policy import load_policy
         src = load_policy(cfg.init)
         if src.n_feat != dims["n_feat"] or src.cfg != cfg.policy or \
@@ -107,88 +454,85 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None) -> d
         except RuntimeError:
             raise UserError(f"{cfg.init}: policy shapes do not match this environment") from None
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    log_path = run_dir / "metrics.jsonl"
+    start, buffer, best, elapsed0, last = 0, [], -np.inf, 0.0, {}
+    if resume:
+        ck = _load_checkpoint(run_dir / "checkpoint.pt")
+        if ck["dims"] != dims:
+            raise UserError(f"{run_dir}: checkpoint does not match this environment")
+        try:
+            model.load_state_dict(ck["model"])
+            opt.load_state_dict(ck["opt"])
+        except (RuntimeError, ValueError, KeyError):
+            raise UserError(f"{run_dir}: checkpoint does not match its config.json") from None
+        start, buffer, best, elapsed0 = ck["iteration"], ck["buffer"], ck["best"], ck["elapsed"]
+        if start > cfg.total_iterations:
+            raise UserError(f"{run_dir}: already has {start} iterations, more than the "
+                            f"{cfg.total_iterations} asked for")
+        torch.set_rng_state(ck["torch_rng"])
+        _set_np_rng_state(ck["numpy_rng"])
+        logged = log_path.is_file() and log_path.read_text().strip()
+        kept = [json.dumps(r) for r in read_metrics(run_dir) if r["iteration"] <= start] \
+            if logged else []
+        with atomic_path(log_path) as tmp:
+            Path(tmp).write_text("".join(ln + "\n" for ln in kept))
+        if kept:
+            last = json.loads(kept[-1])
+        if progress is not None:
+            progress.update(start)
+    else:
+        log_path.write_text("")
     with atomic_path(run_dir / "config.json") as tmp:
         Path(tmp).write_text(json.dumps({"train": asdict(cfg), "dims": dims,
                                          "lattice": asdict(lattice.config)}, indent=1))
-    log_path = run_dir / "metrics.jsonl"
-    log_path.write_text("")
-    N = cfg.n_envs
-    last = {}
+    teacher = None
+    if cfg.bc_iterations > start or cfg.bc_anchor > 0:
+        teacher = make_planner(cfg.teacher, env, PlannerConfig(depth=cfg.teacher_depth))
+    N, T_all = cfg.n_envs, cfg.total_iterations
     t0 = time.time()
-    for it in range(cfg.iterations):
-        ids = range(it * N, (it + 1) * N)
-        obs = env.reset(sample_for(cfg.env, cfg.seed, ids))
-        h = model.initial_state(N)
-        M, Vv, Vd, A, LP, R, AL, F = [], [], [], [], [], [], [], []
-        with torch.no_grad():
-            while not env.done.all():
-                alive = torch.from_numpy(~env.done)
-                maps = torch.from_numpy(obs["maps"])
-                vec = torch.from_numpy(obs["vec"])
-                valid = torch.from_numpy(obs["valid"])
-                feat = torch.from_numpy(env.action_features()) if dims["n_feat"] else None
-                logits, _, _, h = model(maps[None], vec[None], h,
-                                        None if feat is None else feat[None])
-                logits = logits[0]
-                if cfg.policy.mask_invalid:
-                    logits = logits.masked_fill(~valid, -1e9)
-                dist = torch.distributions.Categorical(logits=logits)
-                a = dist.sample()
-                M.append(maps), Vv.append(vec), Vd.append(valid), A.append(a)
-                LP.append(dist.log_prob(a)), AL.append(alive), F.append(feat)
-                obs, _, terms, _ = env.step(a.numpy())
-                R.append(torch.from_numpy(terms).float() * cfg.reward_scale)
-        maps, vec, valid = torch.stack(M), torch.stack(Vv), torch.stack(Vd)
-        act, oldlp, rew = torch.stack(A), torch.stack(LP), torch.stack(R)
-        alive = torch.stack(AL).float()
-        feats = torch.stack(F) if dims["n_feat"] else None
-        with torch.no_grad():
-            _, v_old, _, _ = model(maps, vec, model.initial_state(N), feats)
-        adv_k, ret = _gae(rew, v_old, alive, cfg.gamma, cfg.lam)
-        adv = adv_k.sum(-1)
-        am = alive.bool()
-        adv = (adv - adv[am].mean()) / (adv[am].std() + 1e-8)
-        stats = []
-        for _ in range(cfg.epochs):
-            perm = torch.randperm(N)
-            for mb in perm.chunk(cfg.minibatches):
-                logits, v, phi, _ = model(maps[:, mb], vec[:, mb], model.initial_state(len(mb)),
-                                          None if feats is None else feats[:, mb])
-                if cfg.policy.mask_invalid:
-                    logits = logits.masked_fill(~valid[:, mb], -1e9)
-                dist = torch.distributions.Categorical(logits=logits)
-                lp = dist.log_prob(act[:, mb])
-                w = alive[:, mb]
-                nw = w.sum().clamp(min=1)
-                ratio = torch.exp(lp - oldlp[:, mb])
-                a_mb = adv[:, mb]
-                pg = -torch.min(ratio * a_mb, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * a_mb)
-                l_actor = (pg * w).sum() / nw
-                l_critic = (((ret[:, mb] - v) ** 2).sum(-1) * w).sum() / nw
-                l_ent = (dist.entropy() * w).sum() / nw
-                l_val = valid_loss(phi[w.bool()], valid[:, mb][w.bool()], *cfg.valid_beta)
-                loss = l_actor + cfg.value_coef * l_critic - cfg.entropy_coef * l_ent \
-                    + cfg.valid_coef * l_val  # Eq. 2.8 (+ critic)
-                opt.zero_grad()
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-                opt.step()
-                stats.append([l_actor.item(), l_critic.item(), l_ent.item(), l_val.item()])
+    for it in range(start, T_all):
+        bc = it < cfg.bc_iterations
+        obs = env.reset(sample_for(cfg.env, cfg.seed, range(it * N, (it + 1) * N)))
+        for g in opt.param_groups:
+            g["lr"] = cfg.bc_lr if bc else cfg.lr
+        if bc:
+            beta = cfg.bc_beta0 * cfg.bc_beta_decay ** it
+            ro = _rollout(model, env, obs, cfg, use_feat, teacher, beta)
+            ro["ret"] = _discounted(ro["rew"], ro["alive"], cfg.gamma)
+            keep = {k: ro[k] for k in ("maps", "vec", "valid", "label", "alive", "ret")
+                    + (("feat",) if use_feat else ())}
+            buffer = (buffer + [keep])[-cfg.bc_buffer:]
+            stats = {"beta": beta, **_bc_update(model, opt, buffer, cfg, use_feat)}
+            if it + 1 == cfg.bc_iterations:
+                buffer = []  # the warm start is over: keep checkpoints small
+        else:
+            buffer = []  # not needed any more (and not stored in PPO checkpoints)
+            ro = _rollout(model, env, obs, cfg, use_feat,
+                          teacher if cfg.bc_anchor > 0 else None, 0.0)
+            stats = _ppo_update(model, opt, ro, cfg, use_feat)
         m = env.metrics()
-        tot = (rew.sum(0) / cfg.reward_scale).mean(0).tolist()
-        last = {"iteration": it + 1, "time_s": round(time.time() - t0, 1),
+        tot = (ro["rew"].sum(0) / cfg.reward_scale).mean(0).tolist()
+        last = {"iteration": it + 1, "phase": "bc" if bc else "ppo",
+                "time_s": round(elapsed0 + time.time() - t0, 1),
                 "return": float(sum(tot)), **{f"r_{k}": v for k, v in zip(TERMS, tot)},
                 **{k: float(m[k].mean()) for k in ("coverage", "entropy_reduction",
-                                                    "search_efficiency")},
-                **dict(zip(("loss_actor", "loss_critic", "entropy", "loss_valid"),
-                           np.mean(stats, 0).tolist()))}
+                                                    "search_efficiency")}, **stats}
+        if cfg.eval_every and ((it + 1) % cfg.eval_every == 0 or it + 1 == T_all):
+            ev = evaluate(model, lattice, cfg.env, cfg.eval_seed, cfg.eval_envs)
+            last.update({f"val_{k}": v for k, v in ev.items()})
+            if ev["search_efficiency"] > best:
+                best = ev["search_efficiency"]
+                save_policy(model, dims, run_dir / "best.pt", cfg.env.kind)
         with open(log_path, "a") as f:
             f.write(json.dumps(last) + "\n")
+        if (it + 1) % cfg.log_every == 0 or it + 1 == T_all:
+            save_policy(model, dims, run_dir / "model.pt", cfg.env.kind)
+            _save_checkpoint(run_dir / "checkpoint.pt", model, opt, it + 1, buffer, best,
+                             elapsed0 + time.time() - t0, dims, cfg.env.kind)
         if progress is not None:
             progress.update(1)
             progress.set_postfix(ret=f"{last['return']:.1f}", eff=f"{last['search_efficiency']:.0f}")
-        if (it + 1) % cfg.log_every == 0 or it + 1 == cfg.iterations:
-            save_policy(model, dims, run_dir / "model.pt", cfg.env.kind)
+    plot_learning_curve(run_dir)
     return last
 
 
@@ -200,4 +544,81 @@ def preset(name: str, **overrides) -> TrainConfig:
     pol = over.pop("recurrent", None)
     if pol is not None:
         cfg = replace(cfg, policy=replace(cfg.policy, recurrent=pol))
+    feat = over.pop("features", None)
+    if feat is not None:
+        cfg = replace(cfg, policy=replace(cfg.policy, features=feat))
     return replace(cfg, **over)
+
+
+# ------------------------------------------------------------------------ learning curve
+def read_metrics(run_dir) -> list[dict]:
+    p = Path(run_dir) / "metrics.jsonl"
+    if not p.is_file():
+        raise UserError(f"{run_dir}: no metrics.jsonl (not a training run directory)")
+    out = []
+    for i, ln in enumerate(p.read_text().splitlines(), 1):
+        if not ln.strip():
+            continue
+        try:
+            d = json.loads(ln)
+            int(d["iteration"]), float(d["search_efficiency"]), float(d["return"])
+        except (ValueError, KeyError, TypeError):
+            raise UserError(f"{p}:{i}: not a metrics line") from None
+        out.append(d)
+    if not out:
+        raise UserError(f"{p}: no iterations logged yet")
+    return out
+
+
+def plot_learning_curve(run_dir, out=None) -> Path:
+    """``learning_curve.png`` (or ``out``): search efficiency and return per iteration on
+    the training worlds (raw and a 10-iteration running mean), the greedy policy's
+    validation search efficiency where logged, per-term returns, and the BC/PPO
+    boundary."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = read_metrics(run_dir)
+    it = np.array([r["iteration"] for r in rows])
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+
+    def smooth(y, k=10):
+        y = np.asarray(y, float)
+        c = np.cumsum(np.insert(y, 0, 0.0))
+        n = np.minimum(np.arange(1, len(y) + 1), k)
+        return (c[1:] - c[np.arange(len(y)) + 1 - n]) / n
+
+    eff = [r["search_efficiency"] for r in rows]
+    ax = axes[0]
+    ax.plot(it, eff, color="C0", alpha=0.3, lw=0.8)
+    ax.plot(it, smooth(eff), color="C0", label="train worlds (sampled policy)")
+    vi = [(r["iteration"], r["val_search_efficiency"]) for r in rows if "val_search_efficiency" in r]
+    if vi:
+        ax.plot(*zip(*vi), "o-", color="C3", ms=3, label="validation (greedy, centre start)")
+    ax.set_title("search efficiency %")
+    ax.legend(fontsize=8)
+    ret = [r["return"] for r in rows]
+    axes[1].plot(it, ret, color="C1", alpha=0.3, lw=0.8)
+    axes[1].plot(it, smooth(ret), color="C1")
+    axes[1].set_title("episode return")
+    for k in TERMS:
+        axes[2].plot(it, smooth([r.get(f"r_{k}", np.nan) for r in rows]), label=k)
+    axes[2].set_title("return per reward term (running mean)")
+    axes[2].legend(fontsize=8)
+    n_bc = sum(r.get("phase") == "bc" for r in rows)
+    split = 0 < n_bc < len(rows)
+    for ax in axes:
+        ax.set_xlabel("iteration")
+        if split:
+            ax.axvline(n_bc + 0.5, color="k", ls=":", lw=1)
+    if split:
+        axes[0].text(n_bc + 0.5, axes[0].get_ylim()[0], " BC | PPO", fontsize=8, va="bottom")
+    fig.suptitle(f"{Path(run_dir).name}: {len(rows)} iterations ({n_bc} DAgger), "
+                 f"{rows[-1].get('time_s', 0) / 60:.1f} min")
+    fig.tight_layout()
+    path = Path(out) if out is not None else Path(run_dir) / "learning_curve.png"
+    with atomic_path(path, path.suffix or ".png") as tmp:
+        fig.savefig(tmp, dpi=90, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path

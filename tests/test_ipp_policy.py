@@ -38,7 +38,8 @@ def test_tiny_training_run_and_planner(tmp_path):
     cfg = preset("test")
     last = train(cfg, lat, tmp_path / "run")
     lines = (tmp_path / "run" / "metrics.jsonl").read_text().strip().splitlines()
-    assert len(lines) == cfg.iterations and json.loads(lines[-1])["iteration"] == cfg.iterations
+    n = cfg.total_iterations
+    assert len(lines) == n and json.loads(lines[-1])["iteration"] == n
     assert np.isfinite(last["return"])
     model = load_policy(tmp_path / "run")
     env, _ = make_env(EnvConfig(budget=1500.0), lat, 1000, range(3))

@@ -6,7 +6,7 @@ import pytest
 
 import aerohrl.ipp.semantic_env as semenv
 from aerohrl.errors import UserError
-from aerohrl.ipp.baselines import PLANNERS, PlannerConfig, info_gain, make_planner
+from aerohrl.ipp.baselines import PLANNERS, TEACHERS, PlannerConfig, info_gain, make_planner
 from aerohrl.ipp.cli import main
 from aerohrl.ipp.env import TERMS, make_env, semantic_config
 from aerohrl.ipp.lattice import semantic_lattice
@@ -113,7 +113,7 @@ def test_reward_terms_match_metrics(lat):
     assert np.all(met["search_efficiency"] > 0)
 
 
-@pytest.mark.parametrize("name", PLANNERS)
+@pytest.mark.parametrize("name", PLANNERS + TEACHERS)
 def test_planners_run_on_semantic(lat, name):
     env, _ = make_env(_cfg(1200.0), lat, 2, range(2))
     pl = make_planner(name, env, PlannerConfig(popsize=4, generations=2))
@@ -126,6 +126,19 @@ def test_planners_run_on_semantic(lat, name):
     for k in ("coverage", "entropy_reduction", "search_efficiency"):
         assert np.all((m[k] >= 0) & (m[k] <= 100))
     assert m["coverage"].min() > 0
+
+
+def test_detect_teacher_and_its_feature_on_semantic(lat):
+    from aerohrl.ipp.features import N_FEAT
+    env, _ = make_env(_cfg(1200.0), lat, 2, range(2))
+    pl = make_planner("detect", env)
+    for _ in range(2):
+        f, a = env.action_features(), pl.act()
+        assert f.shape == (2, lat.n_actions, N_FEAT) and np.isfinite(f).all()
+        top = f[..., 14].max(1) > 1e-6
+        assert top.any()
+        assert np.array_equal(np.where(env.valid_mask(), f[..., 14], -1).argmax(1)[top], a[top])
+        env.step(a)
 
 
 def test_raster_loader_formats(tmp_path):
