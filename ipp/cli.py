@@ -59,8 +59,9 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--sense-dt", type=float, default=lc.sense_dt)
 
     def world_flags(q):
-        q.add_argument("--world", choices=("targets", "semantic"), default="targets",
-                       help="target search (Table 2.1) or semantic feature detection (Table 2.2)")
+        q.add_argument("--world", choices=("targets", "semantic"), default=None,
+                       help="target search (Table 2.1, default) or semantic feature detection "
+                       "(Table 2.2)")
         q.add_argument("--raster", help="semantic: class raster (.npy/.npz/.png) instead of "
                        "procedural campus maps (see aerohrl.ipp.semantic)")
         q.add_argument("--map-size", type=int, default=None,
@@ -85,7 +86,8 @@ def _parser() -> argparse.ArgumentParser:
 
     from .train import PRESETS, TEACHER_PLANNERS
     tr = sub.add_parser("train", help="train the learned recurrent policy")
-    tr.add_argument("--preset", default="cpu", help=" | ".join(PRESETS))
+    tr.add_argument("--preset", default=None,
+                    help=" | ".join(PRESETS) + " (default: cpu; with --world semantic: semantic)")
     tr.add_argument("--resume", metavar="RUN",
                     help="continue RUN from its checkpoint.pt with its config.json "
                     "(only --iterations, --lattice, --no-progress may be given)")
@@ -300,6 +302,12 @@ def _train(a) -> int:
         if saved is not None and saved != json.loads(json.dumps(asdict(lat.config))):
             raise UserError(f"{run}: trained on another lattice (pass the same --lattice)")
     else:
+        if a.preset is None:
+            a.preset = "semantic" if a.world == "semantic" else "cpu"
+        if a.preset == "semantic":
+            if a.world == "targets":
+                raise UserError("preset semantic trains on semantic worlds (--world semantic)")
+            a.world = "semantic"
         cfg = preset(a.preset, n_envs=a.n_envs, iterations=a.iterations, seed=a.seed,
                      threads=a.threads, recurrent=False if a.no_rnn else None, lr=a.lr,
                      init=a.init, bc_iterations=a.bc_iterations, teacher=a.teacher,

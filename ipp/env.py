@@ -148,6 +148,7 @@ class SearchEnv:
         self.boundary = (~inner).astype(np.float32)
         self.n = 0
         self.lazy_obs = False  # True: step() returns obs=None (planners that do not need it)
+        self.version = 0  # bumped by reset() and step(): caches of derived quantities key on it
 
     # ----------------------------------------------------------------- set-up
     def reset(self, worlds: Worlds, start: np.ndarray | None = None) -> dict:
@@ -197,6 +198,7 @@ class SearchEnv:
         self.trace = [self.pos.copy()]
         self.trace_prim = []
         self.trace_budget = [self.remaining.copy()]
+        self.version += 1
         self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) \
             + worlds.seeds[:, 1].astype(np.uint64)
 
@@ -291,6 +293,7 @@ class SearchEnv:
         self.trace.append(self.pos.copy())
         self.trace_prim.append(np.where(valid, prim, -1))
         self.trace_budget.append(np.maximum(self.remaining, 0.0))
+        self.version += 1
         obs = None if self.lazy_obs else self.observe()
         return obs, terms.sum(1), terms, self.done.copy()
 
@@ -404,25 +407,27 @@ class SearchEnv:
         cfg, R = self.cfg, self.cfg.obs_radius
         smax = max(cfg.obs_scales)
         half = R * smax
-        g = np.arange(-half, half)
-        ys = (self.pos[:, 1] + self.pad)[:, None] + g
-        xs = (self.pos[:, 0] + self.pad)[:, None] + g
-        n = np.arange(self.n)[:, None, None]
         C = self.planes.shape[1]
-        win = self.planes[n, :, ys[:, :, None], xs[:, None, :]]  # (N, 2h, 2h, C)
+        # the 2h x 2h window of every env: one rectangular slice each (a copy of whole
+        # rows, much cheaper than a fancy-index gather on the 192-cell semantic windows)
+        y0 = self.pos[:, 1] + self.pad - half
+        x0 = self.pos[:, 0] + self.pad - half
+        win = np.empty((self.n, C, 2 * half, 2 * half), np.float32)
+        for n in range(self.n):
+            win[n] = self.planes[n, :, y0[n]:y0[n] + 2 * half, x0[n]:x0[n] + 2 * half]
         outs = []
         for s in cfg.obs_scales:
             w = R * s
-            crop = win[:, half - w:half + w, half - w:half + w]
+            crop = win[:, :, half - w:half + w, half - w:half + w]
             k = s
             while k > 1 and k % 2 == 0:  # max-pool by 2 repeatedly (composes exactly)
-                crop = np.maximum(np.maximum(crop[:, 0::2, 0::2], crop[:, 1::2, 0::2]),
-                                  np.maximum(crop[:, 0::2, 1::2], crop[:, 1::2, 1::2]))
+                crop = np.maximum(np.maximum(crop[:, :, 0::2, 0::2], crop[:, :, 1::2, 0::2]),
+                                  np.maximum(crop[:, :, 0::2, 1::2], crop[:, :, 1::2, 1::2]))
                 k //= 2
             if k > 1:
-                crop = crop.reshape(self.n, 2 * R, k, 2 * R, k, C).max(axis=4).max(axis=2)
+                crop = crop.reshape(self.n, C, 2 * R, k, 2 * R, k).max(axis=5).max(axis=3)
             outs.append(crop)
-        maps = np.ascontiguousarray(np.concatenate(outs, 3).transpose(0, 3, 1, 2))
+        maps = np.ascontiguousarray(np.concatenate(outs, 1))
         A, V = self.lat.n_actions, self.lat.n_vertices
         vec = np.zeros((self.n, 2 + A + 1 + V + 1), np.float32)
         vec[:, :2] = self.pos / self.S

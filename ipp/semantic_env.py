@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .env import SearchEnv
-from .sensor import hashed_uniform
+from .sensor import hashed_uniform, logit
 from .semantic import (SemanticWorlds, entropy_cat_bits, info_gain_cat, label_logratio,
                        measure_labels, softmax)
 
@@ -148,13 +148,18 @@ class SemanticEnv(SearchEnv):
         return 1.0 - self.planes[:, 0]
 
     def plan_detect(self, b, lam):
-        """sum_{c>0} P(c) P(label c) [posterior of c after label c >= threshold]."""
-        C = self.n_classes
-        e = 1.0 / (1.0 + np.exp(np.minimum(lam, 50.0)) / (C - 1))[..., None]
-        q = e / (C - 1)
-        post = b * (1 - e) / np.maximum(b * (1 - e) + (1 - b) * q, 1e-300)
-        ok = post >= self.cfg.found_threshold
-        return (b * (1 - e) * ok)[..., 1:].sum(-1)
+        """sum_{c>0} P(c) P(label c) [posterior of c after label c >= threshold].
+
+        One label with the equivalent error ``e = 1 / (1 + exp(lam)/(C-1))`` (``lam``
+        capped at 50) is correct with probability ``s = 1 - e``; after label ``c`` the
+        posterior of ``c`` is ``b_c (1-e) / (b_c (1-e) + (1-b_c) e/(C-1))``, which reaches
+        the threshold exactly when ``logit(b_c) + lam >= logit(threshold)`` (the
+        likelihood ratio of the label is ``(1-e)(C-1)/e = exp(lam)``). That threshold
+        form is what is computed (the fast path of :mod:`.features` uses the same test)."""
+        lam_e = np.minimum(lam, LAM_CAP)
+        bf = np.asarray(b, np.float64)[..., 1:]
+        return detect_success(lam_e, self.n_classes) * (
+            bf * (lam_e[..., None] >= crossing_lam(bf, self.cfg.found_threshold))).sum(-1)
 
     def plan_detect_gain_flat(self, gflat, lp, lam):
         HH = self.Hp * self.Hp
@@ -166,4 +171,20 @@ class SemanticEnv(SearchEnv):
 
 
 
-__all__ = ["SemanticEnv"]
+LAM_CAP = 50.0  # cap of the summed label log-ratio in the detection model (exp overflow)
+
+
+def detect_success(lam_e: np.ndarray, n_classes: int) -> np.ndarray:
+    """``1 - e``: the one-measurement equivalent of summed label log-ratio ``lam_e``
+    (already capped) returns the true class."""
+    return 1.0 - 1.0 / (1.0 + np.exp(lam_e) / (n_classes - 1))
+
+
+def crossing_lam(b: np.ndarray, threshold: float) -> np.ndarray:
+    """``logit(threshold) - logit(b)``: the summed label log-ratio at which a class of
+    probability ``b`` reaches ``threshold`` (+inf for b = 0, -inf for b = 1)."""
+    with np.errstate(divide="ignore"):
+        return logit(threshold) - (np.log(b) - np.log1p(-b))
+
+
+__all__ = ["SemanticEnv", "LAM_CAP", "detect_success", "crossing_lam"]

@@ -57,7 +57,7 @@ import torch
 from aerohrl.errors import UserError
 
 from ._io import atomic_path
-from .env import TERMS, EnvConfig, create_env, sample_for
+from .env import TERMS, EnvConfig, create_env, sample_for, semantic_config
 from .features import N_FEAT
 from .lattice import Lattice
 from .policy import ActorCritic, PolicyConfig, save_policy, valid_loss
@@ -150,6 +150,14 @@ PRESETS = {
     "thesis": TrainConfig(iterations=782, policy=PolicyConfig(features=False)),
     "quick": TrainConfig(n_envs=32, bc_iterations=8, iterations=0, eval_every=4,
                          eval_envs=32),
+    # semantic feature detection (Table 2.2): DAgger from the same teacher, whose
+    # features and scores come from the windowed fast path (features.semantic_fast);
+    # 12 x 32 = 384 episodes of ~150 primitives on 256 x 256 maps, a short buffer
+    # (a stored step holds 21 x 24 x 24 maps), validation on 30 worlds of seed 500
+    "semantic": TrainConfig(n_envs=32, bc_iterations=12, iterations=0, bc_buffer=4,
+                            log_every=4, lr=3e-5, entropy_coef=0.001,
+                            adv_weights=(0.25, 0.25, 1.0, 0.0, 0.0), bc_anchor=0.5,
+                            eval_every=4, eval_envs=30, env=semantic_config(start="random")),
     "test": TrainConfig(n_envs=4, iterations=1, epochs=1, minibatches=1, bc_iterations=2,
                         bc_epochs=1, log_every=1, eval_every=2, eval_envs=3,
                         policy=PolicyConfig(hidden=32), env=EnvConfig(start="random", budget=1500.0)),
@@ -301,7 +309,7 @@ def _bc_update(model, opt, buffer, cfg, use_feat):
             b = buffer[bi]
             N = b["maps"].shape[1]
             for mb in torch.randperm(N).chunk(cfg.minibatches):
-                logits, v, phi, _ = model(b["maps"][:, mb], b["vec"][:, mb],
+                logits, v, phi, _ = model(b["maps"][:, mb].float(), b["vec"][:, mb],
                                           model.initial_state(len(mb)),
                                           b["feat"][:, mb] if use_feat else None)
                 valid = b["valid"][:, mb]
@@ -501,6 +509,8 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None,
             ro["ret"] = _discounted(ro["rew"], ro["alive"], cfg.gamma)
             keep = {k: ro[k] for k in ("maps", "vec", "valid", "label", "alive", "ret")
                     + (("feat",) if use_feat else ())}
+            if cfg.env.kind == "semantic":  # half the buffer's memory (maps in [0, 1])
+                keep["maps"] = keep["maps"].half()
             buffer = (buffer + [keep])[-cfg.bc_buffer:]
             stats = {"beta": beta, **_bc_update(model, opt, buffer, cfg, use_feat)}
             if it + 1 == cfg.bc_iterations:
