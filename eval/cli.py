@@ -162,7 +162,8 @@ def cmd_oracle(a) -> int:
                       sim=sim_kwargs(data), progress=not a.no_progress and sys.stderr.isatty())
     r.update(run=str(a.run), checkpoint=ckpt.name, step=int(ck["step"]), task=a.task, seed=a.seed)
     out = a.out or Path(a.run) / "eval" / f"oracle-{a.task}"
-    path = results.write_text(out / "oracle.json", json.dumps(r, indent=2, sort_keys=True) + "\n")
+    strict = {k: None if isinstance(v, float) and v != v else v for k, v in r.items()}  # NaN AUC -> null (valid JSON)
+    path = results.write_text(out / "oracle.json", json.dumps(strict, indent=2, sort_keys=True, allow_nan=False) + "\n")
     print(f"oracle, {a.task}, {a.run} at step {ck['step']}:\n{format_report(r)}\nreport: {path}")
     return 0
 

@@ -159,7 +159,8 @@ def test_observe_equals_the_gather(slat, kind):
 
 
 def test_semantic_policy_trains_and_acts_on_valid_primitives(slat, tmp_path, monkeypatch):
-    from aerohrl.ipp.policy import RLPlanner, load_policy
+    from aerohrl.ipp.policy import load_policy
+    from test_ipp_policy import fly_valid
     from aerohrl.ipp.train import preset, train
     cfg = preset("test", env=semantic_config(budget=1200.0, map_size=SMALL, start="random"))
     train(cfg, slat, tmp_path / "run")
@@ -168,13 +169,7 @@ def test_semantic_policy_trains_and_acts_on_valid_primitives(slat, tmp_path, mon
     env, _ = make_env(_cfg(1200.0), slat, 1000, range(2))
     monkeypatch.setattr(F, "action_features_reference",
                         lambda e: (_ for _ in ()).throw(AssertionError("slow path")))
-    pl = RLPlanner(env, model)
-    while not env.done.all():
-        a = pl.act()
-        live = ~env.done
-        assert env.valid_mask()[live, a[live]].all()
-        env.step(a)
-    assert np.all(env.metrics()["coverage"] > 0)
+    fly_valid(env, model)
 
 
 def test_cli_semantic_train_preset_and_bench(tmp_path, capsys):
