@@ -24,6 +24,7 @@ from aerohrl.errors import UserError
 ALGORITHMS = ("gcsl", "td3bc", "td3awbc", "cql")
 LR_SCHEDULES = ("constant", "cosine")
 AMP_MODES = ("none", "bf16")
+AUGMENTATIONS = ("none", "mirror")  # = augment.AUGMENTATIONS
 RELABEL_OFFSETS = ("uniform", "geometric")  # = relabel.FUTURE_STRATEGIES
 
 
@@ -51,6 +52,7 @@ class TrainConfig:
     relabel_window: int = 0  # cap on k - j in steps (0 = up to the episode's last step)
     relabel_mean_offset: float = 30.0  # geometric: mean of k - j in steps
     gamma: float = 0.99
+    augment: str = "none"  # none | mirror: reflect each transition by one of the vehicle's 4 mirror symmetries (algorithms.augment)
     mc_lower_bound: bool = True  # critic targets max(TD target, discounted return of the data) (MCAC; networks.ClippedTD0Estimator)
     tau: float = 0.005  # soft target update: phi' <- (1 - tau) phi' + tau phi  (beta = 1 - tau in Alg. 2)
     num_critics: int = 5
@@ -135,6 +137,8 @@ def check(cfg: TrainConfig) -> None:
         raise UserError(f"relabel mean offset must be >= 1 step, got {cfg.relabel_mean_offset}")
     if cfg.lr_schedule not in LR_SCHEDULES:
         raise UserError(f"unknown lr schedule {cfg.lr_schedule!r} (choose from {', '.join(LR_SCHEDULES)})")
+    if cfg.augment not in AUGMENTATIONS:
+        raise UserError(f"unknown augmentation {cfg.augment!r} (choose from {', '.join(AUGMENTATIONS)})")
     if cfg.amp not in AMP_MODES:
         raise UserError(f"unknown amp mode {cfg.amp!r} (choose from {', '.join(AMP_MODES)})")
     if not 0.0 <= cfg.ema_decay < 1.0:
@@ -160,7 +164,7 @@ def from_dict(d: dict) -> TrainConfig:
         d.setdefault("relabel_offset", "uniform")
         d.setdefault("relabel_window", 0)
     if "steps" in d:  # a run saved before these options existed trained without them
-        for k, v in (("ema_decay", 0.0), ("mc_lower_bound", False), ("amp", "none")):
+        for k, v in (("ema_decay", 0.0), ("mc_lower_bound", False), ("amp", "none"), ("augment", "none")):
             d.setdefault(k, v)
     for k in ("hidden", "critic_hidden"):
         if k in d:

@@ -184,7 +184,7 @@ class GoalBatchSampler:
     No Python loop over the batch; every random draw comes from ``generator``."""
 
     def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu",
-                 future: dict | None = None, mc_gamma: float | None = None):
+                 future: dict | None = None, mc_gamma: float | None = None, augment: str = "none"):
         from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
         self._relabel, self._reward_done = relabel_goals, reward_done
@@ -202,6 +202,9 @@ class GoalBatchSampler:
         # data itself achieves for the (relabelled) goal (relabel.mc_lower_bound)
         self.mc_gamma = mc_gamma
         self.first_hit = first_hit_index(data.next_state, data.goal, data.episode_end) if mc_gamma is not None else None
+        # augment "mirror": each transition reflected by a random one of the vehicle's 4 mirror
+        # symmetries after relabelling (the goal test is invariant; algorithms.augment)
+        self.augment = augment
 
     def sample(self) -> TensorDict:
         b = self.buffer.sample()
@@ -217,17 +220,25 @@ class GoalBatchSampler:
             from aerohrl.algorithms.relabel import mc_lower_bound
 
             extra["mc_lower_bound"] = mc_lower_bound(index, k, relabelled, self.first_hit, self.mc_gamma).unsqueeze(-1)
+        action = b.get("action")
+        if self.augment == "mirror":
+            from aerohrl.algorithms.augment import draw_reflections, mirror_action, mirror_goal, mirror_state
+
+            m = draw_reflections(state.shape[0], self.generator)
+            state, next_state, goal = mirror_state(state, m), mirror_state(next_state, m), mirror_goal(goal, m)
+            action = mirror_action(action, m)
         if self.device.type != "cpu":
             dev = self.device
-            state, next_state, goal, reward, done, relabelled = (t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, relabelled))
+            state, next_state, goal, reward, done, relabelled, action, index = (
+                t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, relabelled, action, index))
             extra = {key: t.to(dev, non_blocking=True) for key, t in extra.items()}
-            b = b.to(dev)
         norm = self.normalizer
         n = state.shape[0]
         return TensorDict(
             {
                 "observation": norm.inputs(state, goal),
-                "action": norm.action_to_unit(b.get("action")),
+                "action": norm.action_to_unit(action),
+                "index": index,
                 "state": state,
                 "goal": goal,
                 "next_state": next_state,

@@ -247,7 +247,8 @@ class Trainer:
         else:
             self._fresh()
         self.sampler = GoalBatchSampler(data, self.algo.normalizer, cfg.batch_size, cfg.relabel_prob, self.generator, device=self.device,
-                                        future=C.relabel_future(cfg), mc_gamma=cfg.gamma if cfg.mc_lower_bound else None)
+                                        future=C.relabel_future(cfg), mc_gamma=cfg.gamma if cfg.mc_lower_bound else None,
+                                        augment=cfg.augment)
         if ckpts:
             set_rng_state(self._pending_rng, self.generator)
 
