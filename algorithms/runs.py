@@ -38,7 +38,22 @@ def summary(run_dir) -> dict:
         "last_metrics": train_recs[-1] if train_recs else {},
         "last_eval": eval_recs[-1] if eval_recs else {},
         "metrics": metrics,
+        "training_s": training_seconds(train_recs, meta.get("config", {}).get("log_every", 1)),
     }
+
+
+def training_seconds(train_recs: list[dict], log_every: int) -> float:
+    """Time spent in gradient steps, from the logged step rates (each line covers the steps
+    since the previous line; after a resume the first line covers ``log_every``). Periodic
+    evaluations and checkpoint writes are not counted; interruptions are not either."""
+    total, prev = 0.0, 0
+    for r in train_recs:
+        if "steps_per_s" not in r:
+            continue
+        n = r["step"] - prev if r["step"] > prev else min(log_every, r["step"])
+        total += n / max(r["steps_per_s"], 1e-9)
+        prev = r["step"]
+    return total
 
 
 def _harness_curves(run_dir) -> dict[str, list[tuple[int, float, float]]]:
@@ -117,7 +132,8 @@ def cmd_show(a) -> int:
     print(f"dataset:   {ds.get('path')}  version {ds.get('version')}  ({ds.get('episodes')} episodes, {ds.get('frames')} frames)")
     total = cfg.get("steps", 0)
     print(f"progress:  checkpoint at step {s['checkpoint_step']:,} / {total:,} ({100 * s['checkpoint_step'] / max(total, 1):.1f}%); "
-          f"logged up to step {s['logged_step']:,}; {len(s['checkpoints'])} checkpoints kept")
+          f"logged up to step {s['logged_step']:,}; {len(s['checkpoints'])} checkpoints kept; "
+          f"{s['training_s'] / 60:.1f} min of gradient steps")
     if s["last_metrics"]:
         m = s["last_metrics"]
         print("last:      " + ", ".join(f"{k} {v:.4g}" for k, v in m.items() if k != "step"))

@@ -160,9 +160,14 @@ def main(argv=None) -> int:
         total = time.perf_counter() - t_all
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         wall = ", ".join(f"{k} {v / 60:.1f} min" for k, v in times.items())
+        # the runs' own step rates: true training times also when this invocation resumed runs
+        from aerohrl.algorithms.runs import summary
+
+        trained = ", ".join(f"{algo} {summary(rd)['training_s'] / 60:.1f} min" for rd, algo in zip(runs, a.algos))
         block = (f"Reproduced by `make results` on {stamp} (dataset `{ds}`, cpu preset"
                  + (f", {a.steps} training steps" if a.steps else "") + f", {a.episodes} episodes x last {a.checkpoints} checkpoints)"
-                 f"; wall time {total / 60:.1f} min ({wall}).\n\n" + tables + "".join("\n" + o for o in oracles))
+                 f"; wall time {total / 60:.1f} min ({wall}); gradient steps of each run ({a.jobs} at a time, one thread "
+                 f"each): {trained}.\n\n" + tables + "".join("\n" + o for o in oracles))
         (out / "results.md").write_text(block)
         where = a.readme if update_readme(Path(a.readme), block) else f"{out / 'results.md'} (no results markers in {a.readme})"
         print(f"tables written to {where}; total {total / 60:.1f} min")
