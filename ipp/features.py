@@ -96,21 +96,19 @@ def _second_step(env, pr, valid, fp, cmean):
     return pc, nc
 
 
-@lru_cache(maxsize=4)
-def _pair_table(lat_id, Hp, lam_levels):
-    """Per (first primitive p1, second slot a2, cell u of the second primitive), raveled
-    over (P, A, U): the cell as a flat offset from p1's start cell ``rel``, the
-    second primitive's log-odds magnitude there ``lam2``, p1's own at the same cell
-    ``lp`` (the overlap), ``has`` (a real cell), and the second primitive ``p2 (P, A)``
-    (-1: empty slot)."""
-    lat = _LATS[lat_id]
-    lamv = np.asarray(lam_levels, np.float64)
+def _pair_geometry(lat, lamv: np.ndarray) -> dict:
+    """What a first primitive p1 and the primitive p2 in each slot a2 after it sense:
+    ``off1`` (P, U, 2) p1's cell offsets, ``has1`` (P, U) real cells, ``lam1`` (P, U) p1's
+    log-odds magnitude per cell; ``p2`` (P, A) (-1: empty slot), ``p2c`` (clipped),
+    ``off2`` (P, A, U, 2) p2's cells as offsets from p1's start, ``has2``, and ``lp``
+    (P, A, U) p1's own magnitude at p2's cells (the overlap of the two)."""
     P = lat.n_prims
     p2 = lat.edges[lat.prim_to]  # (P, A)
     p2c = np.maximum(p2, 0)
     off1 = lat.cell_off.astype(np.int64)  # (P, U, 2)
     cnt = lat.cell_count.astype(np.float64)
     has1 = cnt.sum(-1) > 0  # (P, U)
+    lam1 = cnt @ lamv  # (P, U)
     off2 = lat.prim_disp[:, None, None, :].astype(np.int64) + off1[p2c]  # (P, A, U, 2)
     has2 = has1[p2c] & (p2 >= 0)[..., None]
     R = int(np.abs(off2).max()) + 1
@@ -119,8 +117,23 @@ def _pair_table(lat_id, Hp, lam_levels):
     pi, ui = np.nonzero(has1)
     np.add.at(win, (pi, (off1[pi, ui, 1] + R) * W + off1[pi, ui, 0] + R), cnt[pi, ui] @ lamv)
     lp = win[np.arange(P)[:, None, None], (off2[..., 1] + R) * W + off2[..., 0] + R]
+    return {"off1": off1, "has1": has1, "lam1": lam1, "cnt": cnt, "p2": p2, "p2c": p2c,
+            "off2": off2, "has2": has2, "lp": lp}
+
+
+@lru_cache(maxsize=4)
+def _pair_table(lat_id, Hp, lam_levels):
+    """Per (first primitive p1, second slot a2, cell u of the second primitive), raveled
+    over (P, A, U): the cell as a flat offset from p1's start cell ``rel``, the
+    second primitive's log-odds magnitude there ``lam2``, p1's own at the same cell
+    ``lp`` (the overlap), ``has`` (a real cell), and the second primitive ``p2 (P, A)``
+    (-1: empty slot)."""
+    lat = _LATS[lat_id]
+    g = _pair_geometry(lat, np.asarray(lam_levels, np.float64))
+    off2, has2, p2 = g["off2"], g["has2"], g["p2"]
+    lp = g["lp"]
     rel = off2[..., 1] * Hp + off2[..., 0]
-    lam2 = (cnt @ lamv)[p2c]
+    lam2 = g["lam1"][g["p2c"]]
     lam2, lp = np.where(has2, lam2, 0).ravel(), np.where(has2, lp, 0).ravel()
     return np.where(has2, rel, 0).ravel(), lam2, lp, has2, p2
 
@@ -316,21 +329,9 @@ def _sem_tables(lat_id, lam_levels, n_classes):
     lamv = np.asarray(lam_levels, np.float64)
     C = n_classes
     A, V, P = lat.n_actions, lat.n_vertices, lat.n_prims
-    cnt = lat.cell_count.astype(np.float64)
-    has1 = cnt.sum(-1) > 0  # (P, U)
-    lam1 = cnt @ lamv  # (P, U)
-    off1 = lat.cell_off.astype(np.int64)  # (P, U, 2)
-    p2 = lat.edges[lat.prim_to]  # (P, A)
-    p2c = np.maximum(p2, 0)
-    off2 = lat.prim_disp[:, None, None, :].astype(np.int64) + off1[p2c]  # (P, A, U, 2)
-    has2 = has1[p2c] & (p2 >= 0)[..., None]
-    # lp: the first primitive's lam at the second one's cells (as _pair_table)
-    R0 = int(np.abs(off2).max()) + 1
-    W0 = 2 * R0 + 1
-    win = np.zeros((P, W0 * W0))
-    pi, ui = np.nonzero(has1)
-    np.add.at(win, (pi, (off1[pi, ui, 1] + R0) * W0 + off1[pi, ui, 0] + R0), cnt[pi, ui] @ lamv)
-    lp = win[np.arange(P)[:, None, None], (off2[..., 1] + R0) * W0 + off2[..., 0] + R0]
+    g = _pair_geometry(lat, lamv)  # lp: the first primitive's lam at the second one's cells
+    cnt, has1, lam1, off1 = g["cnt"], g["has1"], g["lam1"], g["off1"]
+    p2, p2c, off2, has2, lp = g["p2"], g["p2c"], g["off2"], g["has2"], g["lp"]
     lam2 = lam1[p2c]
     Rw = int(max(np.abs(off2[has2]).max(), np.abs(off1[has1]).max()))
     W = 2 * Rw + 1
