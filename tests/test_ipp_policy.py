@@ -14,6 +14,12 @@ from aerohrl.ipp.train import _gae, preset, train
 
 
 
+
+def random_walk(env, rng, steps):
+    """``steps`` primitives drawn uniformly from the valid ones of every environment."""
+    for _ in range(steps):
+        env.step(np.array([rng.choice(np.flatnonzero(m)) for m in env.valid_mask()]))
+
 def fly_valid(env, model):
     """Fly ``model`` to the end of every episode: it only ever picks valid primitives, and
     every environment covers something."""
@@ -73,8 +79,7 @@ def test_action_features_by_hand():
     lat = default_lattice()
     env, _ = make_env(EnvConfig(), lat, 4, range(2))
     rng = np.random.default_rng(0)
-    for _ in range(3):
-        env.step(np.array([rng.choice(np.flatnonzero(m)) for m in env.valid_mask()]))
+    random_walk(env, rng, 3)
     f = env.action_features()
     assert f.shape == (2, lat.n_actions, N_FEAT) and f.dtype == np.float32
     n = 1

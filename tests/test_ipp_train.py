@@ -17,10 +17,11 @@ from aerohrl.ipp.metrics import paired_differences
 from aerohrl.ipp.policy import load_policy
 from aerohrl.ipp.train import (config_from_dict, load_run_config, plot_learning_curve, preset,
                                train)
+from test_ipp_policy import random_walk  # tests/ helpers (pytest puts tests/ on sys.path)
 
 
 class _Interrupt(Exception):
-    pass
+    """Raised by :class:`_StopAfter` to cut a training run short."""
 
 
 class _StopAfter:
@@ -35,7 +36,7 @@ class _StopAfter:
             raise _Interrupt
 
     def set_postfix(self, **kw):
-        pass
+        """Nothing to show (tqdm's postfix)."""
 
 
 def _weights(run):
@@ -164,8 +165,7 @@ def test_detect_gain_flat_matches_the_generic_hook():
     lat = default_lattice()
     env, _ = make_env(EnvConfig(), lat, 3, range(2))
     rng = np.random.default_rng(1)
-    for _ in range(4):
-        env.step(np.array([rng.choice(np.flatnonzero(m)) for m in env.valid_mask()]))
+    random_walk(env, rng, 4)
     flat = rng.integers(0, env.L.size, 500)
     lp = rng.choice([0.0, 1.3, 2.1, 4.6], 500)
     lam = rng.choice([1.3, 2.1, 4.6, 6.7], 500)
