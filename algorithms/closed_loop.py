@@ -17,8 +17,8 @@ from aerohrl.eval.rollout import rollout_reach
 
 def make_reach_desired_evaluator(data, cfg):
     """Reach-Desired on ``cfg.eval_episodes`` of the dataset's desired goals (a fixed,
-    seeded subset), with the dataset's vehicle and rates."""
-    goals = data.desired_goals().cpu().numpy()
+    seeded subset of those flown from rest at the origin), with the dataset's vehicle and rates."""
+    goals = data.desired_goals()[data.rest_start_episodes()].cpu().numpy()
     rng = np.random.default_rng(cfg.seed + 12345)
     pick = rng.choice(len(goals), size=min(cfg.eval_episodes, len(goals)), replace=False)
     goals = goals[np.sort(pick)]

@@ -56,11 +56,23 @@ class Dataset:
     def num_episodes(self) -> int:
         return int(self.episode_end.unique().numel())
 
-    def desired_goals(self) -> torch.Tensor:
-        """(E, 15) the desired goal of each episode, in episode order."""
+    def episode_first_frames(self) -> torch.Tensor:
+        """(E,) global index of each episode's first frame, in episode order."""
         starts = torch.ones(len(self), dtype=torch.bool)
         starts[1:] = self.episode_index[1:] != self.episode_index[:-1]
-        return self.goal[starts]
+        return torch.nonzero(starts).flatten()
+
+    def desired_goals(self) -> torch.Tensor:
+        """(E, 15) the desired goal of each episode, in episode order."""
+        return self.goal[self.episode_first_frames()]
+
+    def rest_start_episodes(self) -> torch.Tensor:
+        """Indices (episode order) of the episodes that start at the dataset's expert
+        start (SPEC.md: rest in hover at the origin): Reach-Desired's goal set. Every
+        episode but the continuations, which a ``datagen build --continuations M`` dataset
+        appends as its last M episodes (its spec records M)."""
+        m = int((self.info.get("spec") or {}).get("continuations", 0))
+        return torch.arange(self.num_episodes - m)
 
     def as_tensordict(self) -> TensorDict:
         return TensorDict(
@@ -184,7 +196,8 @@ class GoalBatchSampler:
     No Python loop over the batch; every random draw comes from ``generator``."""
 
     def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu",
-                 future: dict | None = None, mc_gamma: float | None = None, augment: str = "none"):
+                 future: dict | None = None, mc_gamma: float | None = None, augment: str = "none",
+                 critic_random_goal_prob: float = 0.0):
         from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
         self._relabel, self._reward_done = relabel_goals, reward_done
@@ -205,6 +218,11 @@ class GoalBatchSampler:
         # augment "mirror": each transition reflected by a random one of the vehicle's 4 mirror
         # symmetries after relabelling (the goal test is invariant; algorithms.augment)
         self.augment = augment
+        # > 0: the batch also carries "critic", the same transitions with the critics' goals:
+        # with this probability the achieved goal of a uniformly random frame (OGBench's
+        # value_p_randomgoal), else the actor's goal. The data rarely reaches such a goal,
+        # so the critics learn which legs the data supports, which the planner ranks by.
+        self.critic_random_goal_prob = float(critic_random_goal_prob)
 
     def sample(self) -> TensorDict:
         b = self.buffer.sample()
@@ -220,29 +238,54 @@ class GoalBatchSampler:
             from aerohrl.algorithms.relabel import mc_lower_bound
 
             extra["mc_lower_bound"] = mc_lower_bound(index, k, relabelled, self.first_hit, self.mc_gamma).unsqueeze(-1)
+        critic = None
+        if self.critic_random_goal_prob > 0:
+            n = index.shape[0]
+            coin = torch.rand(n, generator=self.generator) < self.critic_random_goal_prob
+            rand = torch.randint(0, len(self.achieved_goals), (n,), generator=self.generator)
+            cgoal = torch.where(coin.unsqueeze(-1), self.achieved_goals[rand], goal)
+            creward, cdone = self._reward_done(next_state, cgoal)
+            cextra = {}
+            if "mc_lower_bound" in extra:  # the data's return for a random goal: none observed
+                cextra["mc_lower_bound"] = torch.where(coin.unsqueeze(-1), creward.unsqueeze(-1), extra["mc_lower_bound"])
+            critic = (cgoal, creward, cdone, cextra)
         action = b.get("action")
+        m = None
         if self.augment == "mirror":
             from aerohrl.algorithms.augment import draw_reflections, mirror_action, mirror_goal, mirror_state
 
             m = draw_reflections(state.shape[0], self.generator)
             state, next_state, goal = mirror_state(state, m), mirror_state(next_state, m), mirror_goal(goal, m)
             action = mirror_action(action, m)
+        td = self._batch(state, action, next_state, goal, reward, done, extra,
+                         {"index": index, "relabelled": relabelled})
+        if critic is not None:
+            cgoal, creward, cdone, cextra = critic
+            if m is not None:
+                from aerohrl.algorithms.augment import mirror_goal
+
+                cgoal = mirror_goal(cgoal, m)
+            td.set("critic", self._batch(state, action, next_state, cgoal, creward, cdone, cextra, {}))
+        return td
+
+    def _batch(self, state, action, next_state, goal, reward, done, extra: dict, more: dict) -> TensorDict:
+        """The torchrl layout for one goal per transition, on ``self.device``."""
         if self.device.type != "cpu":
             dev = self.device
-            state, next_state, goal, reward, done, relabelled, action, index = (
-                t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, relabelled, action, index))
+            state, next_state, goal, reward, done, action = (
+                t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, action))
             extra = {key: t.to(dev, non_blocking=True) for key, t in extra.items()}
+            more = {key: t.to(dev, non_blocking=True) for key, t in more.items()}
         norm = self.normalizer
         n = state.shape[0]
         return TensorDict(
             {
                 "observation": norm.inputs(state, goal),
                 "action": norm.action_to_unit(action),
-                "index": index,
+                **more,
                 "state": state,
                 "goal": goal,
                 "next_state": next_state,
-                "relabelled": relabelled,
                 **extra,
                 "next": TensorDict(
                     {

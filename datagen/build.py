@@ -44,6 +44,7 @@ from aerohrl.sim import BatchedQuadrotor, get_preset
 
 EPISODES_FILE = "meta/aerohrl_episodes.parquet"
 REPO_ID = "aerohrl/quadrotor-reach"
+CONTINUATION_STREAM = 7  # seed stream of the continuation episodes: [spec.seed, 7]
 
 
 @dataclass
@@ -61,6 +62,8 @@ class ExpertData:
     next_state: np.ndarray  # (F,18)
     success: np.ndarray  # (F,) goal reached at the next state
     resampled: int = 0
+    source_episode: np.ndarray | None = None  # (N,) continuation: the rest-start episode its start is taken from (-1: rest start)
+    source_frame: np.ndarray | None = None  # (N,) and the frame within it (-1: rest start)
     timings: dict = field(default_factory=dict)
 
     @property
@@ -79,27 +82,30 @@ class BuildResult:
     seconds: float
 
 
-def plan_references(spec: DatasetSpec, rng: np.random.Generator):
+def plan_references(spec: DatasetSpec, rng: np.random.Generator, n: int | None = None, sample_starts=None):
     """Sample rho_D and solve each goal's minimum-time reference; resample infeasible goals.
 
-    Returns (goals, T, coeffs, resampled). Replacement goals come from the same
-    generator in order, so the result is a function of the spec alone.
+    Returns (goals, T, coeffs, resampled, sources). Replacement goals come from the same
+    generator in order, so the result is a function of the spec alone. By default every
+    reference starts at rest at the origin (x0 = 0) and ``sources`` is None;
+    ``sample_starts(k) -> (x0 (k, 3, 3), sources (k,))`` draws other starts instead, and an
+    infeasible pair is redrawn whole (start and goal).
     """
-    n = spec.goals
+    n = spec.goals if n is None else int(n)
 
     def sample(k):
-        return goals_mod.sample_goals(rng, k, pos_range=spec.pos_range, vel_range=spec.vel_range, acc_range=spec.acc_range)
+        x0, src = sample_starts(k) if sample_starts is not None else (np.zeros((k, 3, 3)), None)
+        g = goals_mod.sample_goals(rng, k, pos_range=spec.pos_range, vel_range=spec.vel_range, acc_range=spec.acc_range)
+        return x0, src, g
 
-    def solve(g):
-        k = len(g["pos"])
-        x0 = np.zeros((k, 3, 3))  # start: origin, at rest, hover (a = 0)
+    def solve(x0, g):
         xf = np.stack([g["pos"], g["vel"], g["acc"]], axis=-1)  # [n, axis, (p, v, a)]
         return reference.min_time(
             x0, xf, a_max=spec.a_max, t_lo=0.0, t_hi=spec.t_max, tol=spec.bisection_tol, solver=spec.solver, degree=spec.degree
         )
 
-    g = sample(n)
-    T, coeffs, feasible = solve(g)
+    x0, src, g = sample(n)
+    T, coeffs, feasible = solve(x0, g)
     resampled = 0
     while not feasible.all():
         bad = np.flatnonzero(~feasible)
@@ -109,20 +115,25 @@ def plan_references(spec: DatasetSpec, rng: np.random.Generator):
                 f"almost no goal in these ranges has a reference within t_max={spec.t_max} s at a_max={spec.a_max} "
                 f"(resampled {resampled}); widen --t-max or narrow the ranges"
             )
-        g2 = sample(len(bad))
-        T2, c2, f2 = solve(g2)
+        x2, s2, g2 = sample(len(bad))
+        T2, c2, f2 = solve(x2, g2)
         for key in g:
             g[key][bad] = g2[key]
+        if src is not None:
+            src[bad] = s2
         T[bad], coeffs[bad], feasible[bad] = T2, c2, f2
-    return g, T, coeffs, resampled
+    return g, T, coeffs, resampled, src
 
 
-def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool = True):
+def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool = True,
+                   start_state=None, rotor_speeds=None, record_rotors: bool = False):
     """Fly every reference at once with the geometric expert; record each step until T.
 
     Episode i records steps k = 0 .. ceil(T_i * fps) - 1: state s_k, action a_k and
     next state s_{k+1}. After its own end an episode keeps flying (it is simply not
-    recorded) so the batch stays rectangular.
+    recorded) so the batch stays rectangular. ``start_state`` / ``rotor_speeds`` (N, 18) /
+    (N, 4) replace hover at the origin; ``record_rotors`` also returns the rotor speeds
+    at every step (kmax + 1, N, 4), else None.
     """
     params = get_preset(spec.vehicle)
     n = len(T)
@@ -133,34 +144,84 @@ def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.nda
     ctrl = GeometricController(params)
     states = np.empty((kmax + 1, n, task.STATE_DIM))
     actions = np.empty((kmax, n, task.ACTION_DIM))
-    states[0] = sim.reset()
+    rotors = np.empty((kmax + 1, n, 4)) if record_rotors else None
+    states[0] = sim.reset(start_state, rotor_speeds)
     for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=not progress, leave=False):
+        if record_rotors:
+            rotors[k] = sim.rotor_speeds
         t = np.minimum(k * dt, T)
         ref = [reference.evaluate(coeffs, t, order=o) for o in range(4)]
         actions[k] = ctrl(states[k], *ref, yaw=0.0)
         states[k + 1] = sim.step(actions[k])
-    return states, actions, length
+    if record_rotors:
+        rotors[kmax] = sim.rotor_speeds
+    return states, actions, length, rotors
+
+
+def _recorded(states: np.ndarray, actions: np.ndarray, length: np.ndarray):
+    """(episode, step) of every recorded frame, episode-major, and its state, action, next state."""
+    kmax = states.shape[0] - 1
+    ep, k = np.nonzero(np.arange(kmax)[None, :] < length[:, None])
+    return ep, k, states[k, ep], actions[k, ep], states[k + 1, ep]
+
+
+def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.ndarray, ep: np.ndarray, k: np.ndarray,
+                       state: np.ndarray):
+    """Starts and references of the continuation episodes (``spec.continuations``).
+
+    A start is a recorded frame of a rest-start flight, drawn uniformly (``ep``, ``k``,
+    ``state`` of all such frames): the vehicle's state there moved to the origin
+    (translation invariance, SPEC.md), and its new reference begins where that flight's
+    reference stood at that time (position relative to the vehicle, velocity,
+    acceleration), so the expert's collective thrust continues smoothly (its jerk, and
+    with it the feed-forward body rates, starts afresh: degree 5 has no condition left). The goal is a fresh
+    rho_D sample, relative to the start as every goal is. Returns (goals, T, coeffs,
+    resampled, frames): ``frames`` indexes the source frames.
+    """
+    def sample_starts(m):
+        f = rng.integers(0, len(ep), size=m)
+        t = k[f] * spec.dt
+        x0 = np.stack([reference.evaluate(coeffs[ep[f]], t, order=o) for o in range(3)], axis=-1)  # (m, axis, (p, v, a))
+        x0[:, :, 0] -= state[f, task.POS]
+        return x0, f
+
+    return plan_references(spec, rng, spec.continuations, sample_starts)
 
 
 def generate(spec: DatasetSpec, progress: bool = True) -> ExpertData:
     """Goals, references and expert rollouts for a spec (nothing written)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(spec.seed)
-    goals, T, coeffs, resampled = plan_references(spec, rng)
+    goals, T, coeffs, resampled, _ = plan_references(spec, rng)
     t1 = time.perf_counter()
-    states, actions, length = rollout_expert(spec, goals, T, coeffs, progress)
+    cont = spec.continuations > 0
+    states, actions, length, rotors = rollout_expert(spec, goals, T, coeffs, progress, record_rotors=cont)
+    ep, k, state, action, next_state = _recorded(states, actions, length)
+    source_episode = np.full(len(T), -1, np.int64)
+    source_frame = np.full(len(T), -1, np.int64)
+    if cont:
+        # Their own stream: the rest-start episodes are the same with or without them.
+        crng = np.random.default_rng([spec.seed, CONTINUATION_STREAM])
+        g2, T2, c2, r2, f = plan_continuations(spec, crng, coeffs, ep, k, state)
+        start = state[f].copy()
+        start[:, task.POS] = 0.0
+        s2, a2, l2, _ = rollout_expert(spec, g2, T2, c2, progress, start_state=start, rotor_speeds=rotors[k[f], ep[f]])
+        ep2, k2, st2, ac2, ns2 = _recorded(s2, a2, l2)
+        n = len(T)
+        goals = {key: np.concatenate([goals[key], g2[key]]) for key in goals}
+        T, length, resampled = np.concatenate([T, T2]), np.concatenate([length, l2]), resampled + r2
+        source_episode = np.concatenate([source_episode, ep[f]])
+        source_frame = np.concatenate([source_frame, k[f]])
+        ep, k = np.concatenate([ep, ep2 + n]), np.concatenate([k, k2])
+        state, action, next_state = (np.concatenate(x) for x in ((state, st2), (action, ac2), (next_state, ns2)))
     t2 = time.perf_counter()
 
-    # Episode-major frame order: (episode, step) for every step < the episode's length.
-    n, kmax = len(T), states.shape[0] - 1
-    ep, k = np.nonzero(np.arange(kmax)[None, :] < length[:, None])
     goal_vec = goals_mod.goal_vectors(goals)
-    state = states[k, ep]
-    next_state = states[k + 1, ep]
     success = np.asarray(task.goal_reached(task.achieved_goal(next_state), goal_vec[ep]))
     data = ExpertData(
         goals=goals, goal_vec=goal_vec, T=T, length=length, episode_index=ep.astype(np.int64), frame_index=k.astype(np.int64),
-        state=state, action=actions[k, ep], next_state=next_state, success=success, resampled=resampled,
+        state=state, action=action, next_state=next_state, success=success, resampled=resampled,
+        source_episode=source_episode, source_frame=source_frame,
     )
     data.timings = {"references_s": t1 - t0, "rollout_s": t2 - t1, "frames_s": time.perf_counter() - t2}
     return data
@@ -202,7 +263,7 @@ def episode_table(data: ExpertData) -> pa.Table:
         a = np.ascontiguousarray(a, dtype=np.float64)
         return pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), a.shape[1])
 
-    return pa.table({
+    cols = {
         "episode_index": pa.array(np.arange(n, dtype=np.int64)),
         "goal_pos": fsl(data.goals["pos"]),
         "goal_vel": fsl(data.goals["vel"]),
@@ -214,7 +275,11 @@ def episode_table(data: ExpertData) -> pa.Table:
         "final_pos_error_m": pa.array(dp),
         "final_vel_error_mps": pa.array(dv),
         "final_rot_error_rad": pa.array(dr),
-    })
+    }
+    if (data.source_episode >= 0).any():  # continuation episodes only (default datasets keep their bytes)
+        cols["start_source_episode"] = pa.array(data.source_episode)
+        cols["start_source_frame"] = pa.array(data.source_frame)
+    return pa.table(cols)
 
 
 def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
@@ -232,6 +297,13 @@ def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
         "seed": spec.seed,
         "goal_ranges": {"pos_abs": list(spec.pos_range), "vel": list(spec.vel_range), "acc": list(spec.acc_range), "yaw": 0.0},
         "start_state": "origin, zero velocity, hover attitude (R = I), zero body rates",
+        **({"continuations": {
+            "episodes": int(spec.continuations),
+            "first_episode": int(spec.goals),
+            "start_state": "a recorded state of a rest-start episode (uniform over their frames), moved to the origin; "
+                           "the reference continues that episode's reference from there; goal from rho_D "
+                           "(start_source_episode / start_source_frame in meta/aerohrl_episodes.parquet)",
+        }} if spec.continuations else {}),
         "vehicle": params.to_dict(),
         "controller": {"name": "Lee/Mellinger geometric controller, CTBR output", "gains": ctrl.gains.to_dict()},
         "goal_tolerance": {"pos_m": task.TOLERANCE.pos, "vel_mps": task.TOLERANCE.vel, "rot_rad": task.TOLERANCE.rot},
@@ -265,7 +337,7 @@ tags: [LeRobot, quadrotor, goal-conditioned, offline-rl, aerohrl]
 Expert quadrotor trajectories for offline goal-conditioned RL (thesis §3.4.1), generated
 by `aerohrl.datagen` (generator version {meta['generator']['generator_version']}). A
 {meta['vehicle']['name']} vehicle starts at rest in hover at the origin and flies to each of
-{meta['episodes']} desired goals (position, velocity, attitude) under a minimum-time,
+{meta['episodes']} desired goals (position, velocity, attitude){_continuation_note(meta)} under a minimum-time,
 minimum-jerk reference (|a_i| <= {s['a_max']} m/s^2, {s['solver']} solver, degree {s['degree']})
 tracked by a Lee/Mellinger geometric controller that outputs CTBR actions, recorded at
 {s['fps']} Hz.
@@ -290,6 +362,14 @@ or, without torch: `aerohrl.datagen.lerobot_format.read_columns("<this folder>")
 SHA-256 of every file; `meta/aerohrl_episodes.parquet` holds per-episode goals,
 durations and expert outcomes. `datagen validate <this folder>` checks integrity.
 """
+
+
+def _continuation_note(meta: dict) -> str:
+    c = meta.get("continuations")
+    if not c:
+        return ""
+    return (f" (the last {c['episodes']} episodes, from {c['first_episode']} on, are continuations: they start from a "
+            "state one of the rest-start flights passes through, moved to the origin)")
 
 
 def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log=print) -> BuildResult:

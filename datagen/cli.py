@@ -27,6 +27,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
         "a_max": "reference acceleration bound per axis (m/s^2)", "degree": "polynomial degree per axis",
         "solver": "closed-form (degree 5) | qp (OSQP)", "t_max": "bisection upper bracket (s)",
         "bisection_tol": "bisection stop width (s)", "fps": "control/recording rate (Hz)", "substeps": "RK4 substeps per step",
+        "continuations": "extra episodes from states of the rest-start flights (moved to the origin) to fresh rho_D goals",
     }
     for f in fields(DatasetSpec):
         flag = "--" + f.name.replace("_", "-")
@@ -101,6 +102,9 @@ def cmd_info(a) -> int:
         f"generator    aerohrl.datagen v{meta['generator']['generator_version']} (aerohrl {meta['generator']['aerohrl_version']})",
         f"episodes     {meta['episodes']}   frames {meta['frames']}   fps {s['fps']}   size {sizes / 1e6:.2f} MB",
         f"goals        seed {meta['seed']}; |p_i| {s['pos_range']} m, v_i {s['vel_range']} m/s, a_i {s['acc_range']} m/s^2; resampled {meta['resampled_goals']}",
+        *([f"continuations {meta['continuations']['episodes']} (episodes {meta['continuations']['first_episode']}.."
+            f"{meta['episodes'] - 1}: from states of the rest-start flights, moved to the origin)"]
+          if meta.get("continuations") else []),
         f"reference    degree {s['degree']}, {s['solver']}, a_max {s['a_max']} m/s^2; T min/mean/max {d['min']:.2f}/{d['mean']:.2f}/{d['max']:.2f} s",
         f"vehicle      {meta['vehicle']['name']} (mass {meta['vehicle']['mass']} kg), {s['substeps']} RK4 substeps per step",
         f"expert       {100 * meta['expert_success_rate']:.1f}% success (goal-reached test 0.15 m, 0.35 m/s, 0.15 rad)",

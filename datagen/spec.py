@@ -42,6 +42,11 @@ class DatasetSpec:
     bisection_tol: float = 0.02
     fps: int = 100
     substeps: int = 5
+    # Continuation episodes (beyond SPEC.md, off by default): each starts from a state
+    # that one of the rest-start flights passes through, translated to the origin, and
+    # flies to a fresh goal from rho_D. They show the policy what a planned second leg
+    # is (a moving start, a goal relative to it); see datagen/README.md.
+    continuations: int = 0
 
     def __post_init__(self):
         for f in ("pos_range", "vel_range", "acc_range"):
@@ -70,6 +75,8 @@ class DatasetSpec:
             raise UserError("the closed-form solver exists for degree 5 only; use --solver qp for higher degrees")
         if not (self.a_max > 0 and self.t_max > 0 and self.bisection_tol > 0):
             raise UserError("--a-max, --t-max and --bisection-tol must be positive")
+        if isinstance(self.continuations, bool) or int(self.continuations) != self.continuations or self.continuations < 0:
+            raise UserError(f"--continuations must be a non-negative integer, got {self.continuations}")
         if self.fps <= 0 or self.substeps <= 0:
             raise UserError("--fps and --substeps must be positive")
         if self.fps * self.substeps < 500:
@@ -79,6 +86,10 @@ class DatasetSpec:
         d = dataclasses.asdict(self)
         for f in ("pos_range", "vel_range", "acc_range"):
             d[f] = list(d[f])
+        if not self.continuations:
+            # A field added after datasets were published: left out at its default so
+            # every earlier spec keeps its hash, version name and metadata bytes.
+            del d["continuations"]
         return d
 
     @property

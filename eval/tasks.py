@@ -104,12 +104,17 @@ def _pick(rng: np.random.Generator, pool: int, n: int) -> np.ndarray:
 
 
 def reach_desired(data, n: int = 250, seed: int = 0) -> EpisodeSet:
-    """Reach-Desired (SPEC.md): origin -> a desired goal of the dataset, 500 steps."""
+    """Reach-Desired (SPEC.md): origin -> a desired goal of the dataset, 500 steps.
+
+    The goals are those of the episodes the expert flew from rest at the origin (all of
+    a default dataset; continuation episodes start elsewhere, so theirs are not
+    demonstrated from this start)."""
     n = _check_n(n)
-    goals = data.desired_goals().cpu().numpy().astype(np.float64)
+    rest = data.rest_start_episodes().cpu().numpy()
+    goals = data.desired_goals().cpu().numpy().astype(np.float64)[rest]
     idx = _pick(np.random.default_rng([seed, 1]), len(goals), n)
     return EpisodeSet("reach-desired", hover_states(n), goals[idx], np.full(n, HORIZON_DESIRED, np.int64),
-                      idx.astype(np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), seed)
+                      rest[idx].astype(np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), seed)
 
 
 def reach_intermediate(data, n: int = 250, seed: int = 0, max_ahead: int = MAX_AHEAD) -> EpisodeSet:

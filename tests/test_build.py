@@ -113,7 +113,51 @@ def test_spec_file_matches_defaults():
     assert spec == DatasetSpec()
 
 
+def test_continuations_leave_earlier_versions_and_rest_episodes_unchanged():
+    # published version names (README, runs) must survive the field's addition
+    assert version_name(DatasetSpec()) == "n250-s0-dbb240c0"
+    assert version_name(DatasetSpec(goals=10000)) == "n10000-s0-6e76448b"
+    assert version_name(DatasetSpec(continuations=8)) != version_name(DatasetSpec())
+    assert "continuations" not in DatasetSpec().to_dict()
+    plain = generate(SMALL, progress=False)
+    both = generate(DatasetSpec(goals=16, seed=7, continuations=12), progress=False)
+    F = len(plain.state)
+    assert np.array_equal(both.state[:F], plain.state) and np.array_equal(both.action[:F], plain.action)
+    assert np.array_equal(both.goal_vec[:16], plain.goal_vec)
+
+
+def test_continuations_start_where_a_rest_flight_passes_and_continue_its_commands():
+    data = generate(DatasetSpec(goals=16, seed=7, continuations=12), progress=False)
+    assert len(data.T) == 28 and (data.source_episode[:16] == -1).all() and (data.source_episode[16:] >= 0).all()
+    first = np.r_[0, np.cumsum(data.length)[:-1]]
+    for e in range(16, 28):
+        src = first[data.source_episode[e]] + data.source_frame[e]
+        assert data.episode_index[src] == data.source_episode[e]
+        s0, s_src = data.state[first[e]], data.state[src]
+        assert np.allclose(s0[task.POS], 0.0)
+        assert np.allclose(s0[3:], s_src[3:], atol=1e-12)  # velocity, attitude and body rates carried over
+        # the new reference starts where the old one stood (p, v, a), so the expert commands the same
+        # collective thrust; the rate commands differ by the feed-forward of a new jerk
+        assert np.isclose(data.action[first[e], 0], data.action[src, 0], atol=1e-6)
+    assert data.episode_success[16:].mean() >= 0.9
+
+
+def test_continuation_episodes_are_not_reach_desired_goals(tmp_path):
+    from aerohrl.algorithms.data import load_dataset
+    from aerohrl.eval.tasks import reach_desired
+
+    res = build(DatasetSpec(goals=16, seed=7, continuations=12), tmp_path, progress=False)
+    data = load_dataset(res.path)
+    assert data.num_episodes == 28 and data.rest_start_episodes().tolist() == list(range(16))
+    eps = reach_desired(data, n=40)
+    assert eps.source_episode.max() < 16 and set(eps.source_episode) == set(range(16))
+    table = __import__("pyarrow.parquet", fromlist=["x"]).read_table(res.path / build_mod.EPISODES_FILE)
+    assert table.column("start_source_episode").to_pylist()[:16] == [-1] * 16
+    assert read_manifest(res.path)["continuations"]["episodes"] == 12
+
+
 @pytest.mark.parametrize("kw,msg", [
+    ({"continuations": -1}, "non-negative"),
     ({"goals": 0}, "positive"), ({"goals": -4}, "positive"), ({"pos_range": (2.0, 1.0)}, "inverted"),
     ({"vel_range": (1.0, 1.0)}, "empty"), ({"solver": "cvx"}, "solver"), ({"degree": 7}, "closed-form"),
 ])
