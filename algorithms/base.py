@@ -56,6 +56,12 @@ class Algorithm(nn.Module):
 
             self.policy_ema = AveragedModel(self.policy_net(), multi_avg_fn=get_ema_multi_avg_fn(self.cfg.ema_decay))
 
+    @staticmethod
+    def critic_batch(batch):
+        """The batch the critic ensemble learns from: its own goals when the sampler drew
+        them (``--critic-random-goal-prob``, key ``"critic"``), else the actor's batch."""
+        return batch.get("critic") if "critic" in batch.keys() else batch
+
     def ema_step(self) -> None:
         """Call after every policy update."""
         if self.policy_ema is not None:

@@ -33,6 +33,7 @@ HELP = {
     "hidden": "hidden layer sizes of the actor (and of the critics unless --critic-hidden)",
     "critic_hidden": "hidden layer sizes of the critics",
     "relabel_prob": "delta: probability of relabelling a goal with a later achieved goal",
+    "critic_random_goal_prob": "critics only: probability that a goal is a random frame's achieved goal (OGBench value_p_randomgoal)",
     "augment": "none | mirror: train on the 4 mirror images of every transition (exact symmetries of the vehicle)",
     "mc_lower_bound": "critic targets max(clipped TD target, discounted return observed in the data)",
     "amp": "mixed precision: none | bf16 (autocast; about 2x faster on CPUs with AVX512-BF16)",

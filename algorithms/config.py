@@ -51,6 +51,10 @@ class TrainConfig:
     relabel_offset: str = "geometric"  # how far ahead (k - j): uniform (over the rest) | geometric (relabel.sample_future_index)
     relabel_window: int = 0  # cap on k - j in steps (0 = up to the episode's last step)
     relabel_mean_offset: float = 30.0  # geometric: mean of k - j in steps
+    # OGBench's value_p_randomgoal: the critics' goal is, with this probability, the achieved
+    # goal of a uniformly random dataset frame (a goal the data does not reach: a negative);
+    # the actor keeps its own goals. 0 = critics and actor share the batch (the thesis).
+    critic_random_goal_prob: float = 0.0
     gamma: float = 0.99
     augment: str = "none"  # none | mirror: reflect each transition by one of the vehicle's 4 mirror symmetries (algorithms.augment)
     mc_lower_bound: bool = True  # critic targets max(TD target, discounted return of the data) (MCAC; networks.ClippedTD0Estimator)
@@ -127,6 +131,8 @@ def check(cfg: TrainConfig) -> None:
         raise UserError("steps, batch size and hidden sizes must be positive")
     if not 0.0 <= cfg.relabel_prob <= 1.0:
         raise UserError(f"relabel probability must be in [0, 1], got {cfg.relabel_prob}")
+    if not 0.0 <= cfg.critic_random_goal_prob < 1.0:
+        raise UserError(f"critic random-goal probability must be in [0, 1), got {cfg.critic_random_goal_prob}")
     if not 0.0 < cfg.gamma <= 1.0 or not 0.0 < cfg.tau <= 1.0:
         raise UserError("need 0 < gamma <= 1 and 0 < tau <= 1")
     if cfg.relabel_offset not in RELABEL_OFFSETS:
@@ -164,7 +170,8 @@ def from_dict(d: dict) -> TrainConfig:
         d.setdefault("relabel_offset", "uniform")
         d.setdefault("relabel_window", 0)
     if "steps" in d:  # a run saved before these options existed trained without them
-        for k, v in (("ema_decay", 0.0), ("mc_lower_bound", False), ("amp", "none"), ("augment", "none")):
+        for k, v in (("ema_decay", 0.0), ("mc_lower_bound", False), ("amp", "none"), ("augment", "none"),
+                     ("critic_random_goal_prob", 0.0)):
             d.setdefault(k, v)
     for k in ("hidden", "critic_hidden"):
         if k in d:

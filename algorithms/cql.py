@@ -94,7 +94,7 @@ class CQL(Algorithm):
             opt.step()
         self.ema_step()
         # 2. the planner's 5-critic ensemble, Eq. 3.2, next action from the CQL policy
-        loss_q, meta = self.critic_loss.qvalue_loss(batch)
+        loss_q, meta = self.critic_loss.qvalue_loss(self.critic_batch(batch))
         self.critic_opt.zero_grad(set_to_none=True)
         loss_q.backward()
         self.critic_opt.step()

@@ -53,7 +53,7 @@ class GCSL(Algorithm):
         self.actor_opt.step()
         self.ema_step()
         # 2. the critic ensemble, Eq. 3.2 (next action from the updated policy, no grad)
-        loss_q, meta = self.critic_loss.qvalue_loss(batch)
+        loss_q, meta = self.critic_loss.qvalue_loss(self.critic_batch(batch))
         self.critic_opt.zero_grad(set_to_none=True)
         loss_q.backward()
         self.critic_opt.step()

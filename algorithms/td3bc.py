@@ -47,7 +47,7 @@ class TD3BC(Algorithm):
         return self.actor.module
 
     def update(self, batch):
-        loss_q, meta = self.critic_loss.qvalue_loss(batch)
+        loss_q, meta = self.critic_loss.qvalue_loss(self.critic_batch(batch))
         self.critic_opt.zero_grad(set_to_none=True)
         loss_q.backward()
         self.critic_opt.step()

@@ -248,7 +248,7 @@ class Trainer:
             self._fresh()
         self.sampler = GoalBatchSampler(data, self.algo.normalizer, cfg.batch_size, cfg.relabel_prob, self.generator, device=self.device,
                                         future=C.relabel_future(cfg), mc_gamma=cfg.gamma if cfg.mc_lower_bound else None,
-                                        augment=cfg.augment)
+                                        augment=cfg.augment, critic_random_goal_prob=cfg.critic_random_goal_prob)
         if ckpts:
             set_rng_state(self._pending_rng, self.generator)
 

@@ -146,3 +146,34 @@ def test_buffer_indices_are_dataset_rows():
     b = s.buffer.sample()
     assert torch.equal(b["state"], d.state[b["index"]])
     assert torch.equal(b["episode_end"], d.episode_end[b["index"]])
+
+
+@pytest.mark.parametrize("augment", ["none", "mirror"])
+def test_critic_random_goals_are_a_separate_batch(augment):
+    """OGBench's value_p_randomgoal: the critics' goals are random achieved goals with
+    probability p; the actor's batch is what it would be without the option."""
+    d = load_dataset(straight_columns(n_eps=6, length=40, seed=3))
+    norm = fit_normalizer(d, 0.5)
+
+    def sampler(p):
+        return GoalBatchSampler(d, norm, batch_size=8192, delta=0.3, generator=torch.Generator().manual_seed(4),
+                                mc_gamma=0.99, augment=augment, critic_random_goal_prob=p)
+
+    plain, both = sampler(0.0).sample(), sampler(0.4).sample()
+    assert "critic" not in plain.keys()
+    if augment == "none":  # the critics' draws come after the actor's: same actor batch
+        assert torch.equal(plain["observation"], both["observation"]) and torch.equal(plain["goal"], both["goal"])
+    c = both["critic"]
+    assert torch.equal(c["state"], both["state"]) and torch.equal(c["action"], both["action"])
+    changed = (c["goal"] != both["goal"]).any(-1)
+    assert abs(changed.float().mean().item() - 0.4) < 0.03  # a random frame's own goal may coincide, rarely
+    # every critic goal is the actor's or an achieved goal of the (mirrored) data
+    r_expect = task.goal_reached(task.achieved_goal(c["next_state"]), c["goal"])
+    assert torch.equal(c["next", "reward"].squeeze(-1), r_expect.float())
+    o, rel = task.policy_inputs(c["state"], c["goal"])
+    assert torch.allclose(c["observation"], (torch.cat([o, rel], -1) - norm.in_mean) / norm.in_std)
+    # the data's observed return for a random goal is only its immediate reward
+    lb = c["mc_lower_bound"].squeeze(-1)
+    assert torch.equal(lb[changed], c["next", "reward"].squeeze(-1)[changed])
+    same = lb[~changed] == both["mc_lower_bound"].squeeze(-1)[~changed]  # (a random draw of the same goal: its reward)
+    assert (same | (lb[~changed] == c["next", "reward"].squeeze(-1)[~changed])).all() and same.float().mean() > 0.95

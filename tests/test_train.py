@@ -40,7 +40,8 @@ def _same(a, b):
 
 
 @pytest.mark.parametrize("algo,extra", [(a, {}) for a in ALGORITHMS]
-                         + [(a, {"ema_decay": 0.9, "mc_lower_bound": True, "amp": "bf16"}) for a in ALGORITHMS])
+                         + [(a, {"ema_decay": 0.9, "mc_lower_bound": True, "amp": "bf16"}) for a in ALGORITHMS]
+                         + [(a, {"critic_random_goal_prob": 0.3}) for a in ("gcsl", "td3bc")])
 def test_resume_gives_same_weights(algo, extra, data, tmp_path):
     """Also with the EMA policy, Monte-Carlo-bounded targets and bf16 autocast."""
     torch.set_num_threads(1)
