@@ -46,6 +46,8 @@ def _eval_parser() -> ArgumentParser:
     ap.add_argument("--horizon", type=int, default=d.horizon, help=f"ood: steps per episode, every planner [{d.horizon}]")
     ap.add_argument("--leg-horizon", type=int, default=d.leg_horizon,
                     help="ood: step budget to reach an intermediate goal [horizon / (intermediate goals + 1)]")
+    ap.add_argument("--min-leg", type=float, default=d.min_leg,
+                    help=f"planner: skip candidates closer than this (m) to the start as first goal [{d.min_leg:g}: none skipped]")
     ap.add_argument("--waypoint-tol", type=float, default=d.waypoint_tol,
                     help=f"an intermediate goal is reached with the goal tolerances x this (2.5: near success) [{d.waypoint_tol}]")
     ap.add_argument("--dataset", default=None, help="the run's dataset at another path (identity is checked)")
@@ -65,7 +67,7 @@ def cmd_eval(a) -> int:
     torch.set_num_threads(max(1, a.threads))
     opt = EvalOptions(task=a.task, episodes=a.episodes, checkpoints=a.checkpoints, planner=a.planner, waypoints=a.waypoints,
                       beam=a.beam, alpha=a.alpha, candidates=a.candidates, replan=not a.no_replan, replan_every=a.replan_every,
-                      horizon=a.horizon, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
+                      horizon=a.horizon, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, min_leg=a.min_leg, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
                       progress=not a.no_progress and sys.stderr.isatty())
     s = evaluate_run(a.run, opt)
     print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "

@@ -38,6 +38,7 @@ class EvalOptions:
     horizon: int = 1000  # ood: total steps of every variant (none | single | multi), = 2 legs of 500
     leg_horizon: int = 0  # ood: step budget of an intermediate leg (0: horizon // (intermediate goals + 1))
     waypoint_tol: float = 1.0  # an intermediate goal counts as reached with the tolerances x this
+    min_leg: float = 0.0  # planner: candidates closer than this (m) to the start are not chosen first (0: all)
     seed: int = 0
     device: str = "cpu"
     record: bool = True  # keep trajectories of the newest checkpoint (for plots)
@@ -50,7 +51,8 @@ class EvalOptions:
         return self.task if self.task != "ood" else f"ood-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") \
             + (f"-replan{self.replan_every}" if self.replan_every and self.planner != "none" else "") \
             + (f"-tol{self.waypoint_tol:g}" if self.waypoint_tol != 1.0 and self.planner != "none" else "") \
-            + (f"-a{self.alpha:g}" if self.alpha != 1.0 and self.planner != "none" else "")
+            + (f"-a{self.alpha:g}" if self.alpha != 1.0 and self.planner != "none" else "") \
+            + (f"-minleg{self.min_leg:g}" if self.min_leg > 0 and self.planner != "none" else "")
 
 
 def load_policy(ckpt_path, device="cpu"):
@@ -123,7 +125,7 @@ def make_planner(algo, data, opt: EvalOptions):
         return None, 0
     cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
     n = 1 if opt.planner == "single" else opt.waypoints
-    return Planner(algo, cand, n=n, alpha=opt.alpha, beam=opt.beam), n
+    return Planner(algo, cand, n=n, alpha=opt.alpha, beam=opt.beam, min_leg=opt.min_leg), n
 
 
 def check_options(opt: EvalOptions) -> None:
@@ -139,6 +141,8 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError(f"empty goal set: --episodes must be >= 1, got {opt.episodes}")
     if opt.planner == "multi" and opt.waypoints < 2:
         raise UserError(f"--planner multi needs --waypoints >= 2, got {opt.waypoints}")
+    if not opt.min_leg >= 0:
+        raise UserError(f"--min-leg must be >= 0 m, got {opt.min_leg}")
     if opt.horizon < 1 or opt.leg_horizon < 0 or opt.beam < 1 or opt.candidates < 0 or opt.replan_every < 0:
         raise UserError("--horizon and --beam must be >= 1, --leg-horizon, --candidates and --replan-every >= 0")
 

@@ -23,6 +23,11 @@ shape (m, M), evaluated in chunks of ``chunk`` rows in one batched pass).
   a goal (then that leg costs nothing and is flown in one step), so "n goals" means
   "at most n distinct ones". ``beam >= C`` makes the search exhaustive.
 
+``min_leg > 0`` drops the candidates within that distance of an episode's start from its
+first choice: a goal the vehicle already sits at is no intermediate goal, yet Eq. 3.7
+favours it whenever the critics value flying straight to G above any real detour
+(``Q(s0 -> s0) ~ 1``, so such a plan scores as the straight flight).
+
 The variance is the population variance over the ``m`` critics (``var_j``). Candidates:
 the achieved goals of the dataset (``next_state[:, :15]``) with the state in which they
 were achieved (``next_state``, 18) as ``s_g``; ``max_candidates`` draws a seeded subset
@@ -110,14 +115,18 @@ class Planner:
     """Eq. 3.7 (``n = 1``) / Eq. 3.6 by beam search (``n > 1``) over :class:`Candidates`."""
 
     def __init__(self, algo, candidates: Candidates, *, n: int = 1, alpha: float = DEFAULT_ALPHA, beam: int = 8,
-                 chunk: int = DEFAULT_CHUNK):
+                 chunk: int = DEFAULT_CHUNK, min_leg: float = 0.0):
         if len(candidates) == 0:
             raise UserError("the planner's candidate set is empty")
         if n < 1:
             raise UserError(f"the number of intermediate goals must be >= 1, got {n}")
         if beam < 1:
             raise UserError(f"beam width must be >= 1, got {beam}")
+        if not min_leg >= 0:
+            raise UserError(f"the shortest first leg must be >= 0 m, got {min_leg}")
         self.algo, self.cand, self.n, self.alpha, self.beam, self.chunk = algo, candidates, int(n), float(alpha), int(beam), int(chunk)
+        # candidates closer than this to the start are no intermediate goals (0: every candidate)
+        self.min_leg = float(min_leg)
         dev = next(algo.parameters()).device
         self.device = dev
         self.cg = candidates.goals.to(dev)
@@ -147,6 +156,9 @@ class Planner:
         # depth 1 (Eq. 3.7 when n = 1): prod (m, E, C), var sum (E, C)
         prod, vsum = A, A.var(0, unbiased=False)
         score = (prod * B).mean(0) - a * (vsum + varB)
+        if self.min_leg > 0:
+            near = torch.cdist(s0[:, task.POS], self.cg[:, task.POS]) < self.min_leg  # (E, C)
+            score = score.masked_fill(near, -torch.inf)
         if n == 1:
             best = score.argmax(1)
             ar = torch.arange(E, device=self.device)

@@ -14,7 +14,14 @@
    single-goal planner (Eq. 3.7) and with 2 planned goals (Eq. 3.6, beam search,
    re-planning) for GCSL, and ``aerohrl eval oracle`` (what any single-goal planner could
    reach with that policy);
-4. ``aerohrl eval table`` -> ``OUT/tables.md`` + CSV, trajectory plots and learning
+   An evaluation whose summary already covers the run's newest checkpoints with the
+   same episodes is kept (``--reevaluate`` redoes them all);
+4. the planner experiment (``--continuations N``, default 5000; 0 skips it): ``datagen
+   build --goals N --continuations N`` (rest-start flights plus continuation episodes,
+   datagen/README), GCSL with the cpu preset on it for ``--continuation-steps`` with
+   ``--critic-random-goal-prob`` (run ``gcsl-cpu-cont``), trained beside the others and
+   evaluated like GCSL (OOD with every planner, oracle);
+5. ``aerohrl eval table`` -> ``OUT/tables.md`` + CSV, trajectory plots and learning
    curves under ``OUT/``, and the tables with the wall time of every stage written into
    ``README`` between the lines ``<!-- results:begin -->`` and ``<!-- results:end -->``
    (when those markers exist; ``OUT/results.md`` always).
@@ -37,6 +44,7 @@ from aerohrl.errors import UserError, run_cli
 PROG = "aerohrl.eval.reproduce"
 ALGOS = ("gcsl", "td3bc", "td3awbc", "cql")
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
+CONT_RANDOM_GOAL = 0.3  # the planner experiment's --critic-random-goal-prob (eval/README.md)
 
 
 def _run(cmd: list[str], log) -> str:
@@ -74,6 +82,26 @@ def _run_parallel(cmds: list[tuple[str, list[str]]], log, jobs: int) -> dict[str
     return {name: out[name] for name, _ in cmds}
 
 
+def _evaluated(rd: Path, name: str, episodes: int, checkpoints: int) -> bool:
+    """Does ``rd/eval/name/summary.json`` already cover the run's newest ``checkpoints``
+    checkpoints with ``episodes`` episodes each (and postdate them)?"""
+    import json
+
+    from aerohrl.algorithms.trainer import checkpoint_paths
+
+    f = rd / "eval" / name / "summary.json"
+    ckpts = checkpoint_paths(rd)[-checkpoints:]
+    if not f.exists() or not ckpts:
+        return False
+    try:
+        s = json.loads(f.read_text())
+    except (OSError, ValueError):
+        return False
+    done = [c.get("checkpoint") for c in s.get("checkpoints", [])]
+    return (s.get("episodes") == episodes and done == [c.name for c in ckpts]
+            and f.stat().st_mtime > max(c.stat().st_mtime for c in ckpts))
+
+
 def update_readme(readme: Path, block: str) -> bool:
     if not readme.exists():
         return False
@@ -102,6 +130,12 @@ def main(argv=None) -> int:
     ap.add_argument("--oracle-candidates", type=int, default=150, help="candidates of the planner oracle [150]")
     ap.add_argument("--jobs", type=int, default=2, help="training runs at a time, one thread each [2 = the 2 cores]")
     ap.add_argument("--planner-algos", nargs="+", default=["gcsl"], help="runs evaluated on OOD with the planners [gcsl]")
+    ap.add_argument("--continuations", type=int, default=5000,
+                    help="planner experiment: goals and continuation episodes of its dataset (0: skip it) [5000]")
+    ap.add_argument("--continuation-steps", type=int, default=60000, help="planner experiment: GCSL steps [60000]")
+    ap.add_argument("--critic-random-goal-prob", type=float, default=CONT_RANDOM_GOAL,
+                    help=f"planner experiment: the critics' random-goal probability [{CONT_RANDOM_GOAL}]")
+    ap.add_argument("--reevaluate", action="store_true", help="redo evaluations whose results are up to date")
     a = ap.parse_args(argv)
 
     def go() -> int:
@@ -120,51 +154,71 @@ def main(argv=None) -> int:
         with open(out / "reproduce.log", "a") as log:
             log.write(f"=== {datetime.now(timezone.utc).isoformat(timespec='seconds')} {' '.join(sys.argv)}\n")
             t0 = time.perf_counter()
-            ds = _run([py, "-m", "aerohrl.datagen.cli", "build", "--goals", "250", "--seed", "0", "--out", a.datasets, "--quiet"],
-                      log).strip().splitlines()[-1].strip()
-            times["dataset"] = time.perf_counter() - t0
-            runs, cmds = [], []
+            build = [py, "-m", "aerohrl.datagen.cli", "build", "--seed", "0", "--out", a.datasets, "--quiet"]
+            ds = _run(build + ["--goals", "250"], log).strip().splitlines()[-1].strip()
+            if a.continuations:
+                n = str(a.continuations)
+                ds_cont = _run(build + ["--goals", n, "--continuations", n], log).strip().splitlines()[-1].strip()
+            times["datasets"] = time.perf_counter() - t0
+
+            def train(rd: Path, flags: list[str], steps) -> list[str]:
+                if (rd / "config.json").exists():
+                    return [py, "-m", "aerohrl.algorithms.cli", "--resume", str(rd), "--no-progress"] \
+                        + (["--steps", str(steps)] if steps else [])
+                return [py, "-m", "aerohrl.algorithms.cli", *flags, "--preset", "cpu", "--out", a.runs, "--name", rd.name,
+                        "--no-progress"] + (["--steps", str(steps)] if steps else [])
+
+            runs, cmds = [], []  # (run dir, algorithm, label)
             for algo in a.algos:
                 rd = Path(a.runs) / f"{algo}-cpu"
-                if (rd / "config.json").exists():
-                    cmd = [py, "-m", "aerohrl.algorithms.cli", "--resume", str(rd), "--no-progress"]
-                    if a.steps:
-                        cmd += ["--steps", str(a.steps)]
-                else:
-                    cmd = [py, "-m", "aerohrl.algorithms.cli", "--algo", algo, "--dataset", ds, "--preset", "cpu", "--out", a.runs,
-                           "--name", rd.name, "--no-progress", "--checkpoint-every", str(ckpt_every)] \
-                        + (["--steps", str(a.steps)] if a.steps else [])
-                cmds.append((f"train {algo}", cmd))
-                runs.append(rd)
+                cmds.append((f"train {algo}", train(rd, ["--algo", algo, "--dataset", ds, "--checkpoint-every", str(ckpt_every)],
+                                                    a.steps)))
+                runs.append((rd, algo, algo))
+            if a.continuations:
+                rd = Path(a.runs) / "gcsl-cpu-cont"
+                c_steps = a.steps or a.continuation_steps
+                cmds.append(("train gcsl-cont", train(rd, ["--algo", "gcsl", "--dataset", ds_cont, "--checkpoint-every",
+                                                          str(max(1, c_steps // 30)), "--critic-random-goal-prob",
+                                                          str(a.critic_random_goal_prob)], c_steps)))
+                runs.append((rd, "gcsl", "gcsl-cont"))
             times.update(_run_parallel(cmds, log, a.jobs))
             ev = [py, "-m", "aerohrl.eval.cli"]
             oracles = []
             common = ["--episodes", str(a.episodes), "--checkpoints", str(a.checkpoints), "--no-progress"]
-            for rd, algo in zip(runs, a.algos):
+
+            def evaluate(rd: Path, name: str, flags: list[str]) -> None:
+                if a.reevaluate or not _evaluated(rd, name, a.episodes, a.checkpoints):
+                    _run(ev + flags + ["--run", str(rd)] + common, log)
+
+            for rd, algo, label in runs:
                 t0 = time.perf_counter()
                 for t in ("reach-desired", "reach-intermediate", "reach-novel"):
-                    _run(ev + ["--task", t, "--run", str(rd)] + common, log)
+                    evaluate(rd, t, ["--task", t])
                 if algo in a.planner_algos:
-                    for pl in (["none"], ["single"], ["multi", "--waypoints", "2"]):
-                        _run(ev + ["--task", "ood", "--run", str(rd), "--planner"] + pl + common, log)
+                    for name, pl in (("none", ["none"]), ("single", ["single"]), ("multi2", ["multi", "--waypoints", "2"])):
+                        evaluate(rd, f"ood-{name}", ["--task", "ood", "--planner"] + pl)
                     rep = _run(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
                                      str(a.oracle_candidates), "--no-progress"], log)
-                    oracles.append(f"Oracle of the single-goal planner for {algo} (`aerohrl eval oracle --run {rd} --goals "
+                    oracles.append(f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
                                    f"{a.oracle_goals} --candidates {a.oracle_candidates}`, eval/oracle.py):\n\n```\n"
                                    + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:")) + "\n```\n")
-                    _run(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{algo}.png")], log)
-                _run(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{algo}.png")], log)
-                times[f"eval {algo}"] = time.perf_counter() - t0
-            _run(ev + ["plot", "--curves", *map(str, runs), "-o", str(out / "learning-curves.png")], log)
-            tables = _run(ev + ["table", *map(str, runs), "-o", str(out / "tables")], log)
+                    _run(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")], log)
+                _run(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log)
+                times[f"eval {label}"] = time.perf_counter() - t0
+            dirs = [str(rd) for rd, _, _ in runs]
+            _run(ev + ["plot", "--curves", *dirs, "-o", str(out / "learning-curves.png")], log)
+            tables = _run(ev + ["table", *dirs, "-o", str(out / "tables")], log)
         total = time.perf_counter() - t_all
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         wall = ", ".join(f"{k} {v / 60:.1f} min" for k, v in times.items())
         # the runs' own step rates: true training times also when this invocation resumed runs
         from aerohrl.algorithms.runs import summary
 
-        trained = ", ".join(f"{algo} {summary(rd)['training_s'] / 60:.1f} min" for rd, algo in zip(runs, a.algos))
-        block = (f"Reproduced by `make results` on {stamp} (dataset `{ds}`, cpu preset"
+        trained = ", ".join(f"{label} {summary(rd)['training_s'] / 60:.1f} min" for rd, _, label in runs)
+        block = (f"Reproduced by `make results` on {stamp} (dataset `{ds}`"
+                 + (f"; planner experiment `gcsl-cpu-cont` on `{ds_cont}`, {a.steps or a.continuation_steps} steps, "
+                    f"critic random-goal probability {a.critic_random_goal_prob}" if a.continuations else "")
+                 + "; cpu preset"
                  + (f", {a.steps} training steps" if a.steps else "") + f", {a.episodes} episodes x last {a.checkpoints} checkpoints)"
                  f"; wall time {total / 60:.1f} min ({wall}); gradient steps of each run ({a.jobs} at a time, one thread "
                  f"each): {trained}.\n\n" + tables + "".join("\n" + o for o in oracles))

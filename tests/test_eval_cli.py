@@ -134,10 +134,35 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text("<!-- results:begin -->\n<!-- results:end -->\n")
     p = subprocess.run([sys.executable, "-m", "aerohrl.eval.reproduce", "--steps", "60", "--episodes", "6", "--checkpoints", "2",
-                        "--algos", "gcsl", "td3bc", "--oracle-goals", "3", "--oracle-candidates", "8", "--datasets", str(tmp_path / "ds"), "--runs", str(tmp_path / "runs"),
+                        "--algos", "gcsl", "td3bc", "--continuations", "20", "--oracle-goals", "3", "--oracle-candidates", "8", "--datasets", str(tmp_path / "ds"), "--runs", str(tmp_path / "runs"),
                         "--out", str(tmp_path / "res"), "--readme", str(readme)], capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     text = readme.read_text()
     assert "Table 3.1 analogue" in text and "Table 3.2 analogue" in text and "wall time" in text and "TD3-BC" in text
     assert "Oracle of the single-goal planner for gcsl" in text and "Reach-Novel" in text
     assert (tmp_path / "res" / "tables-t31.csv").exists() and (tmp_path / "res" / "ood-gcsl.png").exists()
+    assert "Oracle of the single-goal planner for gcsl-cont" in text and "runs/gcsl-cpu-cont" in text
+    assert (tmp_path / "res" / "ood-gcsl-cont.png").exists()
+
+
+def test_make_results_keeps_evaluations_that_cover_the_newest_checkpoints(tmp_path):
+    import json
+    import os
+
+    from aerohrl.eval.reproduce import _evaluated
+
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    for step in (10, 20, 30):
+        (run / "checkpoints" / f"step-{step:09d}.pt").write_bytes(b"x")
+    f = run / "eval" / "reach-desired" / "summary.json"
+    f.parent.mkdir(parents=True)
+    f.write_text(json.dumps({"episodes": 6, "checkpoints": [{"checkpoint": f"step-{s:09d}.pt"} for s in (20, 30)]}))
+    assert _evaluated(run, "reach-desired", 6, 2)
+    assert not _evaluated(run, "reach-desired", 250, 2)  # other episodes
+    assert not _evaluated(run, "reach-desired", 6, 3)  # other checkpoints
+    assert not _evaluated(run, "reach-novel", 6, 2)  # never evaluated
+    (run / "checkpoints" / "step-000000040.pt").write_bytes(b"x")  # trained on since
+    assert not _evaluated(run, "reach-desired", 6, 2)
+    os.utime(f, (1, 1))
+    assert not _evaluated(run, "reach-desired", 6, 2)

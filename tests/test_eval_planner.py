@@ -66,6 +66,29 @@ def test_single_goal_is_eq_3_7_argmax(alpha):
     assert np.allclose(plan.direct_score, D.mean(0) - alpha * D.var(0), atol=1e-5)
 
 
+@pytest.mark.parametrize("n", [1, 2])
+def test_min_leg_excludes_candidates_at_the_start(n):
+    rng = np.random.default_rng(5)
+    algo, cand = FakeAlgo(), _cands(rng, 60)
+    cand.goals[:5, :3] = cand.states[:5, :3] = torch.as_tensor(rng.uniform(-0.05, 0.05, (5, 3)), dtype=torch.float32)
+    s0 = hover_states(6)
+    s0[3:, :3] = rng.uniform(-1, 1, (3, 3))
+    G = hover_states(6)[:, :15]
+    G[:, :3] = rng.uniform(2, 3.5, (6, 3))
+    free = Planner(algo, cand, n=n, alpha=0.0).plan(s0, G)
+    cut = Planner(algo, cand, n=n, alpha=0.0, min_leg=1.0).plan(s0, G)
+    d = np.linalg.norm(cand.goals[:, :3].double().numpy()[cut.index[:, 0]] - s0[:, :3], axis=1)
+    assert (d >= 1.0).all()
+    assert (np.linalg.norm(cand.goals[:, :3].double().numpy()[free.index[:, 0]] - s0[:, :3], axis=1) < 1.0).any()
+    if n == 1:  # otherwise Eq. 3.7 over the rest
+        cp = cand.goals[:, :3].double().numpy()
+        A, B = _q(s0[:, None, :3], cp[None]), _q(cp[None], G[:, None, :3])
+        score = np.where(np.linalg.norm(cp[None] - s0[:, None, :3], axis=-1) < 1.0, -np.inf, (A * B).mean(0))
+        assert np.array_equal(cut.index[:, 0], score.argmax(1))
+    with pytest.raises(Exception, match="shortest first leg"):
+        Planner(algo, cand, min_leg=-1.0)
+
+
 def test_variance_penalty_changes_the_choice():
     rng = np.random.default_rng(1)
     algo, cand = FakeAlgo(), _cands(rng, 60)
