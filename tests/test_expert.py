@@ -134,8 +134,8 @@ def test_expert_success_on_seeded_goals():
 
     spec = DatasetSpec(goals=250, seed=0)
     rng = np.random.default_rng(spec.seed)
-    goals, T, coeffs, _ = build.plan_references(spec, rng)
-    states, actions, length = build.rollout_expert(spec, goals, T, coeffs, progress=False)
+    goals, T, coeffs, _, _ = build.plan_references(spec, rng)
+    states, actions, length, _ = build.rollout_expert(spec, goals, T, coeffs, progress=False)
     from aerohrl.datagen.goals import goal_vectors
 
     gv = goal_vectors(goals)
