@@ -163,6 +163,50 @@ def _algo_of(run_dir) -> str:
         return Path(run_dir).name
 
 
+def _episode_success(path: Path) -> np.ndarray:
+    import csv
+
+    with open(path, newline="") as f:
+        rows = csv.reader(f)
+        col = next(rows).index("success")
+        return np.array([r[col] in ("1", "True", "true") for r in rows], bool)
+
+
+def paired_vs_none(run_dir, name: str) -> dict | None:
+    """OOD planner ``name`` against flying straight (``ood-none``) on the same goals and
+    checkpoints: per-checkpoint success difference (mean, standard error over
+    checkpoints), the episodes only one of them succeeds in, and the exact two-sided
+    sign test on those (McNemar). None when the two share no checkpoint."""
+    from scipy.stats import binomtest
+
+    d = Path(run_dir) / "eval"
+    diffs, only_planner, only_none = [], 0, 0
+    for f in sorted((d / name).glob("episodes-step-*.csv")):
+        g = d / "ood-none" / f.name
+        if not g.exists():
+            continue
+        a, b = _episode_success(f), _episode_success(g)
+        if len(a) != len(b):
+            continue
+        diffs.append(a.mean() - b.mean())
+        only_planner += int((a & ~b).sum())
+        only_none += int((b & ~a).sum())
+    if not diffs:
+        return None
+    n = only_planner + only_none
+    x = np.array(diffs)
+    return {"diff": float(x.mean()), "se": float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan"),
+            "only_planner": only_planner, "only_none": only_none,
+            "p": float(binomtest(only_planner, n).pvalue) if n else 1.0, "checkpoints": len(x)}
+
+
+def _paired_cell(pv: dict | None) -> str:
+    if pv is None:
+        return "—"
+    return (f"{100 * pv['diff']:+.1f} ± {100 * pv['se']:.1f} (episodes {pv['only_planner']} : {pv['only_none']}, "
+            f"p = {pv['p']:.2f})")
+
+
 def tables(run_dirs) -> dict:
     """Table 3.1 / 3.2 analogues from the runs' evaluation summaries.
 
@@ -192,12 +236,14 @@ def tables(run_dirs) -> dict:
             th2 = THESIS_T32.get(s["planner"]) if algo == "gcsl" and name in ("ood-none", "ood-single") else None
             t32.append([ALGO_NAMES.get(algo, algo), str(rd), name[4:], _pm(s["success_mean"], s["success_std"]),
                         _pm(s["near_success_mean"], s["near_success_std"]),
-                        f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—", f"{len(s['checkpoints'])} x {s['episodes']}"])
+                        f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—", f"{len(s['checkpoints'])} x {s['episodes']}",
+                        _paired_cell(paired_vs_none(rd, name)) if name != "ood-none" else "—"])
     if not t31 and not t32:
         raise UserError("none of the runs has evaluation results (run `aerohrl eval --task ... --run RUN` first)")
     h31 = ["algorithm", "run", "Reach-Desired success %", "near %", "thesis %", "ckpts x episodes",
            "Reach-Intermediate success %", "near %", "thesis %", "ckpts x episodes", "Reach-Novel % (diagnostic)"]
-    h32 = ["algorithm", "run", "planner", "success %", "near success %", "thesis success %", "thesis near %", "ckpts x episodes"]
+    h32 = ["algorithm", "run", "planner", "success %", "near success %", "thesis success %", "thesis near %", "ckpts x episodes",
+           "success vs none, paired: points ± s.e. (episodes won only by planner : only by none, sign test)"]
     return {"t31": (h31, t31), "t32": (h32, t32)}
 
 
@@ -213,7 +259,8 @@ def tables_markdown(t: dict) -> str:
         out += ["**Table 3.1 analogue** (success %, mean ± std over the evaluated checkpoints; near = near success, mean; "
                 "thesis values beside: last 10 checkpoints x 250 episodes)\n", markdown(*t["t31"])]
     if t["t32"][1]:
-        out += ["**Table 3.2 analogue** (OOD goals; mean ± std over checkpoints; thesis values for GCSL)\n", markdown(*t["t32"])]
+        out += ["**Table 3.2 analogue** (OOD goals; mean ± std over checkpoints; thesis values for GCSL; the last column "
+                "compares each planner with flying straight on the same goals and checkpoints)\n", markdown(*t["t32"])]
     return "\n".join(out)
 
 

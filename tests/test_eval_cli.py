@@ -166,3 +166,28 @@ def test_make_results_keeps_evaluations_that_cover_the_newest_checkpoints(tmp_pa
     assert not _evaluated(run, "reach-desired", 6, 2)
     os.utime(f, (1, 1))
     assert not _evaluated(run, "reach-desired", 6, 2)
+
+
+def test_planner_is_compared_with_flying_straight_pairwise(tmp_path):
+    from aerohrl.eval.results import paired_vs_none
+
+    run = tmp_path / "run"
+    rng = np.random.default_rng(0)
+    won = {"planner": 0, "none": 0}
+    diffs = []
+    for step in (10, 20, 30):
+        a, b = rng.random(200) < 0.3, rng.random(200) < 0.1
+        won["planner"] += int((a & ~b).sum())
+        won["none"] += int((b & ~a).sum())
+        diffs.append(a.mean() - b.mean())
+        for name, s in (("ood-single", a), ("ood-none", b)):
+            d = run / "eval" / name
+            d.mkdir(parents=True, exist_ok=True)
+            (d / f"episodes-step-{step:09d}.csv").write_text(
+                "episode,success,near_success\n" + "".join(f"{i},{int(x)},1\n" for i, x in enumerate(s)))
+    (run / "eval" / "ood-single" / "episodes-step-000000040.csv").write_text("episode,success\n0,1\n")  # no partner
+    pv = paired_vs_none(run, "ood-single")
+    assert pv["checkpoints"] == 3 and pv["only_planner"] == won["planner"] and pv["only_none"] == won["none"]
+    assert np.isclose(pv["diff"], np.mean(diffs)) and np.isclose(pv["se"], np.std(diffs, ddof=1) / np.sqrt(3))
+    assert pv["p"] < 1e-6  # 30% against 10% on 600 paired episodes
+    assert paired_vs_none(run, "ood-multi2") is None
