@@ -250,21 +250,18 @@ class GoalBatchSampler:
                 cextra["mc_lower_bound"] = torch.where(coin.unsqueeze(-1), creward.unsqueeze(-1), extra["mc_lower_bound"])
             critic = (cgoal, creward, cdone, cextra)
         action = b.get("action")
-        m = None
         if self.augment == "mirror":
             from aerohrl.algorithms.augment import draw_reflections, mirror_action, mirror_goal, mirror_state
 
             m = draw_reflections(state.shape[0], self.generator)
             state, next_state, goal = mirror_state(state, m), mirror_state(next_state, m), mirror_goal(goal, m)
             action = mirror_action(action, m)
+            if critic is not None:
+                critic = (mirror_goal(critic[0], m), *critic[1:])
         td = self._batch(state, action, next_state, goal, reward, done, extra,
                          {"index": index, "relabelled": relabelled})
         if critic is not None:
             cgoal, creward, cdone, cextra = critic
-            if m is not None:
-                from aerohrl.algorithms.augment import mirror_goal
-
-                cgoal = mirror_goal(cgoal, m)
             td.set("critic", self._batch(state, action, next_state, cgoal, creward, cdone, cextra, {}))
         return td
 

@@ -276,7 +276,7 @@ def episode_table(data: ExpertData) -> pa.Table:
         "final_vel_error_mps": pa.array(dv),
         "final_rot_error_rad": pa.array(dr),
     }
-    if (data.source_episode >= 0).any():  # continuation episodes only (default datasets keep their bytes)
+    if data.source_episode is not None and (data.source_episode >= 0).any():  # continuation episodes only (default datasets keep their bytes)
         cols["start_source_episode"] = pa.array(data.source_episode)
         cols["start_source_frame"] = pa.array(data.source_frame)
     return pa.table(cols)
