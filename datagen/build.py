@@ -35,7 +35,7 @@ from aerohrl import __version__ as AEROHRL_VERSION
 from aerohrl import task
 from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
-from aerohrl.datagen import reference
+from aerohrl.datagen import recipes, reference
 from aerohrl.datagen.expert import GeometricController
 from aerohrl.datagen.lerobot_format import write_dataset
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
@@ -64,6 +64,8 @@ class ExpertData:
     resampled: int = 0
     source_episode: np.ndarray | None = None  # (N,) continuation: the rest-start episode its start is taken from (-1: rest start)
     source_frame: np.ndarray | None = None  # (N,) and the frame within it (-1: rest start)
+    action_expert: np.ndarray | None = None  # (F,4) the clean expert command at each flown state (action noise)
+    goal_index: np.ndarray | None = None  # (N,) the desired goal each episode flies (rollouts_per_goal > 1)
     timings: dict = field(default_factory=dict)
 
     @property
@@ -125,15 +127,31 @@ def plan_references(spec: DatasetSpec, rng: np.random.Generator, n: int | None =
     return g, T, coeffs, resampled, src
 
 
+@dataclass
+class Rollout:
+    """One batch of expert flights (:func:`rollout_expert`); arrays time-major."""
+
+    states: np.ndarray  # (kmax + 1, N, 18)
+    actions: np.ndarray  # (kmax, N, 4): what was flown
+    length: np.ndarray  # (N,) recorded steps per episode
+    rotors: np.ndarray | None = None  # (kmax + 1, N, 4) with record_rotors
+    expert_actions: np.ndarray | None = None  # (kmax, N, 4): the clean command, with action noise
+
+
 def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool = True,
-                   start_state=None, rotor_speeds=None, record_rotors: bool = False):
+                   start_state=None, rotor_speeds=None, record_rotors: bool = False,
+                   noise_rng: np.random.Generator | None = None) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
 
     Episode i records steps k = 0 .. ceil(T_i * fps) - 1: state s_k, action a_k and
     next state s_{k+1}. After its own end an episode keeps flying (it is simply not
     recorded) so the batch stays rectangular. ``start_state`` / ``rotor_speeds`` (N, 18) /
-    (N, 4) replace hover at the origin; ``record_rotors`` also returns the rotor speeds
-    at every step (kmax + 1, N, 4), else None.
+    (N, 4) replace hover at the origin; ``record_rotors`` also keeps the rotor speeds at
+    every step. The spec's recipe applies (datagen/recipes.py): with ``spec.expert ==
+    "replan"`` the references are re-planned from the flown state (shrinking horizon);
+    with action noise (``noise_rng`` required) the vehicle flies the expert's command plus
+    Ornstein-Uhlenbeck noise, clipped to the expert's action box, and ``expert_actions``
+    holds the clean command at every flown state.
     """
     params = get_preset(spec.vehicle)
     n = len(T)
@@ -142,27 +160,104 @@ def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.nda
     kmax = int(length.max())
     sim = BatchedQuadrotor(params, n, dt=dt, substeps=spec.substeps)
     ctrl = GeometricController(params)
-    states = np.empty((kmax + 1, n, task.STATE_DIM))
-    actions = np.empty((kmax, n, task.ACTION_DIM))
-    rotors = np.empty((kmax + 1, n, 4)) if record_rotors else None
+    out = Rollout(np.empty((kmax + 1, n, task.STATE_DIM)), np.empty((kmax, n, task.ACTION_DIM)), length,
+                  np.empty((kmax + 1, n, 4)) if record_rotors else None)
+    states, actions = out.states, out.actions
+    noise = None
+    if spec.noisy:
+        if noise_rng is None:
+            raise ValueError("a spec with action noise needs noise_rng")
+        noise = recipes.OUNoise(spec.action_noise, spec.noise_tau, dt, n, noise_rng)
+        out.expert_actions = np.empty_like(actions)
+        lo, hi = ctrl.action_box
+    replanning = spec.expert == "replan"
+    if replanning:
+        coeffs = coeffs.copy()
+        t0 = np.zeros(n)  # start time of each episode's current plan
+        xf = np.stack([goals["pos"], goals["vel"], goals["acc"]], axis=-1)
+    else:
+        t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
     for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=not progress, leave=False):
         if record_rotors:
-            rotors[k] = sim.rotor_speeds
+            out.rotors[k] = sim.rotor_speeds
         t = np.minimum(k * dt, T)
-        ref = [reference.evaluate(coeffs, t, order=o) for o in range(4)]
-        actions[k] = ctrl(states[k], *ref, yaw=0.0)
-        states[k + 1] = sim.step(actions[k])
+        if replanning and k > 0 and k % spec.replan_every == 0:
+            recipes.replan(coeffs, t0, T - k * dt > spec.replan_endgame + 1e-9, k * dt, states[k], xf, T)
+        ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
+        a = ctrl(states[k], *ref, yaw=0.0)
+        if noise is not None:
+            out.expert_actions[k] = a
+            a = np.clip(a + noise(), lo, hi)
+        actions[k] = a
+        states[k + 1] = sim.step(a)
     if record_rotors:
-        rotors[kmax] = sim.rotor_speeds
-    return states, actions, length, rotors
+        out.rotors[kmax] = sim.rotor_speeds
+    return out
 
 
-def _recorded(states: np.ndarray, actions: np.ndarray, length: np.ndarray):
-    """(episode, step) of every recorded frame, episode-major, and its state, action, next state."""
-    kmax = states.shape[0] - 1
-    ep, k = np.nonzero(np.arange(kmax)[None, :] < length[:, None])
-    return ep, k, states[k, ep], actions[k, ep], states[k + 1, ep]
+# Episodes flown per batch: bounds the rollout's (steps, N, 18) buffers (~0.5 GB at 8192).
+# Every flight's result depends on its own inputs only, and the noise streams are drawn
+# per block, so the bytes are a function of the spec and this constant.
+ROLLOUT_BLOCK = 8192
+NOISE_STREAM = 11  # seed stream of the action noise: [spec.seed, 11, part, block]
+START_STREAM = 13  # seed stream of the perturbed start states: [spec.seed, 13]
+MIN_EXPERT_SUCCESS = 0.4  # below this a recipe demonstrates failing more than reaching: refused
+
+
+@dataclass
+class _Frames:
+    """Recorded frames of a set of episodes, episode-major (filled block by block)."""
+
+    ep: np.ndarray
+    k: np.ndarray
+    state: np.ndarray
+    action: np.ndarray
+    next_state: np.ndarray
+    expert_action: np.ndarray | None
+    rotors: np.ndarray | None  # rotor speeds at each recorded state (record_rotors)
+    success: np.ndarray  # (F,) the goal-reached test at the next state
+
+
+def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
+        start_state=None, rotor_speeds=None, record_rotors: bool = False) -> _Frames:
+    """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes, recorded frames
+    written into arrays allocated once (their size is known from T): memory stays bounded
+    by the frames plus one block's buffers. ``part`` separates the noise streams of the
+    goal episodes (0) and the continuations (1)."""
+    n = len(T)
+    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
+    F = int(length.sum())
+    first = np.concatenate([[0], np.cumsum(length)[:-1]])
+    ep = np.repeat(np.arange(n), length)
+    k = np.arange(F) - np.repeat(first, length)
+    fr = _Frames(ep, k, np.empty((F, task.STATE_DIM)), np.empty((F, task.ACTION_DIM)), np.empty((F, task.STATE_DIM)),
+                 np.empty((F, task.ACTION_DIM)) if spec.noisy else None, np.empty((F, 4)) if record_rotors else None,
+                 np.empty(F, bool))
+    goal_vec = goals_mod.goal_vectors(goals)
+    # ceil(n / ROLLOUT_BLOCK) blocks of equal size (+-1): no tiny remainder block (NumPy's
+    # kernels for a batch of 1 round differently in the last bits)
+    bounds = np.linspace(0, n, -(-n // ROLLOUT_BLOCK) + 1).round().astype(np.int64)
+    for b in tqdm(range(len(bounds) - 1), desc="expert blocks", unit="block", disable=not progress or len(bounds) < 3,
+                  leave=False):
+        lo, hi = int(bounds[b]), int(bounds[b + 1])
+        sl = slice(lo, hi)
+        rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, b]) if spec.noisy else None
+        r = rollout_expert(spec, {key: v[sl] for key, v in goals.items()}, T[sl], coeffs[sl], progress,
+                           None if start_state is None else start_state[sl],
+                           None if rotor_speeds is None else rotor_speeds[sl], record_rotors, rng)
+        f0, f1 = first[lo], first[hi - 1] + length[hi - 1]
+        e, kk = ep[f0:f1] - lo, k[f0:f1]
+        fr.state[f0:f1] = r.states[kk, e]
+        fr.action[f0:f1] = r.actions[kk, e]
+        fr.next_state[f0:f1] = r.states[kk + 1, e]
+        fr.success[f0:f1] = task.goal_reached(task.achieved_goal(fr.next_state[f0:f1]), goal_vec[lo:hi][e])
+        if fr.expert_action is not None:
+            fr.expert_action[f0:f1] = r.expert_actions[kk, e]
+        if fr.rotors is not None:
+            fr.rotors[f0:f1] = r.rotors[kk, e]
+        del r
+    return fr
 
 
 def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.ndarray, ep: np.ndarray, k: np.ndarray,
@@ -188,40 +283,83 @@ def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.n
     return plan_references(spec, rng, spec.continuations, sample_starts)
 
 
+def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray):
+    """The goal episodes of the recipe: each goal flown ``rollouts_per_goal`` times
+    (goal-major), from rest or from perturbed starts. Returns (goals, T, coeffs,
+    start_state or None, goal_index). A perturbed start whose reference to its goal is
+    infeasible within ``t_max`` is redrawn (the goal stays: every recipe of one seed flies
+    the same goals)."""
+    reps = spec.rollouts_per_goal
+    goal_index = np.repeat(np.arange(len(T)), reps)
+    if reps > 1:
+        goals = {key: v[goal_index] for key, v in goals.items()}
+        T, coeffs = T[goal_index], coeffs[goal_index]
+    if spec.start_states == "rest":
+        return goals, T, coeffs, None, goal_index
+    rng = np.random.default_rng([spec.seed, START_STREAM])
+    xf = np.stack([goals["pos"], goals["vel"], goals["acc"]], axis=-1)
+    m = len(T)
+    start, x0 = recipes.sample_start_states(rng, m, spec.start_vel, spec.start_tilt, spec.start_rate)
+    todo = np.arange(m)
+    T, coeffs = T.copy(), coeffs.copy()
+    for _ in range(20):
+        T2, c2, ok = reference.min_time(x0[todo], xf[todo], a_max=spec.a_max, t_lo=0.0, t_hi=spec.t_max,
+                                        tol=spec.bisection_tol, solver=spec.solver, degree=spec.degree)
+        T[todo[ok]], coeffs[todo[ok]] = T2[ok], c2[ok]
+        todo = todo[~ok]
+        if todo.size == 0:
+            return goals, T, coeffs, start, goal_index
+        start[todo], x0[todo] = recipes.sample_start_states(rng, todo.size, spec.start_vel, spec.start_tilt, spec.start_rate)
+    raise UserError(f"{todo.size} goals have no feasible reference from 20 perturbed starts within t_max={spec.t_max} s; "
+                    "lower --start-vel or raise --t-max")
+
+
 def generate(spec: DatasetSpec, progress: bool = True) -> ExpertData:
     """Goals, references and expert rollouts for a spec (nothing written)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(spec.seed)
     goals, T, coeffs, resampled, _ = plan_references(spec, rng)
+    goals, T, coeffs, start, goal_index = episode_starts(spec, goals, T, coeffs)
     t1 = time.perf_counter()
     cont = spec.continuations > 0
-    states, actions, length, rotors = rollout_expert(spec, goals, T, coeffs, progress, record_rotors=cont)
-    ep, k, state, action, next_state = _recorded(states, actions, length)
+    fr = fly(spec, goals, T, coeffs, progress, part=0, start_state=start, record_rotors=cont)
+    ep, k, state, action, next_state, expert_action = fr.ep, fr.k, fr.state, fr.action, fr.next_state, fr.expert_action
+    success = fr.success
+    length = np.bincount(ep, minlength=len(T))
     source_episode = np.full(len(T), -1, np.int64)
     source_frame = np.full(len(T), -1, np.int64)
     if cont:
         # Their own stream: the rest-start episodes are the same with or without them.
         crng = np.random.default_rng([spec.seed, CONTINUATION_STREAM])
         g2, T2, c2, r2, f = plan_continuations(spec, crng, coeffs, ep, k, state)
-        start = state[f].copy()
-        start[:, task.POS] = 0.0
-        s2, a2, l2, _ = rollout_expert(spec, g2, T2, c2, progress, start_state=start, rotor_speeds=rotors[k[f], ep[f]])
-        ep2, k2, st2, ac2, ns2 = _recorded(s2, a2, l2)
+        start2 = state[f].copy()
+        start2[:, task.POS] = 0.0
+        fr2 = fly(spec, g2, T2, c2, progress, part=1, start_state=start2, rotor_speeds=fr.rotors[f])
         n = len(T)
         goals = {key: np.concatenate([goals[key], g2[key]]) for key in goals}
-        T, length, resampled = np.concatenate([T, T2]), np.concatenate([length, l2]), resampled + r2
+        T, resampled = np.concatenate([T, T2]), resampled + r2
+        length = np.concatenate([length, np.bincount(fr2.ep, minlength=len(T2))])
         source_episode = np.concatenate([source_episode, ep[f]])
         source_frame = np.concatenate([source_frame, k[f]])
-        ep, k = np.concatenate([ep, ep2 + n]), np.concatenate([k, k2])
-        state, action, next_state = (np.concatenate(x) for x in ((state, st2), (action, ac2), (next_state, ns2)))
+        goal_index = np.concatenate([goal_index, np.full(len(T2), -1, np.int64)])
+        ep, k = np.concatenate([ep, fr2.ep + n]), np.concatenate([k, fr2.k])
+        state, action, next_state, success = (np.concatenate(x) for x in ((state, fr2.state), (action, fr2.action),
+                                                                          (next_state, fr2.next_state), (success, fr2.success)))
+        if expert_action is not None:
+            expert_action = np.concatenate([expert_action, fr2.expert_action])
+    del fr
     t2 = time.perf_counter()
 
+    rate = float(np.bincount(ep, weights=success, minlength=len(T)).astype(bool).mean())
+    if rate < MIN_EXPERT_SUCCESS:
+        raise UserError(f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
+                        f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges")
     goal_vec = goals_mod.goal_vectors(goals)
-    success = np.asarray(task.goal_reached(task.achieved_goal(next_state), goal_vec[ep]))
     data = ExpertData(
         goals=goals, goal_vec=goal_vec, T=T, length=length, episode_index=ep.astype(np.int64), frame_index=k.astype(np.int64),
         state=state, action=action, next_state=next_state, success=success, resampled=resampled,
-        source_episode=source_episode, source_frame=source_frame,
+        source_episode=source_episode, source_frame=source_frame, action_expert=expert_action,
+        goal_index=goal_index if spec.rollouts_per_goal > 1 else None,
     )
     data.timings = {"references_s": t1 - t0, "rollout_s": t2 - t1, "frames_s": time.perf_counter() - t2}
     return data
@@ -238,12 +376,15 @@ def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
         "next.reward": data.success.astype(np.float32),
         "next.done": last,
         "next.success": data.success.copy(),
+        # action noise only: ``action`` is what was flown, this the clean expert command
+        **({"action.expert": data.action_expert.astype(np.float32)} if data.action_expert is not None else {}),
     }
 
 
 FEATURE_NAMES = {
     "observation.state": task.STATE_NAMES,
     "action": task.ACTION_NAMES,
+    "action.expert": task.ACTION_NAMES,
     "observation.desired_goal": task.GOAL_NAMES,
     "next.observation.state": task.STATE_NAMES,
 }
@@ -279,6 +420,8 @@ def episode_table(data: ExpertData) -> pa.Table:
     if data.source_episode is not None and (data.source_episode >= 0).any():  # continuation episodes only (default datasets keep their bytes)
         cols["start_source_episode"] = pa.array(data.source_episode)
         cols["start_source_frame"] = pa.array(data.source_frame)
+    if data.goal_index is not None:  # rollouts_per_goal > 1: several flights of one goal
+        cols["goal_index"] = pa.array(data.goal_index)
     return pa.table(cols)
 
 
@@ -296,7 +439,8 @@ def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
         "spec_sha256": spec_hash(spec),
         "seed": spec.seed,
         "goal_ranges": {"pos_abs": list(spec.pos_range), "vel": list(spec.vel_range), "acc": list(spec.acc_range), "yaw": 0.0},
-        "start_state": "origin, zero velocity, hover attitude (R = I), zero body rates",
+        "start_state": ("origin, zero velocity, hover attitude (R = I), zero body rates" if spec.start_states == "rest"
+                        else "perturbed at the origin (recipe.start_states)"),
         **({"continuations": {
             "episodes": int(spec.continuations),
             "first_episode": int(spec.goals),
@@ -304,6 +448,7 @@ def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
                            "the reference continues that episode's reference from there; goal from rho_D "
                            "(start_source_episode / start_source_frame in meta/aerohrl_episodes.parquet)",
         }} if spec.continuations else {}),
+        **({"recipe": recipe_summary(spec)} if recipe_summary(spec) else {}),
         "vehicle": params.to_dict(),
         "controller": {"name": "Lee/Mellinger geometric controller, CTBR output", "gains": ctrl.gains.to_dict()},
         "goal_tolerance": {"pos_m": task.TOLERANCE.pos, "vel_mps": task.TOLERANCE.vel, "rot_rad": task.TOLERANCE.rot},
@@ -320,9 +465,48 @@ def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
             "next.reward": "1.0 when the next state meets the goal-reached test for the desired goal, else 0.0",
             "next.success": "the goal-reached test at the next state (bool)",
             "next.done": "last recorded step of the episode (reference end T)",
+            **({"action": "CTBR as flown: the expert's command plus the action noise, clipped to the expert's action box",
+                "action.expert": "the clean expert CTBR command at the flown state (what to imitate; DART)"}
+               if spec.noisy else {}),
         },
         "environment": {"python": platform.python_version(), "numpy": np.__version__, "pyarrow": pa.__version__},
     }
+
+
+def recipe_summary(spec: DatasetSpec) -> dict:
+    """The non-default expert-data recipe of a spec, in words and numbers ({} = the thesis's)."""
+    r = {}
+    if spec.expert == "replan":
+        r["expert"] = (f"replan: shrinking-horizon minimum-jerk re-plan from the flown state every {spec.replan_every} steps, "
+                       f"none in the last {spec.replan_endgame} s")
+    if spec.noisy:
+        r["action_noise"] = {"sigma": list(spec.action_noise), "tau_s": spec.noise_tau,
+                             "kind": "Ornstein-Uhlenbeck added to the flown command (DART); action = flown, action.expert = clean"}
+    if spec.start_states == "perturbed":
+        r["start_states"] = {"vel_mps": spec.start_vel, "tilt_rad": spec.start_tilt, "rate_radps": spec.start_rate,
+                             "kind": "origin; v_i, rotation-vector r_i and w_i uniform in +-these bounds"}
+    if spec.rollouts_per_goal > 1:
+        r["rollouts_per_goal"] = spec.rollouts_per_goal
+    return r
+
+
+def _recipe_note(meta: dict) -> str:
+    r = meta.get("recipe")
+    if not r:
+        return ""
+    lines = ["\n## Recipe (beyond the thesis)\n"]
+    if "expert" in r:
+        lines.append(f"- expert: {r['expert']}")
+    if "action_noise" in r:
+        n = r["action_noise"]
+        lines.append(f"- action noise: {n['kind']}; sigma (c, wx, wy, wz) = {n['sigma']}, correlation time {n['tau_s']} s")
+    if "start_states" in r:
+        s = r["start_states"]
+        lines.append(f"- start states: {s['kind']}: |v_i| <= {s['vel_mps']} m/s, |r_i| <= {s['tilt_rad']} rad, "
+                     f"|w_i| <= {s['rate_radps']} rad/s")
+    if "rollouts_per_goal" in r:
+        lines.append(f"- {r['rollouts_per_goal']} flights per goal (goal-major; `goal_index` in meta/aerohrl_episodes.parquet)")
+    return "\n".join(lines) + "\n"
 
 
 def dataset_card(meta: dict) -> str:
@@ -346,7 +530,7 @@ tracked by a Lee/Mellinger geometric controller that outputs CTBR actions, recor
 - expert success rate (goal-reached test: 0.15 m, 0.35 m/s, 0.15 rad): {100 * meta['expert_success_rate']:.1f}%
 - goals resampled for infeasibility: {meta['resampled_goals']}
 - seed: {meta['seed']}; goal ranges: |p_i| in {s['pos_range']} m (random sign), v_i in {s['vel_range']} m/s, a_i in {s['acc_range']} m/s^2
-
+{_recipe_note(meta)}
 ## Load
 ```python
 from lerobot.datasets.lerobot_dataset import LeRobotDataset

@@ -98,6 +98,13 @@ class GeometricController:
         self._c_max = min(g.c_max, params.max_collective)
         self._rate_lim = np.array([g.rate_max, g.rate_max, g.yaw_rate_max])
 
+    @property
+    def action_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(low, high)`` (4,) of the actions this controller emits (its output clip)."""
+        lo = np.concatenate([[self.gains.c_min], -self._rate_lim])
+        hi = np.concatenate([[self._c_max], self._rate_lim])
+        return lo, hi
+
     def desired(self, state, ref_pos, ref_vel, ref_acc, yaw=0.0):
         """``(a_des, e_v)`` (N, 3) each: desired acceleration incl. gravity, and velocity error."""
         s = np.asarray(state, dtype=np.float64)

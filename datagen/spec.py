@@ -24,6 +24,23 @@ from aerohrl.errors import UserError
 GENERATOR_VERSION = "1"
 TASK = "Fly the quadrotor from hover at the origin to the desired goal state (position, velocity, attitude)."
 SOLVERS = ("closed-form", "qp")
+EXPERTS = ("open-loop", "replan")
+START_STATES = ("rest", "perturbed")
+# Recipe fields added after datasets were published: left out of the spec's dict (and so
+# of its hash, version name and metadata bytes) while they hold their defaults.
+RECIPE_DEFAULTS = {
+    "continuations": 0,
+    "expert": "open-loop",
+    "replan_every": 5,
+    "replan_endgame": 0.5,
+    "action_noise": (0.0, 0.0, 0.0, 0.0),
+    "noise_tau": 0.2,
+    "start_states": "rest",
+    "start_vel": 1.0,
+    "start_tilt": 0.3,
+    "start_rate": 1.0,
+    "rollouts_per_goal": 1,
+}
 
 
 @dataclass(frozen=True)
@@ -47,10 +64,34 @@ class DatasetSpec:
     # flies to a fresh goal from rho_D. They show the policy what a planned second leg
     # is (a moving start, a goal relative to it); see datagen/README.md.
     continuations: int = 0
+    # Expert-data recipes (beyond the thesis, off by default; datagen/README.md "Recipes").
+    # The expert: "open-loop" tracks one reference planned at take-off (the thesis);
+    # "replan" re-plans the minimum-jerk reference from the flown state every
+    # ``replan_every`` steps with the take-off plan's end time (a shrinking horizon), and
+    # stops re-planning ``replan_endgame`` seconds before it (the last plan is tracked).
+    expert: str = "open-loop"
+    replan_every: int = 5
+    replan_endgame: float = 0.5
+    # DART (Laskey et al. 2017): Ornstein-Uhlenbeck noise with stationary std
+    # ``action_noise`` per CTBR dimension [c (m/s^2), wx, wy, wz (rad/s)] and correlation
+    # time ``noise_tau`` (s) is added to the expert's command while flying; ``action``
+    # records what was flown, ``action.expert`` the clean command at the flown state.
+    action_noise: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    noise_tau: float = 0.2
+    # Start states: "rest" (hover at the origin, the thesis) or "perturbed": at the
+    # origin with v_i ~ U(-start_vel, start_vel) m/s, an attitude whose rotation vector
+    # has components ~ U(-start_tilt, start_tilt) rad, and w_i ~ U(-start_rate, start_rate) rad/s.
+    start_states: str = "rest"
+    start_vel: float = 1.0
+    start_tilt: float = 0.3
+    start_rate: float = 1.0
+    # Each goal flown this many times (with noise or perturbed starts, each flight differs).
+    rollouts_per_goal: int = 1
 
     def __post_init__(self):
         for f in ("pos_range", "vel_range", "acc_range"):
             object.__setattr__(self, f, tuple(float(x) for x in getattr(self, f)))
+        object.__setattr__(self, "action_noise", _four_floats(self.action_noise))
         self.check()
 
     def check(self) -> None:
@@ -77,24 +118,76 @@ class DatasetSpec:
             raise UserError("--a-max, --t-max and --bisection-tol must be positive")
         if isinstance(self.continuations, bool) or int(self.continuations) != self.continuations or self.continuations < 0:
             raise UserError(f"--continuations must be a non-negative integer, got {self.continuations}")
+        self._check_recipe()
         if self.fps <= 0 or self.substeps <= 0:
             raise UserError("--fps and --substeps must be positive")
         if self.fps * self.substeps < 500:
             raise UserError(f"physics rate fps*substeps = {self.fps * self.substeps} Hz is below the 500 Hz floor")
 
+    def _check_recipe(self) -> None:
+        if self.expert not in EXPERTS:
+            raise UserError(f"unknown --expert {self.expert!r} (choose from {', '.join(EXPERTS)})")
+        if self.start_states not in START_STATES:
+            raise UserError(f"unknown --start-states {self.start_states!r} (choose from {', '.join(START_STATES)})")
+        for f in ("replan_every", "rollouts_per_goal"):
+            v = getattr(self, f)
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise UserError(f"--{f.replace('_', '-')} must be a positive integer, got {v}")
+        if not all(math.isfinite(x) and x >= 0 for x in self.action_noise):
+            raise UserError(f"--action-noise needs 4 finite standard deviations >= 0 (c, wx, wy, wz), got {list(self.action_noise)}")
+        if self.action_noise[0] > 5.0 or max(self.action_noise[1:]) > 3.0:
+            raise UserError(f"--action-noise {list(self.action_noise)} is beyond what the expert flies through "
+                            "(sigma <= 5 m/s^2 on thrust, <= 3 rad/s on rates; at 2 / 1 it reaches 45% of its goals)")
+        if not (math.isfinite(self.noise_tau) and self.noise_tau > 0):
+            raise UserError(f"--noise-tau (the noise's correlation time, s) must be positive, got {self.noise_tau}")
+        if not (math.isfinite(self.replan_endgame) and self.replan_endgame >= 0):
+            raise UserError(f"--replan-endgame must be a non-negative time (s), got {self.replan_endgame}")
+        for f, hi in (("start_vel", 3.0), ("start_tilt", 1.0), ("start_rate", 5.0)):
+            v = getattr(self, f)
+            if not (math.isfinite(v) and 0 <= v <= hi):
+                raise UserError(f"--{f.replace('_', '-')} must be in [0, {hi}] (the expert recovers reliably only "
+                                f"from starts within these bounds), got {v}")
+        if self.rollouts_per_goal > 1 and not (self.noisy or self.start_states == "perturbed"):
+            raise UserError("--rollouts-per-goal > 1 repeats identical flights without --action-noise or "
+                            "--start-states perturbed")
+
+    @property
+    def noisy(self) -> bool:
+        return any(x > 0 for x in self.action_noise)
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
-        for f in ("pos_range", "vel_range", "acc_range"):
+        for f in ("pos_range", "vel_range", "acc_range", "action_noise"):
             d[f] = list(d[f])
-        if not self.continuations:
-            # A field added after datasets were published: left out at its default so
-            # every earlier spec keeps its hash, version name and metadata bytes.
-            del d["continuations"]
+        # Fields added after datasets were published are left out at their defaults, so
+        # every earlier spec keeps its hash, version name and metadata bytes. A recipe's
+        # sub-settings are kept only when the recipe is on.
+        on = {
+            "replan_every": self.expert == "replan", "replan_endgame": self.expert == "replan",
+            "noise_tau": self.noisy,
+            "start_vel": self.start_states == "perturbed", "start_tilt": self.start_states == "perturbed",
+            "start_rate": self.start_states == "perturbed",
+        }
+        for f, default in RECIPE_DEFAULTS.items():
+            if not on.get(f, True) or d[f] == (list(default) if isinstance(default, tuple) else default):
+                del d[f]
         return d
 
     @property
     def dt(self) -> float:
         return 1.0 / self.fps
+
+
+def _four_floats(x) -> tuple[float, float, float, float]:
+    try:
+        t = tuple(float(v) for v in x)
+    except (TypeError, ValueError):
+        raise UserError(f"--action-noise needs 4 numbers (c, wx, wy, wz), got {x!r}") from None
+    if len(t) == 2:  # (thrust, rates): the same sigma on every body rate
+        t = (t[0], t[1], t[1], t[1])
+    if len(t) != 4:
+        raise UserError(f"--action-noise needs 4 numbers (c, wx, wy, wz) or 2 (c, rates), got {list(t)}")
+    return t
 
 
 def load_spec(path: str | Path | None = None, **overrides) -> DatasetSpec:

@@ -135,7 +135,8 @@ def test_expert_success_on_seeded_goals():
     spec = DatasetSpec(goals=250, seed=0)
     rng = np.random.default_rng(spec.seed)
     goals, T, coeffs, _, _ = build.plan_references(spec, rng)
-    states, actions, length, _ = build.rollout_expert(spec, goals, T, coeffs, progress=False)
+    r = build.rollout_expert(spec, goals, T, coeffs, progress=False)
+    states, actions, length = r.states, r.actions, r.length
     from aerohrl.datagen.goals import goal_vectors
 
     gv = goal_vectors(goals)
