@@ -62,6 +62,15 @@ class Algorithm(nn.Module):
         them (``--critic-random-goal-prob``, key ``"critic"``), else the actor's batch."""
         return batch.get("critic") if "critic" in batch.keys() else batch
 
+    @staticmethod
+    def actor_batch(batch):
+        """The batch the policy imitates: the flown ``action`` replaced by the BC target
+        (``"bc_action"``: the clean expert command of a noisy dataset, ``--bc-target
+        expert``) when the sampler provides one. The critics keep the flown action."""
+        if "bc_action" not in batch.keys():
+            return batch
+        return batch.clone(False).set("action", batch.get("bc_action"))
+
     def ema_step(self) -> None:
         """Call after every policy update."""
         if self.policy_ema is not None:

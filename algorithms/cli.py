@@ -27,6 +27,8 @@ HELP = {
     "algo": f"algorithm ({' | '.join(C.ALGORITHMS)})",
     "dataset": "dataset folder (datasets/<name>/<version>)",
     "seed": "random seed",
+    "bc_target": "what GCSL and the BC terms imitate on a noisy (DART) dataset: expert (the clean command, column "
+                 "action.expert) | executed (the flown action); critics always learn from the flown action [expert]",
     "device": "cpu | cuda | cuda:N",
     "steps": "gradient steps",
     "batch_size": "transitions per batch",

@@ -26,6 +26,7 @@ LR_SCHEDULES = ("constant", "cosine")
 AMP_MODES = ("none", "bf16")
 AUGMENTATIONS = ("none", "mirror")  # = augment.AUGMENTATIONS
 RELABEL_OFFSETS = ("uniform", "geometric")  # = relabel.FUTURE_STRATEGIES
+BC_TARGETS = ("expert", "executed")
 
 
 @dataclass
@@ -56,6 +57,11 @@ class TrainConfig:
     # the actor keeps its own goals. 0 = critics and actor share the batch (the thesis).
     critic_random_goal_prob: float = 0.0
     gamma: float = 0.99
+    # What GCSL and every BC term imitate on a dataset flown with action noise (DART):
+    # "expert" the clean command at the flown state (column action.expert), "executed"
+    # the flown action. The critics always learn from the flown action (consistent
+    # transitions). Without an action.expert column both are the dataset's action.
+    bc_target: str = "expert"
     augment: str = "none"  # none | mirror: reflect each transition by one of the vehicle's 4 mirror symmetries (algorithms.augment)
     mc_lower_bound: bool = True  # critic targets max(TD target, discounted return of the data) (MCAC; networks.ClippedTD0Estimator)
     tau: float = 0.005  # soft target update: phi' <- (1 - tau) phi' + tau phi  (beta = 1 - tau in Alg. 2)
@@ -143,6 +149,8 @@ def check(cfg: TrainConfig) -> None:
         raise UserError(f"relabel mean offset must be >= 1 step, got {cfg.relabel_mean_offset}")
     if cfg.lr_schedule not in LR_SCHEDULES:
         raise UserError(f"unknown lr schedule {cfg.lr_schedule!r} (choose from {', '.join(LR_SCHEDULES)})")
+    if cfg.bc_target not in BC_TARGETS:
+        raise UserError(f"unknown bc target {cfg.bc_target!r} (choose from {', '.join(BC_TARGETS)})")
     if cfg.augment not in AUGMENTATIONS:
         raise UserError(f"unknown augmentation {cfg.augment!r} (choose from {', '.join(AUGMENTATIONS)})")
     if cfg.amp not in AMP_MODES:

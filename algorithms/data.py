@@ -43,6 +43,9 @@ class Dataset:
     episode_end: torch.Tensor  # int64 (F,)
     episode_index: torch.Tensor  # int64 (F,)
     info: dict = field(default_factory=dict)  # path, version, checksum, shapes, spec
+    # (F, 4) the clean expert command at each flown state (a dataset flown with action
+    # noise, column "action.expert"); None when ``action`` is the expert's command itself
+    action_expert: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.state.shape[0]
@@ -66,13 +69,21 @@ class Dataset:
         """(E, 15) the desired goal of each episode, in episode order."""
         return self.goal[self.episode_first_frames()]
 
+    def bc_actions(self, bc_target: str = "expert") -> torch.Tensor:
+        """(F, 4) what the policy imitates: the clean expert command when the dataset
+        has one and ``bc_target == "expert"``, else the flown action."""
+        return self.action_expert if bc_target == "expert" and self.action_expert is not None else self.action
+
     def rest_start_episodes(self) -> torch.Tensor:
-        """Indices (episode order) of the episodes that start at the dataset's expert
-        start (SPEC.md: rest in hover at the origin): Reach-Desired's goal set. Every
-        episode but the continuations, which a ``datagen build --continuations M`` dataset
-        appends as its last M episodes (its spec records M)."""
-        m = int((self.info.get("spec") or {}).get("continuations", 0))
-        return torch.arange(self.num_episodes - m)
+        """Indices (episode order) of one episode per desired goal of rho_D: Reach-Desired's
+        goal set (SPEC.md: from rest in hover at the origin). Every episode of a default
+        dataset; of a recipe with ``rollouts_per_goal = k`` every k-th (the flights of a
+        goal are contiguous); never the continuations, which a ``datagen build
+        --continuations M`` dataset appends as its last M episodes (its spec records both)."""
+        spec = self.info.get("spec") or {}
+        m = int(spec.get("continuations", 0))
+        k = int(spec.get("rollouts_per_goal", 1))
+        return torch.arange(0, self.num_episodes - m, k)
 
     def as_tensordict(self) -> TensorDict:
         return TensorDict(
@@ -82,6 +93,7 @@ class Dataset:
                 "goal": self.goal,
                 "next_state": self.next_state,
                 "episode_end": self.episode_end,
+                **({"action_expert": self.action_expert} if self.action_expert is not None else {}),
             },
             batch_size=[len(self)],
         )
@@ -139,7 +151,11 @@ def load_dataset(source) -> Dataset:
         raise UserError("dataset holds fewer than 2 frames")
     if any(len(cols[k]) != F for k in REQUIRED):
         raise UserError("dataset columns have different lengths")
-    for k in ("observation.state", "action", "observation.desired_goal", "next.observation.state"):
+    expert = "action.expert" in cols
+    if expert and np.asarray(cols["action.expert"]).shape != np.asarray(cols["action"]).shape:
+        raise UserError(f"dataset column 'action.expert' has shape {np.asarray(cols['action.expert']).shape}, "
+                        f"expected that of 'action' {np.asarray(cols['action']).shape}")
+    for k in ("observation.state", "action", "observation.desired_goal", "next.observation.state") + (("action.expert",) if expert else ()):
         if not np.isfinite(cols[k]).all():
             raise UserError(f"dataset column {k!r} holds NaN or inf")
     if info["checksum"] is None:
@@ -167,23 +183,23 @@ def load_dataset(source) -> Dataset:
         episode_end=episode_end,
         episode_index=ep,
         info=info,
+        action_expert=f32("action.expert") if expert else None,
     )
 
 
 def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator, device="cpu"):
-    """A torchrl ``TensorDictReplayBuffer`` holding the whole dataset in a
-    ``LazyTensorStorage``, sampling uniformly with replacement (thesis Alg. 2, line 3)."""
-    from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+    """A torchrl ``TensorDictReplayBuffer`` over the whole dataset, sampling uniformly
+    with replacement (thesis Alg. 2, line 3). Its ``TensorStorage`` wraps the dataset's
+    own tensors (no copy: one copy of a multi-GB dataset in memory, not two)."""
+    from torchrl.data import RandomSampler, TensorDictReplayBuffer, TensorStorage
 
-    td = data.as_tensordict()
-    rb = TensorDictReplayBuffer(
-        storage=LazyTensorStorage(len(data), device=device),
+    td = data.as_tensordict().to(device)
+    return TensorDictReplayBuffer(
+        storage=TensorStorage(td, device=device),
         sampler=RandomSampler(),
         batch_size=batch_size,
         generator=generator,
     )
-    rb.extend(td.to(device))
-    return rb
 
 
 __all__ = ["Dataset", "load_dataset", "read_dataset_columns", "make_buffer", "REQUIRED"]
@@ -197,7 +213,7 @@ class GoalBatchSampler:
 
     def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu",
                  future: dict | None = None, mc_gamma: float | None = None, augment: str = "none",
-                 critic_random_goal_prob: float = 0.0):
+                 critic_random_goal_prob: float = 0.0, bc_target: str = "expert"):
         from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
         self._relabel, self._reward_done = relabel_goals, reward_done
@@ -223,6 +239,10 @@ class GoalBatchSampler:
         # value_p_randomgoal), else the actor's goal. The data rarely reaches such a goal,
         # so the critics learn which legs the data supports, which the planner ranks by.
         self.critic_random_goal_prob = float(critic_random_goal_prob)
+        # "expert" on a dataset with action.expert: the batch also carries "bc_action" (the
+        # clean command the policy imitates, Algorithm.actor_batch); "action" stays the
+        # flown one, which the critics learn from
+        self.bc_expert = bc_target == "expert" and data.action_expert is not None
 
     def sample(self) -> TensorDict:
         b = self.buffer.sample()
@@ -250,16 +270,21 @@ class GoalBatchSampler:
                 cextra["mc_lower_bound"] = torch.where(coin.unsqueeze(-1), creward.unsqueeze(-1), extra["mc_lower_bound"])
             critic = (cgoal, creward, cdone, cextra)
         action = b.get("action")
+        bc_action = b.get("action_expert") if self.bc_expert else None
         if self.augment == "mirror":
             from aerohrl.algorithms.augment import draw_reflections, mirror_action, mirror_goal, mirror_state
 
             m = draw_reflections(state.shape[0], self.generator)
             state, next_state, goal = mirror_state(state, m), mirror_state(next_state, m), mirror_goal(goal, m)
             action = mirror_action(action, m)
+            if bc_action is not None:
+                bc_action = mirror_action(bc_action, m)
             if critic is not None:
                 critic = (mirror_goal(critic[0], m), *critic[1:])
-        td = self._batch(state, action, next_state, goal, reward, done, extra,
-                         {"index": index, "relabelled": relabelled})
+        more = {"index": index, "relabelled": relabelled}
+        if bc_action is not None:
+            more["bc_action"] = bc_action
+        td = self._batch(state, action, next_state, goal, reward, done, extra, more)
         if critic is not None:
             cgoal, creward, cdone, cextra = critic
             td.set("critic", self._batch(state, action, next_state, cgoal, creward, cdone, cextra, {}))
@@ -275,6 +300,8 @@ class GoalBatchSampler:
             more = {key: t.to(dev, non_blocking=True) for key, t in more.items()}
         norm = self.normalizer
         n = state.shape[0]
+        if "bc_action" in more:
+            more["bc_action"] = norm.action_to_unit(more["bc_action"])
         return TensorDict(
             {
                 "observation": norm.inputs(state, goal),
@@ -299,21 +326,28 @@ class GoalBatchSampler:
         )
 
 
-def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None):
+def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None, bc_target: str = "expert"):
     """Input statistics over every frame with its desired goal and with a relabelled
     (strictly later achieved, drawn as in training: ``future``) goal, action bounds over
-    every frame."""
+    every frame's BC target (what the policy's [-1, 1] output must span; flown noisy
+    actions beyond it stay valid critic inputs)."""
     from aerohrl.algorithms.networks import Normalizer
     from aerohrl.algorithms.relabel import relabel_goals
 
     g = torch.Generator().manual_seed(seed)
     idx = torch.arange(len(data))
-    later, _ = relabel_goals(data.goal, idx, data.episode_end, data.achieved_goal, 1.0, g, **(future or {}))
+    if len(data) > NORMALIZER_FRAMES:  # large datasets: the statistics of a seeded subset (bounded memory)
+        idx = torch.randperm(len(data), generator=g)[:NORMALIZER_FRAMES].sort().values
+    later, _ = relabel_goals(data.goal[idx], idx, data.episode_end[idx], data.achieved_goal, 1.0, g, **(future or {}))
     norm = Normalizer()
-    o1, r1 = _task_inputs(data.state, data.goal)
-    o2, r2 = _task_inputs(data.state, later)
+    state = data.state[idx]
+    o1, r1 = _task_inputs(state, data.goal[idx])
+    o2, r2 = _task_inputs(state, later)
     x = torch.cat([torch.cat([o1, r1], -1), torch.cat([o2, r2], -1)])
-    return norm.fit(x, data.action)
+    return norm.fit(x, data.bc_actions(bc_target))  # action bounds: every frame (min/max, no copy)
+
+
+NORMALIZER_FRAMES = 4_000_000  # frames the input statistics are fitted on at most
 
 
 def _task_inputs(state, goal):

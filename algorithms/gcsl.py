@@ -47,7 +47,7 @@ class GCSL(Algorithm):
 
     def update(self, batch):
         # 1. behaviour cloning on the (relabelled) goals, Eq. 3.1
-        loss_bc = self.bc_loss(batch)["loss_bc"]
+        loss_bc = self.bc_loss(self.actor_batch(batch))["loss_bc"]
         self.actor_opt.zero_grad(set_to_none=True)
         loss_bc.backward()
         self.actor_opt.step()

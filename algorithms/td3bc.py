@@ -53,7 +53,7 @@ class TD3BC(Algorithm):
         self.critic_opt.step()
         self.num_updates += 1
         if self.num_updates % self.cfg.policy_delay == 0:
-            loss_pi, ameta = self.critic_loss.actor_loss(batch)
+            loss_pi, ameta = self.critic_loss.actor_loss(self.actor_batch(batch))
             self.actor_opt.zero_grad(set_to_none=True)
             loss_pi.backward()
             self.actor_opt.step()

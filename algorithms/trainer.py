@@ -248,7 +248,8 @@ class Trainer:
             self._fresh()
         self.sampler = GoalBatchSampler(data, self.algo.normalizer, cfg.batch_size, cfg.relabel_prob, self.generator, device=self.device,
                                         future=C.relabel_future(cfg), mc_gamma=cfg.gamma if cfg.mc_lower_bound else None,
-                                        augment=cfg.augment, critic_random_goal_prob=cfg.critic_random_goal_prob)
+                                        augment=cfg.augment, critic_random_goal_prob=cfg.critic_random_goal_prob,
+                                        bc_target=cfg.bc_target)
         if ckpts:
             set_rng_state(self._pending_rng, self.generator)
 
@@ -256,7 +257,7 @@ class Trainer:
     def _fresh(self):
         cfg = self.cfg
         self.generator = seed_everything(cfg.seed)
-        norm = fit_normalizer(self.data, cfg.relabel_prob, seed=cfg.seed, future=C.relabel_future(cfg))
+        norm = fit_normalizer(self.data, cfg.relabel_prob, seed=cfg.seed, future=C.relabel_future(cfg), bc_target=cfg.bc_target)
         self.algo = build_algorithm(cfg, norm).to(self.device)
         self.dataset = dataset_identity(self.data)
         atomic_write_json(self.run_dir / "config.json", {"config": C.to_dict(cfg), "dataset": self.dataset,
