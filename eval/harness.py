@@ -38,6 +38,8 @@ class EvalOptions:
     horizon: int = 1000  # ood: total steps of every variant (none | single | multi), = 2 legs of 500
     leg_horizon: int = 0  # ood: step budget of an intermediate leg (0: horizon // (intermediate goals + 1))
     waypoint_tol: float = 1.0  # an intermediate goal counts as reached with the tolerances x this
+    floor: str = "none"  # none | hover | no-goal: a trivial floor instead of the learned policy (eval/floors.py)
+    goal_tol: float = 1.0  # the task goal's tolerances x this (0.5: the precision variant; 1: the thesis's test)
     min_leg: float = 0.0  # planner: candidates closer than this (m) to the start are not chosen first (0: all)
     seed: int = 0
     device: str = "cpu"
@@ -48,11 +50,12 @@ class EvalOptions:
     extra: dict = field(default_factory=dict)
 
     def name(self) -> str:
-        return self.task if self.task != "ood" else f"ood-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") \
+        tol = (f"-goaltol{self.goal_tol:g}" if self.goal_tol != 1.0 else "") + (f"-floor-{self.floor}" if self.floor != "none" else "")
+        return self.task + tol if self.task != "ood" else f"ood-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") \
             + (f"-replan{self.replan_every}" if self.replan_every and self.planner != "none" else "") \
             + (f"-tol{self.waypoint_tol:g}" if self.waypoint_tol != 1.0 and self.planner != "none" else "") \
             + (f"-a{self.alpha:g}" if self.alpha != 1.0 and self.planner != "none" else "") \
-            + (f"-minleg{self.min_leg:g}" if self.min_leg > 0 and self.planner != "none" else "")
+            + (f"-minleg{self.min_leg:g}" if self.min_leg > 0 and self.planner != "none" else "") + tol
 
 
 def load_policy(ckpt_path, device="cpu"):
@@ -141,6 +144,14 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError(f"empty goal set: --episodes must be >= 1, got {opt.episodes}")
     if opt.planner == "multi" and opt.waypoints < 2:
         raise UserError(f"--planner multi needs --waypoints >= 2, got {opt.waypoints}")
+    from aerohrl.eval.floors import FLOORS
+
+    if opt.floor not in FLOORS:
+        raise UserError(f"unknown floor {opt.floor!r} (choose from {', '.join(FLOORS)})")
+    if opt.floor != "none" and opt.planner != "none":
+        raise UserError("--floor replaces the policy; it takes no --planner")
+    if not 0 < opt.goal_tol <= 10:
+        raise UserError(f"--goal-tol must be in (0, 10] (a factor on the goal tolerances), got {opt.goal_tol}")
     if not opt.min_leg >= 0:
         raise UserError(f"--min-leg must be >= 0 m, got {opt.min_leg}")
     if opt.horizon < 1 or opt.leg_horizon < 0 or opt.beam < 1 or opt.candidates < 0 or opt.replan_every < 0:
@@ -164,10 +175,13 @@ def evaluate_run(run_dir, opt: EvalOptions) -> dict:
     from aerohrl.eval import results
     from aerohrl.eval.rollout import rollout
     from aerohrl.algorithms.trainer import resolve_device
+    from aerohrl.eval.floors import wrap as wrap_floor
 
     check_options(opt)
     run_dir = Path(run_dir)
     ckpts = run_checkpoints(run_dir, opt.checkpoints)
+    if opt.floor == "hover":  # the same constant command at every checkpoint: fly it once
+        ckpts = ckpts[-1:]
     device = resolve_device(opt.device)
     data, meta = load_run_dataset(run_dir, opt.dataset)
     episodes = build_episodes(data, opt)
@@ -178,12 +192,13 @@ def evaluate_run(run_dir, opt: EvalOptions) -> dict:
     for i, path in enumerate(bar):
         algo, ck = load_policy(path, device)
         check_checkpoint_dataset(ck, data, path)
+        algo = wrap_floor(algo, opt.floor)
         planner, nw = make_planner(algo, data, opt)
         leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
         record = opt.record and i == len(ckpts) - 1
         t0 = time.perf_counter()
         r = rollout(algo, episodes, planner=planner, n_waypoints=nw, leg_horizon=leg_h, replan=opt.replan,
-                    replan_every=opt.replan_every, waypoint_tol=opt.waypoint_tol, record=record, progress=opt.progress, desc=f"step {ck['step']}",
+                    replan_every=opt.replan_every, waypoint_tol=opt.waypoint_tol, goal_tol=opt.goal_tol, record=record, progress=opt.progress, desc=f"step {ck['step']}",
                     **sim_kwargs(data))
         wall = time.perf_counter() - t0
         results.write_episodes(out_dir, int(ck["step"]), episodes, r)

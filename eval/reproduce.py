@@ -102,16 +102,18 @@ def _evaluated(rd: Path, name: str, episodes: int, checkpoints: int) -> bool:
             and f.stat().st_mtime > max(c.stat().st_mtime for c in ckpts))
 
 
-def update_readme(readme: Path, block: str) -> bool:
+def update_readme(readme: Path, block: str, begin: str = BEGIN, end: str = END) -> bool:
+    """Replace the text between the lines ``begin`` and ``end`` of ``readme`` (atomically);
+    False when the file or a marker is missing."""
     if not readme.exists():
         return False
     text = readme.read_text()
-    if BEGIN not in text or END not in text:
+    if begin not in text or end not in text:
         return False
-    head, rest = text.split(BEGIN, 1)
-    _, tail = rest.split(END, 1)
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
     tmp = readme.with_name(f".{readme.name}.tmp-{os.getpid()}")
-    tmp.write_text(head + BEGIN + "\n" + block.rstrip() + "\n" + END + tail)
+    tmp.write_text(head + begin + "\n" + block.rstrip() + "\n" + end + tail)
     tmp.replace(readme)
     return True
 

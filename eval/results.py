@@ -99,6 +99,9 @@ def write_trajectories(out_dir, step: int, episodes, r: dict) -> Path:
     return path
 
 
+FAR_AHEAD = 10  # Reach-Intermediate goals at least this many steps ahead: "far" (hovering cannot succeed)
+
+
 def kind_rates(episodes, r: dict) -> dict:
     """Success rates per episode kind (reach-intermediate: 'desired' / 'intermediate')."""
     kind = episodes.kind()
@@ -108,6 +111,9 @@ def kind_rates(episodes, r: dict) -> dict:
             m = kind == k
             if m.any():
                 out[f"success_{k}"] = float(r["success"][m].mean())
+        far = episodes.steps_ahead >= FAR_AHEAD  # goals hovering cannot reach (issue 11)
+        if far.any():
+            out["success_intermediate_far"] = float(r["success"][far].mean())
     return out
 
 

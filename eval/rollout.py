@@ -49,12 +49,15 @@ class PolicyFn:
 
 
 def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, leg_horizon: int | None = None,
-            replan: bool = True, replan_every: int = 0, waypoint_tol: float = 1.0, record: bool = False, vehicle: str = "hummingbird",
+            replan: bool = True, replan_every: int = 0, waypoint_tol: float = 1.0, goal_tol: float = 1.0, record: bool = False,
+            vehicle: str = "hummingbird",
             fps: int = 100, substeps: int = 5, progress: bool = False, desc: str = "rollout") -> dict:
     """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
 
     ``planner`` (a :class:`~aerohrl.eval.planner.Planner`) with ``n_waypoints >= 1``
-    plans intermediate goals before take-off (thesis Eq. 3.7 / 3.6). Returns a dict of
+    plans intermediate goals before take-off (thesis Eq. 3.7 / 3.6). ``goal_tol`` scales
+    the tolerances of the task goal's test (success, and near success = x 2.5 of it;
+    0.5 = the precision variant of eval/README.md). Returns a dict of
     (E,)-arrays (success, near_success, first_success_step, first_near_step, steps,
     final_pos_err / final_vel_err / final_rot_err at the episode's last step,
     min_pos_err) plus the plan (``waypoints`` (E, n, 15), ``waypoint_frame``,
@@ -85,6 +88,7 @@ def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, l
         out.update(plan_score=plan.score, direct_score=plan.direct_score, planned_frame=plan.frame.copy(),
                    planned_waypoints=plan.goals.copy())
         wp_frame = plan.frame.copy()
+    tol = task.TOLERANCE.scaled(float(goal_tol))
     leg = np.zeros(E, np.int64)  # index of the goal being flown to (nw = the task goal)
     legs_reached = np.zeros(E, np.int64)  # intermediate goals reached (env terminated, not truncated)
     first_goal = wp[:, 0] if nw else G
@@ -115,8 +119,8 @@ def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, l
                 pos[:, t + 1] = obs["observation"][:, :3]
             dp, dv, dr = task.goal_errors(ag, G)
             min_pos = np.where(active, np.minimum(min_pos, dp), min_pos)
-            hit = task.goal_reached(ag, G) & active
-            nr = task.near_success(ag, G) & active
+            hit = task.goal_reached(ag, G, tol) & active
+            nr = task.near_success(ag, G, tol) & active
             first_success[hit] = t + 1
             first_near[nr & ~near] = t + 1
             success |= hit

@@ -1,0 +1,381 @@
+"""Expert-data recipes, measured: which data makes skills that generalise (eval/README.md "Recipes").
+
+    python -m aerohrl.eval.recipe_study --plan best table size      # build, train, evaluate, write the tables
+    python -m aerohrl.eval.recipe_study --plan best --report-only   # tables from what is there (nothing trained)
+    python -m aerohrl.eval.recipe_study --plan table --steps 200 --goals-scale 0.02 --runs /tmp/r --datasets /tmp/d --out /tmp/o
+                                                                    # a smoke run of the same pipeline
+
+A *row* is (recipe, goals, seed, steps): ``datagen build --goals N <recipe flags>``, then
+GCSL with the cpu preset for ``steps`` gradient steps (checkpoints every steps/30), then
+``aerohrl eval`` on the last K checkpoints x 250 episodes of
+
+* Reach-Desired (the dataset's own goals), Reach-Novel (fresh goals from rho_D: the
+  generalisation test), Reach-Intermediate, OOD flown straight (the thesis's set);
+* the same four at half the goal tolerances (``--goal-tol 0.5``: 0.075 m, 0.175 m/s,
+  0.075 rad), the precision variant;
+
+and the critics' ROC AUC: how well the ensemble's value ``mean_j Q_j(s0, pi(s0, g), g)``
+at take-off ranks the Reach-Novel episodes that succeed above those that fail (newest
+checkpoint). A seed's figure is the mean over its K checkpoints; a recipe's is the mean
+± std over seeds with every seed's value.
+
+Every stage is the real command line in a subprocess with one thread (``--jobs`` rows at
+a time); an existing dataset is verified, an existing run resumed (a finished one left
+alone), an evaluation that covers the run's newest checkpoints kept. Interrupt it at
+will and run it again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from aerohrl.errors import UserError, run_cli
+
+PROG = "aerohrl.eval.recipe_study"
+BEGIN, END = "<!-- recipes:begin -->", "<!-- recipes:end -->"
+
+# The recipes: datagen build flags on top of the default spec (SPEC.md "Expert-data recipes").
+NOISE = ["--action-noise", "1.0", "0.5"]  # sigma: 1.0 m/s^2 thrust, 0.5 rad/s per body rate; tau 0.2 s
+RECIPES: dict[str, list[str]] = {
+    "clean": [],
+    "noise": NOISE,
+    "noise x0.5": ["--action-noise", "0.5", "0.25"],
+    "noise x2": ["--action-noise", "2.0", "1.0"],
+    "replan": ["--expert", "replan"],
+    "replan + noise": ["--expert", "replan", *NOISE],
+    "noise + perturbed starts": [*NOISE, "--start-states", "perturbed"],
+    "noise + 4 flights per goal": [*NOISE, "--rollouts-per-goal", "4"],
+}
+EVALS = [  # (column, aerohrl eval flags)
+    ("reach-desired", ["--task", "reach-desired"]),
+    ("reach-novel", ["--task", "reach-novel"]),
+    ("reach-intermediate", ["--task", "reach-intermediate"]),
+    ("ood", ["--task", "ood", "--planner", "none"]),
+    ("reach-desired-goaltol0.5", ["--task", "reach-desired", "--goal-tol", "0.5"]),
+    ("reach-novel-goaltol0.5", ["--task", "reach-novel", "--goal-tol", "0.5"]),
+    ("reach-intermediate-goaltol0.5", ["--task", "reach-intermediate", "--goal-tol", "0.5"]),
+    ("ood-goaltol0.5", ["--task", "ood", "--planner", "none", "--goal-tol", "0.5"]),
+]
+EVAL_DIR = {"ood": "ood-none", "ood-goaltol0.5": "ood-none-goaltol0.5"}
+FLOORS = ("hover", "no-goal")  # eval/floors.py: flown on the newest checkpoint of every seed-0 run
+FLOOR_COLS = ("reach-desired", "reach-novel", "reach-intermediate", "ood")
+
+
+@dataclass(frozen=True)
+class Row:
+    recipe: str
+    goals: int
+    seed: int
+    steps: int
+
+    @property
+    def name(self) -> str:
+        slug = self.recipe.replace(" + ", "+").replace(" ", "-")
+        return f"{slug}-n{self.goals}-s{self.seed}-{self.steps // 1000}k"
+
+
+# What each plan trains (equal gradient steps within a plan).
+PLANS: dict[str, list[Row]] = {
+    # the recommended recipe, 3 seeds (issue targets: mean over 3 seeds)
+    "best": [Row("noise", 25000, s, 30000) for s in (0, 1, 2)],
+    # the recipe table: every recipe on the same 2,500 goals, 15k steps
+    "table": [Row(r, 2500, 0, 15000) for r in RECIPES],
+    # data efficiency: Reach-Novel against dataset size at equal steps
+    "size": [Row("noise", n, 0, 15000) for n in (250, 1000, 10000, 25000, 100000)] + [Row("clean", 10000, 0, 15000)],
+    # seeds for the leading table rows
+    "seeds": [Row(r, 2500, s, 15000) for r in ("noise", "replan + noise") for s in (1, 2)],
+}
+CHECKPOINTS = {"best": 10}  # last K checkpoints evaluated (others: 3)
+
+
+def _run(cmd: list[str], log) -> str:
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    log.write("+ " + " ".join(cmd) + "\n" + p.stdout + "\n")
+    log.flush()
+    if p.returncode != 0:
+        tail = p.stdout.strip().splitlines()[-1:] or ["(no output)"]
+        raise UserError(f"`{' '.join(cmd[:5])} ...` failed (exit {p.returncode}): {tail[0]}")
+    return p.stdout
+
+
+def dataset_for(py: str, recipe: str, goals: int, root: str, log) -> str:
+    """Build (or verify) the dataset of ``recipe`` with ``goals`` goals; its path."""
+    if recipe not in RECIPES:
+        raise UserError(f"unknown recipe {recipe!r} (choose from {', '.join(RECIPES)})")
+    flags = list(RECIPES[recipe])
+    if "--rollouts-per-goal" in flags:  # equal flights: k flights of goals / k goals
+        k = int(flags[flags.index("--rollouts-per-goal") + 1])
+        goals = max(1, goals // k)
+    out = _run([py, "-m", "aerohrl.datagen.cli", "build", "--goals", str(goals), "--seed", "0", "--out", root, "--quiet",
+                *flags], log)
+    return out.strip().splitlines()[-1].strip()
+
+
+def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log) -> Path:
+    """Train (or resume) the row's run, then every evaluation not yet up to date."""
+    from aerohrl.eval.reproduce import _evaluated
+
+    rd = runs / row.name
+    train = [py, "-m", "aerohrl.algorithms.cli"]
+    if (rd / "config.json").exists():
+        _run(train + ["--resume", str(rd), "--no-progress", "--steps", str(row.steps)], log)
+    else:
+        _run(train + ["--algo", "gcsl", "--preset", "cpu", "--dataset", ds, "--seed", str(row.seed), "--steps", str(row.steps),
+                      "--checkpoint-every", str(max(1, row.steps // 30)), "--out", str(runs), "--name", row.name,
+                      "--no-progress"], log)
+    todo = [(EVAL_DIR.get(col, col), flags, k) for col, flags in EVALS]
+    if row.seed == 0:
+        todo += [(f"{EVAL_DIR.get(col, col)}-floor-{f}", flags + ["--floor", f], 1)
+                 for f in FLOORS for col, flags in EVALS if col in FLOOR_COLS]
+    for name, flags, kk in todo:
+        if not _evaluated(rd, name, 250, kk):
+            _run([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", "250", "--checkpoints", str(kk),
+                  "--no-progress"], log)
+    return rd
+
+
+def critics_auc(rd: Path) -> float:
+    """ROC AUC of the critics' take-off value for Reach-Novel success (newest checkpoint)."""
+    import csv
+    from types import SimpleNamespace
+
+    import torch
+
+    from aerohrl.algorithms.trainer import read_json
+    from aerohrl.eval.harness import load_policy, run_checkpoints
+    from aerohrl.eval.oracle import roc_auc
+    from aerohrl.eval.tasks import reach_novel
+
+    ck = run_checkpoints(rd, 1)[-1]
+    f = rd / "eval" / "reach-novel" / f"episodes-{ck.stem}.csv"
+    if not f.exists():
+        return float("nan")
+    with open(f) as fh:
+        success = np.array([int(r["success"]) for r in csv.DictReader(fh)], bool)
+    spec = read_json(rd / "config.json").get("dataset", {}).get("spec", {})
+    eps = reach_novel(SimpleNamespace(info={"spec": spec}), len(success), 0)
+    algo, _ = load_policy(ck)
+    s = torch.as_tensor(eps.start_states, dtype=torch.float32)
+    g = torch.as_tensor(eps.goals, dtype=torch.float32)
+    v = algo.critics(s, g, algo.act(s, g)).mean(0).numpy()
+    return roc_auc(v, success)
+
+
+def row_figures(rd: Path, suffix: str = "") -> dict:
+    """Per evaluation column: (mean over the evaluated checkpoints, std over them, count) in %;
+    ``suffix`` "-floor-hover" / "-floor-no-goal" reads a floor's evaluations instead."""
+    out = {}
+    for col, _ in EVALS:
+        f = rd / "eval" / (EVAL_DIR.get(col, col) + suffix) / "summary.json"
+        if f.exists():
+            s = json.loads(f.read_text())
+            rates = [100 * c["success"] for c in s["checkpoints"]]
+            out[col] = (float(np.mean(rates)), float(np.std(rates)), len(rates))
+    return out
+
+
+def bootstrap_ci(values, n: int = 10_000, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of the mean over seeds (nan below 2 seeds)."""
+    v = np.asarray(values, float)
+    if len(v) < 2:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    means = v[rng.integers(0, len(v), size=(n, len(v)))].mean(1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def aggregate(rows: list[Row], runs: Path) -> list[dict]:
+    """One record per (recipe, goals, steps): per-seed figures, mean ± std over seeds."""
+    groups: dict[tuple, list[Row]] = {}
+    for r in rows:
+        groups.setdefault((r.recipe, r.goals, r.steps), []).append(r)
+    out = []
+    for (recipe, goals, steps), rs in groups.items():
+        per_seed = {}
+        for r in sorted(rs, key=lambda r: r.seed):
+            rd = runs / r.name
+            fig = row_figures(rd) if rd.is_dir() else {}
+            if "reach-novel" in fig:
+                fig["auc"] = (critics_auc(rd), 0.0, 1)
+                per_seed[r.seed] = fig
+        if not per_seed:
+            continue
+        rec = {"recipe": recipe, "goals": goals, "steps": steps, "seeds": sorted(per_seed), "cols": {},
+               "floors": {}}
+        rd0 = runs / rs[0].name
+        for fl in FLOORS:
+            ff = row_figures(rd0, f"-floor-{fl}") if rd0.is_dir() else {}
+            if ff:
+                rec["floors"][fl] = {col: v[0] for col, v in ff.items()}
+        for col in [c for c, _ in EVALS] + ["auc"]:
+            vals = [per_seed[s][col][0] for s in rec["seeds"] if col in per_seed[s]]
+            if vals:
+                rec["cols"][col] = {"mean": float(np.mean(vals)), "std": float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0,
+                                    "values": vals, "ci95": bootstrap_ci(vals),
+                                    "ckpts": per_seed[rec["seeds"][0]][col][2]}
+        out.append(rec)
+    return out
+
+
+def _cell(c: dict | None, digits: int = 1) -> str:
+    if not c:
+        return "—"
+    if len(c["values"]) == 1:
+        return f"{c['mean']:.{digits}f}"
+    vals = "/".join(f"{v:.{digits}f}" for v in c["values"])
+    return f"{c['mean']:.{digits}f} ± {c['std']:.{digits}f} ({vals})"
+
+
+def _flights(recipe: str, goals: int) -> str:
+    flags = RECIPES.get(recipe, [])
+    if "--rollouts-per-goal" in flags:
+        k = int(flags[flags.index("--rollouts-per-goal") + 1])
+        return f"{goals // k:,} x {k}"
+    return f"{goals:,}"
+
+
+def table(recs: list[dict]) -> str:
+    head = ("| recipe | flights (goals) | steps | seeds | Reach-Desired (own goals) | Reach-Novel | Reach-Intermediate | OOD straight | "
+            "critics' AUC (Reach-Novel) | RD @ half tol | RN @ half tol | RI @ half tol | OOD @ half tol |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    lines = []
+    for r in recs:
+        c = r["cols"]
+        auc = c.get("auc")
+        auc_s = "—" if not auc or any(math.isnan(v) for v in auc["values"]) else _cell(auc, 3)
+        lines.append(f"| {r['recipe']} | {_flights(r['recipe'], r['goals'])} | {r['steps'] // 1000}k | {len(r['seeds'])} | "
+                     + " | ".join(_cell(c.get(k)) for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
+                     + f" | {auc_s} | "
+                     + " | ".join(_cell(c.get(k)) for k in ("reach-desired-goaltol0.5", "reach-novel-goaltol0.5",
+                                                             "reach-intermediate-goaltol0.5", "ood-goaltol0.5")) + " |")
+    floors = [(r, fl, v) for r in recs[:1] for fl, v in r["floors"].items()]
+    for r, fl, v in floors:  # one set of floors per table: on the first row's data and policy
+        what = "hover: constant [g, 0, 0, 0]" if fl == "hover" else f"no goal: the {r['recipe']} policy, goal inputs at their mean"
+        lines.append(f"| *floor, {what}* | {_flights(r['recipe'], r['goals'])} | | | "
+                     + " | ".join(f"{v[k]:.1f}" if k in v else "—" for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
+                     + " | | | | | |")
+    return head + "\n".join(lines) + "\n"
+
+
+def plot_size(recs: list[dict], path: Path) -> Path | None:
+    """Reach-Novel (and own goals, OOD) against dataset size, per recipe (log x)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    by = {}
+    for r in recs:
+        if r["steps"] == 15000 and r["recipe"] in ("noise", "clean") and "reach-novel" in r["cols"]:
+            by.setdefault(r["recipe"], []).append(r)
+    if not by:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for recipe, rs in sorted(by.items()):
+        rs.sort(key=lambda r: r["goals"])
+        x = [r["goals"] for r in rs]
+        for col, style, label in (("reach-novel", "-o", "Reach-Novel"), ("reach-novel-goaltol0.5", ":o", "Reach-Novel @ half tol"),
+                                  ("ood", "--s", "OOD straight")):
+            y = [r["cols"].get(col, {}).get("mean", np.nan) for r in rs]
+            ax.plot(x, y, style, label=f"{recipe}: {label}", alpha=0.9 if recipe == "noise" else 0.5)
+    ax.axhline(95, color="grey", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_xlabel("goals in the dataset (one flight each)")
+    ax.set_ylabel("success % (GCSL, cpu preset, 15k steps)")
+    ax.set_ylim(0, 101)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title("Generalisation against dataset size")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog=PROG, description="Build recipe datasets, train GCSL on each, evaluate, write the recipe table.")
+    ap.add_argument("--plan", nargs="+", default=["best", "table", "size", "seeds"], choices=list(PLANS),
+                    help="which rows to train and report [all]")
+    ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
+    ap.add_argument("--runs", default="runs/recipes", help="runs root [runs/recipes]")
+    ap.add_argument("--out", default="results/recipes", help="tables and plots [results/recipes]")
+    ap.add_argument("--readme", default="eval/README.md", help="README to write the table into (between the markers)")
+    ap.add_argument("--jobs", type=int, default=2, help="rows at a time, one thread each [2]")
+    ap.add_argument("--steps", type=int, default=None, help="override every row's steps (smoke runs)")
+    ap.add_argument("--goals-scale", type=float, default=1.0, help="multiply every row's goal count (smoke runs) [1]")
+    ap.add_argument("--report-only", action="store_true", help="write the tables from existing runs; train nothing")
+    a = ap.parse_args(argv)
+
+    def go() -> int:
+        import concurrent.futures as cf
+        import io
+
+        if a.jobs < 1 or a.goals_scale <= 0 or (a.steps is not None and a.steps < 1):
+            raise UserError("--jobs and --steps must be >= 1, --goals-scale > 0")
+        py = sys.executable
+        out, runs = Path(a.out), Path(a.runs)
+        out.mkdir(parents=True, exist_ok=True)
+        plan_rows = {p: [Row(r.recipe, max(1, int(r.goals * a.goals_scale)), r.seed, a.steps or r.steps) for r in PLANS[p]]
+                     for p in a.plan}
+        t0 = time.perf_counter()
+        with open(out / "study.log", "a") as log:
+            log.write(f"=== {datetime.now(timezone.utc).isoformat(timespec='seconds')} {' '.join(sys.argv)}\n")
+            if not a.report_only:
+                todo = [(r, CHECKPOINTS.get(p, 3)) for p, rs in plan_rows.items() for r in rs]
+                datasets = {}
+                for r, _ in todo:  # sequential: seconds each, and the runs need them all
+                    key = (r.recipe, r.goals)
+                    if key not in datasets:
+                        datasets[key] = dataset_for(py, r.recipe, r.goals, a.datasets, log)
+
+                def one(item):
+                    r, k = item
+                    buf = io.StringIO()
+                    s = time.perf_counter()
+                    run_row(py, r, datasets[(r.recipe, r.goals)], runs, k, buf)
+                    return r, time.perf_counter() - s, buf.getvalue()
+
+                with cf.ThreadPoolExecutor(max_workers=a.jobs) as ex:
+                    for r, dt, text in ex.map(one, todo):
+                        log.write(text)
+                        log.flush()
+                        print(f"{r.name}: {dt / 60:.1f} min", flush=True)
+        sections = []
+        all_recs = {}
+        for p, rs in plan_rows.items():
+            recs = aggregate(rs, runs)
+            all_recs[p] = recs
+            sections.append(f"**{p}** ({len(rs)} runs: GCSL, cpu preset; last {CHECKPOINTS.get(p, 3)} checkpoints x 250 "
+                            f"episodes per task; success %, mean ± std over seeds (per-seed values))\n\n" + table(recs))
+        pooled = [r for recs in all_recs.values() for r in recs]
+        fig = plot_size(pooled, out / "reach_novel_vs_size.png")
+        stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        block = (f"Written by `python -m aerohrl.eval.recipe_study --plan {' '.join(a.plan)}` on {stamp}"
+                 + (f" (steps overridden: {a.steps})" if a.steps else "") + (f" (goals x {a.goals_scale})" if a.goals_scale != 1 else "")
+                 + ".\n\n" + "\n".join(sections) + (f"\nPlot: `{fig}`.\n" if fig else ""))
+        (out / "recipes.md").write_text(block)
+        (out / "recipes.json").write_text(json.dumps(all_recs, indent=1))
+        from aerohrl.eval.reproduce import update_readme
+
+        where = a.readme if update_readme(Path(a.readme), block, BEGIN, END) else f"{out / 'recipes.md'}"
+        print(f"recipe tables written to {where} ({(time.perf_counter() - t0) / 60:.1f} min)")
+        return 0
+
+    return run_cli(PROG, go)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
