@@ -39,6 +39,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from aerohrl import atomic
 from aerohrl.errors import UserError, run_cli
 
 PROG = "aerohrl.eval.reproduce"
@@ -110,9 +111,7 @@ def update_readme(readme: Path, block: str) -> bool:
         return False
     head, rest = text.split(BEGIN, 1)
     _, tail = rest.split(END, 1)
-    tmp = readme.with_name(f".{readme.name}.tmp-{os.getpid()}")
-    tmp.write_text(head + BEGIN + "\n" + block.rstrip() + "\n" + END + tail)
-    tmp.replace(readme)
+    atomic.write_text(readme, head + BEGIN + "\n" + block.rstrip() + "\n" + END + tail)
     return True
 
 
