@@ -12,6 +12,7 @@ import torch
 from aerohrl.algorithms.config import make_config
 from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
 from aerohrl.algorithms.trainer import start_run
+from aerohrl.atomic import torch_save
 from aerohrl.cli import main
 
 warnings.filterwarnings("ignore", category=UserWarning)
@@ -34,7 +35,10 @@ def setup(tmp_path_factory):
 
 
 def _err(capsys, argv):
-    code = main(argv)
+    try:
+        code = main(argv)
+    except SystemExit as e:  # a usage error found while parsing (aerohrl.cli_types): one line, exit 2
+        code = e.code
     err = capsys.readouterr().err.strip()
     return code, err
 
@@ -93,7 +97,7 @@ def test_bad_input_is_one_line(setup, capsys, case):
         "no-ckpt": (["eval", "--task", "reach-desired", "--run", empty], "has no checkpoints"),
         "no-run": (["eval", "--task", "reach-desired", "--run", run + "-missing"], "no run at"),
         "mismatch": (["eval", "--task", "reach-desired", "--run", run, "--dataset", str(setup["other"])], "does not belong"),
-        "empty-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "0"], "empty goal set"),
+        "empty-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "0"], "--episodes: must be >= 1"),
         "planner-task": (["eval", "--task", "reach-desired", "--run", run, "--planner", "single"], "ood only"),
         "no-evals": (["eval", "table", empty], "none of the runs has evaluation results"),
     }[case]
@@ -108,7 +112,7 @@ def test_checkpoint_from_another_dataset_is_refused(setup, tmp_path, capsys):
     shutil.copytree(setup["run"], run)
     ck = torch.load(run / "checkpoints" / "step-000000040.pt", weights_only=False)
     ck["dataset"]["checksum"] = "0" * 64
-    torch.save(ck, run / "checkpoints" / "step-000000040.pt")
+    torch_save(run / "checkpoints" / "step-000000040.pt", ck)  # a checkpoint written so, its SHA-256 beside it
     code, err = _err(capsys, ["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2"])
     assert code == 2 and "do not belong together" in err and "step-000000040.pt" in err
 

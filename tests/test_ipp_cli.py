@@ -37,7 +37,8 @@ def test_bench_and_show(tmp_path, capsys):
     (["bench", "--budget", "10"], "budget"),
     (["bench", "--budget", "nan"], "budget"),
     (["bench", "--map-size", "4"], "too small"),
-    (["bench", "--map-size", "0"], "map size"),
+    (["bench", "--map-size", "0"], "--map-size: must be >= 1"),
+    (["bench", "--seed", "-1"], "--seed: must be >= 0"),
     (["bench", "--envs", "0"], "--envs"),
     (["bench", "--depth", "7", "--envs", "1"], "depth"),
     (["bench", "--lattice", "MISSING.npz"], "not found"),
@@ -47,7 +48,7 @@ def test_bench_and_show(tmp_path, capsys):
     (["train", "--preset", "gpu-cluster"], "unknown preset"),
     (["train", "--preset", "test", "--iterations", "-1"], "--iterations"),
     (["lattice", "build"], "required"),
-    (["lattice", "build", "-o", "x.npz", "--vertices", "0"], "n_vertices"),
+    (["lattice", "build", "-o", "x.npz", "--vertices", "0"], "--vertices: must be >= 1"),
 ])
 def test_bad_input_one_line_error(argv, msg, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
