@@ -89,7 +89,8 @@ def test_intermediate_ood_planners_table_and_plots(setup, capsys, tmp_path):
     assert all((tmp_path / f).stat().st_size > 1000 for f in ("ood.png", "rd.png", "c.png"))
 
 
-@pytest.mark.parametrize("case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals"])
+@pytest.mark.parametrize("case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals",
+                                  "more-than-goals", "bad-seed"])
 def test_bad_input_is_one_line(setup, capsys, case):
     run, empty = str(setup["run"]), str(setup["empty"])
     argv, match = {
@@ -100,6 +101,9 @@ def test_bad_input_is_one_line(setup, capsys, case):
         "empty-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "0"], "--episodes: must be >= 1"),
         "planner-task": (["eval", "--task", "reach-desired", "--run", run, "--planner", "single"], "ood only"),
         "no-evals": (["eval", "table", empty], "none of the runs has evaluation results"),
+        "more-than-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "5"],
+                            "--episodes 5 exceeds the 4 desired goals of dataset"),
+        "bad-seed": (["eval", "--task", "ood", "--run", run, "--seed", "-1"], "--seed: must be >= 0"),
     }[case]
     code, err = _err(capsys, argv)
     assert code == 2 and err.startswith("aerohrl eval: error: ") and match in err and "\n" not in err
