@@ -29,7 +29,7 @@ def _bounded(kind: type, low, strict: bool, name: str) -> Callable[[str], int | 
     def parse(text: str):
         v = _number(kind, text)
         if v < low or (strict and v == low):
-            raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {low}, got {text}")
+            raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {low:g}, got {text}")
         return v
 
     parse.__name__ = name  # argparse names the type in its messages

@@ -27,6 +27,7 @@ an exclusive lock on ``RUN/.lock`` (a second ``--resume`` of a running run is re
 
 from __future__ import annotations
 
+import dataclasses
 import fcntl
 import json
 import math
@@ -88,10 +89,20 @@ def load_checkpoint(path, map_location="cpu") -> dict:
     checkpoints had checksums loads with a warning."""
     if not Path(path).exists():
         raise UserError(f"no checkpoint at {path}")
-    ck = atomic.torch_load(path, map_location=map_location, warn=warn)
+    ck = atomic.torch_load(path, map_location=map_location, warn=lambda _: _warn_unverified(Path(path).parent))
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointDamaged(f"{path} is not an aerohrl checkpoint")
     return ck
+
+
+_unverified_folders: set[Path] = set()
+
+
+def _warn_unverified(folder: Path) -> None:
+    """Once per folder: a run from before checkpoints had checksums has ten of them."""
+    if folder not in _unverified_folders:
+        _unverified_folders.add(folder)
+        warn(f"the checkpoints in {folder} have no .sha256 files (written before checkpoints had checksums); loaded unverified")
 
 
 def checkpoint_problem(path) -> str | None:
@@ -523,6 +534,8 @@ def start_run(cfg: C.TrainConfig, run_dir, *, data: Dataset | None = None, progr
         if not cfg.dataset:
             raise UserError("no dataset given (--dataset PATH)")
         data = load_dataset(cfg.dataset)
+    if cfg.dataset:  # config.json and the checkpoints name it absolutely: eval and resume work from any folder
+        cfg = dataclasses.replace(cfg, dataset=str(Path(cfg.dataset).resolve()))
     claim_run_dir(run_dir)
     lock = RunLock(run_dir)
     try:

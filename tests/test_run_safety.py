@@ -167,6 +167,22 @@ def test_damaged_newest_checkpoint(how, trained, data, tmp_path, capsys):
     assert "set aside: step-000000040.pt.damaged" in capsys.readouterr().out
 
 
+def test_checkpoints_from_before_checksums_load_with_one_warning(trained, tmp_path, capsys):
+    run = _copy(trained, tmp_path)
+    for side in (run / "checkpoints").glob("*.sha256"):
+        side.unlink()
+    assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2", "--no-progress"]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err == f"aerohrl eval: warning: the checkpoints in {run / 'checkpoints'} have no .sha256 files " \
+                  "(written before checkpoints had checksums); loaded unverified"  # once for both checkpoints
+    assert runs.main(["show", str(run), "--no-plot"]) == 0
+    assert "DAMAGED" not in capsys.readouterr().out  # their zip CRCs hold
+    _damage(run / "checkpoints" / "step-000000040.pt", "flip")
+    assert runs.main(["show", str(run), "--no-plot"]) == 0
+    shown = capsys.readouterr().out
+    assert "DAMAGED:   step-000000040.pt" in shown and "fails its CRC" in shown
+
+
 def test_no_intact_checkpoint_is_one_line_with_a_hint(trained, tmp_path, capsys):
     run = _copy(trained, tmp_path)
     for p in checkpoint_paths(run):
@@ -210,7 +226,8 @@ def test_runs_find_a_moved_dataset_by_version_or_say_dataset(dataset_dir, tmp_pa
     args = ["--algo", "gcsl", "--dataset", "datasets/synthetic/synthetic-1", "--name", "g", "--steps", "20", *FLAGS]
     assert cli.main(args) == 0
     meta = json.loads((proj / "runs" / "g" / "config.json").read_text())
-    assert meta["dataset"]["path"] == str((proj / "datasets" / "synthetic" / "synthetic-1").resolve())
+    absolute = str((proj / "datasets" / "synthetic" / "synthetic-1").resolve())
+    assert meta["dataset"]["path"] == meta["config"]["dataset"] == absolute and meta["dataset"]["version"] == "synthetic-1"
     moved = tmp_path / "moved"
     proj.rename(moved)  # the whole project elsewhere: the recorded path is gone
     monkeypatch.chdir(tmp_path)
