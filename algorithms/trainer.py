@@ -2,9 +2,11 @@
 
 A run folder ``runs/<run>/`` holds::
 
-    config.json              the resolved TrainConfig + the dataset's identity
+    config.json              the resolved TrainConfig + the dataset's identity (absolute path, version)
     checkpoints/step-NNNNNNNNN.pt   weights, optimiser states, step, RNG states, config,
                              dataset version/checksum/shapes (last ``keep_checkpoints``)
+    checkpoints/step-NNNNNNNNN.pt.sha256   its SHA-256 (``sha256sum -c`` format)
+    .lock                    held (flock) by the process training the run
     metrics.jsonl            one JSON object per log interval / evaluation
     tb/                      TensorBoard events (when tensorboard is installed)
     learning_curve.png       written by ``aerohrl runs show``
