@@ -73,3 +73,11 @@ def test_train_then_bench_rl(tmp_path, capsys):
     assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
                  "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 0
     assert "Ours-LSTM" in capsys.readouterr().out
+    model = run / "model.pt"
+    raw = bytearray(model.read_bytes())
+    raw[len(raw) // 2] ^= 0x01  # a weight: torch alone would load it
+    model.write_bytes(bytes(raw))
+    assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
+                 "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"aerohrl ipp: error: checkpoint {model} is damaged: its SHA-256 differs from model.pt.sha256"
