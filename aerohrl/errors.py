@@ -1,8 +1,9 @@
 """The one error type a user sees.
 
 Every command-line entry point catches :class:`UserError` (and a few standard ones,
-see :func:`run_cli`) and prints ``<prog>: error: <message>`` on one line with a
-non-zero exit instead of a traceback. Code raises it for anything the user can fix:
+see :func:`run_cli`: interrupts, broken pipes, any ``OSError`` such as a full disk) and
+prints ``<prog>: error: <message>`` on one line with a non-zero exit instead of a
+traceback; :func:`warn` prints ``<prog>: warning: <message>`` and goes on. Code raises it for anything the user can fix:
 bad flags, missing or damaged files, inconsistent inputs.
 """
 
@@ -19,8 +20,18 @@ class UserError(Exception):
     exit_code = 2
 
 
+_prog = "aerohrl"  # the running command, for warnings (set by run_cli)
+
+
+def warn(message: str) -> None:
+    """One line ``<prog>: warning: <message>`` on stderr: something is off, the command goes on."""
+    print(f"{_prog}: warning: {message}", file=sys.stderr)
+
+
 def run_cli(prog: str, fn: Callable[[], int | None]) -> int:
     """Run ``fn`` and turn expected failures into one-line errors and exit codes."""
+    global _prog
+    _prog = prog
     try:
         return int(fn() or 0)
     except UserError as e:
@@ -31,6 +42,10 @@ def run_cli(prog: str, fn: Callable[[], int | None]) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as e:  # a write the atomic helpers did not make (a log line on a full disk), a vanished file
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"{prog}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
 
 
 class ArgumentParser(argparse.ArgumentParser):

@@ -17,8 +17,9 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
+from aerohrl import cli_types as T
 from aerohrl.algorithms import config as C
-from aerohrl.errors import ArgumentParser, UserError, run_cli
+from aerohrl.errors import ArgumentParser, UserError, run_cli, warn
 
 PROG = "train"
 # what may change when a run is resumed (everything else defines the run)
@@ -53,12 +54,27 @@ HELP = {
 }
 
 
+# the numeric flags that must be > 0 (counts >= 1); every other number must be >= 0
+POSITIVE = {"steps", "batch_size", "hidden", "critic_hidden", "lr_actor", "lr_critic", "relabel_mean_offset", "gamma", "tau",
+            "num_critics", "policy_delay", "awr_temperature", "awr_max_weight", "cql_num_random", "log_every",
+            "checkpoint_every", "keep_checkpoints", "eval_episodes", "eval_horizon"}
+
+
+def flag_type(name: str, default):
+    """The parse-time check of a TrainConfig field's flag (aerohrl.cli_types); ranges that
+    depend on other fields stay in config.check."""
+    kind = int if isinstance(default, (int, tuple)) else float
+    if kind is int:
+        return T.positive_int if name in POSITIVE else T.nonneg_int
+    return T.positive_float if name in POSITIVE else T.nonneg_float
+
+
 def parser() -> ArgumentParser:
     ap = ArgumentParser(prog=PROG, description="Offline goal-conditioned training on an expert dataset (thesis §3.4.2, Alg. 2).")
     ap.add_argument("--preset", default=None, help=f"hyper-parameter preset ({' | '.join(C.PRESETS)}) [cpu]")
     ap.add_argument("--resume", type=Path, default=None, metavar="RUN", help="continue RUN from its last checkpoint")
     ap.add_argument("--out", type=Path, default=Path("runs"), help="folder of runs [runs]")
-    ap.add_argument("--name", default=None, help="run folder name [ALGO-PRESET-sSEED-TIMESTAMP]")
+    ap.add_argument("--name", default=None, help="run folder name, must be new [ALGO-PRESET-sSEED-TIMESTAMP-RANDOM]")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     for f in fields(C.TrainConfig):
         if f.name in C.INTERNAL:
@@ -69,9 +85,12 @@ def parser() -> ArgumentParser:
         if isinstance(default, bool):
             ap.add_argument(flag, action=argparse.BooleanOptionalAction, default=None, help=f"{h} [cpu: {default}]")
         elif isinstance(default, tuple):
-            ap.add_argument(flag, type=int, nargs="+", default=None, metavar="N", help=f"{h} [cpu: {' '.join(map(str, default))}]")
+            ap.add_argument(flag, type=flag_type(f.name, default), nargs="+", default=None, metavar="N",
+                            help=f"{h} [cpu: {' '.join(map(str, default))}]")
+        elif isinstance(default, str):
+            ap.add_argument(flag, default=None, help=f"{h} [cpu: {default}]")
         else:
-            ap.add_argument(flag, type=type(default), default=None, help=f"{h} [cpu: {default}]")
+            ap.add_argument(flag, type=flag_type(f.name, default), default=None, help=f"{h} [cpu: {default}]")
     return ap
 
 
@@ -80,7 +99,7 @@ def _overrides(a) -> dict:
 
 
 def run(a) -> int:
-    from aerohrl.algorithms.trainer import new_run_dir, resume_run, start_run
+    from aerohrl.algorithms.trainer import new_run_dir, resolve_device, resume_run, start_run
 
     ov = _overrides(a)
     progress = not a.no_progress and sys.stderr.isatty()
@@ -91,11 +110,16 @@ def run(a) -> int:
         if fixed:
             raise UserError(f"--resume cannot change {', '.join('--' + k.replace('_', '-') for k in fixed)} (they define the run)")
         tr = resume_run(a.resume, progress=progress, overrides=ov)
-        print(f"resuming {a.resume} at step {tr.step}" + (f" from {tr.resumed_from}" if tr.resumed_from else ""), file=sys.stderr)
+        for aside, why in tr.set_aside:
+            warn(f"{why}; set aside as {aside.name}")
+        fallback = " (the newest intact checkpoint)" if tr.set_aside else ""
+        print(f"resuming {a.resume} at step {tr.step}" + (f" from {tr.resumed_from}{fallback}" if tr.resumed_from else ""),
+              file=sys.stderr)
     else:
         cfg = C.make_config(a.preset or "cpu", **ov)  # unknown algorithm/preset/values first
         if "dataset" not in ov:
             raise UserError("--dataset is required (or --resume RUN)")
+        resolve_device(cfg.device)  # before anything is created
         run_dir = new_run_dir(cfg, a.out, a.name)
         tr = start_run(cfg, run_dir, progress=progress)
         print(f"run {run_dir}: {cfg.algo}, preset {cfg.preset}, dataset {tr.dataset['version']}", file=sys.stderr)

@@ -131,6 +131,8 @@ def make_config(preset: str = "cpu", **overrides) -> TrainConfig:
 
 
 def check(cfg: TrainConfig) -> None:
+    import math
+
     if cfg.algo not in ALGORITHMS:
         raise UserError(f"unknown algorithm {cfg.algo!r} (choose from {', '.join(ALGORITHMS)})")
     if cfg.steps < 1 or cfg.batch_size < 1 or not cfg.hidden or min(cfg.hidden + cfg.critic_hidden) < 1:
@@ -159,9 +161,18 @@ def check(cfg: TrainConfig) -> None:
         raise UserError(f"ema decay must be in [0, 1), got {cfg.ema_decay}")
     if cfg.num_critics < 2:
         raise UserError("need at least 2 critics")
-    for name in ("log_every", "checkpoint_every", "policy_delay", "keep_checkpoints"):
+    for name in ("log_every", "checkpoint_every", "policy_delay", "keep_checkpoints", "eval_episodes", "eval_horizon",
+                 "cql_num_random"):
         if getattr(cfg, name) < 1:
             raise UserError(f"{name.replace('_', '-')} must be >= 1")
+    if cfg.seed < 0 or cfg.eval_every < 0:
+        raise UserError(f"seed and eval-every must be >= 0, got {cfg.seed} and {cfg.eval_every}")
+    for name in ("lr_actor", "lr_critic", "awr_temperature", "awr_max_weight"):
+        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) > 0):
+            raise UserError(f"{name.replace('_', '-')} must be a positive number, got {getattr(cfg, name)}")
+    for name in ("alpha", "policy_noise", "noise_clip", "cql_min_q_weight"):
+        if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0):
+            raise UserError(f"{name.replace('_', '-')} must be a number >= 0, got {getattr(cfg, name)}")
 
 
 def to_dict(cfg: TrainConfig) -> dict:

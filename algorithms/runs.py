@@ -11,29 +11,35 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from aerohrl.atomic import save_figure
 from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl runs"
 
 
 def summary(run_dir) -> dict:
-    from aerohrl.algorithms.trainer import checkpoint_paths, read_json, read_metrics
+    """What ``runs show`` reports; every checkpoint is checked against its SHA-256 and the
+    progress counts the newest intact one."""
+    from aerohrl.algorithms.trainer import CKPT_DIR, checkpoint_paths, checkpoint_problem, checkpoint_step, read_json, read_metrics
 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise UserError(f"no run at {run_dir}")
     meta = read_json(run_dir / "config.json")
     ckpts = checkpoint_paths(run_dir)
+    damaged = {p.name: why for p in ckpts if (why := checkpoint_problem(p))}
+    intact = [p for p in ckpts if p.name not in damaged]
     metrics = read_metrics(run_dir)
     train_recs = [r for r in metrics if not any(k.startswith("eval/") for k in r)]
     eval_recs = [r for r in metrics if any(k.startswith("eval/") for k in r)]
-    last_step = int(ckpts[-1].stem.split("-")[1]) if ckpts else 0
     return {
         "run": str(run_dir),
         "config": meta.get("config", {}),
         "dataset": meta.get("dataset", {}),
-        "checkpoint_step": last_step,
+        "checkpoint_step": checkpoint_step(intact[-1]) if intact else 0,
         "checkpoints": [p.name for p in ckpts],
+        "damaged": damaged,
+        "set_aside": sorted(p.name for p in (run_dir / CKPT_DIR).glob("*.damaged")),
         "logged_step": train_recs[-1]["step"] if train_recs else 0,
         "last_metrics": train_recs[-1] if train_recs else {},
         "last_eval": eval_recs[-1] if eval_recs else {},
@@ -116,11 +122,10 @@ def plot_learning_curve(run_dir, out=None) -> Path:
     if losses:
         ax2.legend(fontsize=8)
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(out)
+    try:
+        save_figure(fig, out, dpi=110)
+    finally:
+        plt.close(fig)
     return out
 
 
@@ -134,6 +139,10 @@ def cmd_show(a) -> int:
     print(f"progress:  checkpoint at step {s['checkpoint_step']:,} / {total:,} ({100 * s['checkpoint_step'] / max(total, 1):.1f}%); "
           f"logged up to step {s['logged_step']:,}; {len(s['checkpoints'])} checkpoints kept; "
           f"{s['training_s'] / 60:.1f} min of gradient steps")
+    for name, why in s["damaged"].items():
+        print(f"DAMAGED:   {name}: {why} (`train --resume` falls back to the newest intact checkpoint)")
+    if s["set_aside"]:
+        print(f"set aside: {', '.join(s['set_aside'])} (damaged, skipped by an earlier resume)")
     if s["last_metrics"]:
         m = s["last_metrics"]
         print("last:      " + ", ".join(f"{k} {v:.4g}" for k, v in m.items() if k != "step"))

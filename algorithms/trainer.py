@@ -2,26 +2,41 @@
 
 A run folder ``runs/<run>/`` holds::
 
-    config.json              the resolved TrainConfig + the dataset's identity
+    config.json              the resolved TrainConfig + the dataset's identity (absolute path, version)
     checkpoints/step-NNNNNNNNN.pt   weights, optimiser states, step, RNG states, config,
                              dataset version/checksum/shapes (last ``keep_checkpoints``)
+    checkpoints/step-NNNNNNNNN.pt.sha256   its SHA-256 (``sha256sum -c`` format)
+    .lock                    held (flock) by the process training the run
     metrics.jsonl            one JSON object per log interval / evaluation
     tb/                      TensorBoard events (when tensorboard is installed)
     learning_curve.png       written by ``aerohrl runs show``
 
-Every file is written to a temporary name and renamed, so a killed run (even
-``kill -9``) loses nothing it had written; ``--resume`` restarts from the last
-checkpoint, drops metrics logged after it and, because every random draw (sampling,
-relabelling, TD3 noise, CQL's sampled actions) comes from RNGs saved in the
-checkpoint, ends with the same weights as an uninterrupted run.
+Every file is written to a temporary name and renamed (:mod:`aerohrl.atomic`), so a
+killed run (even ``kill -9``) loses nothing it had written, and the temporaries a kill
+leaves are deleted when the run starts again; a full disk is a one-line error. Each
+checkpoint has a ``step-N.pt.sha256`` beside it, checked on every load (resume,
+``aerohrl eval``, ``runs show``). ``--resume`` restarts from the newest intact
+checkpoint (a damaged newer one is set aside as ``step-N.pt.damaged``), drops metrics
+logged after it and, because every random draw (sampling, relabelling, TD3 noise,
+CQL's sampled actions) comes from RNGs saved in the checkpoint, ends with the same
+weights as an uninterrupted run; the checkpoint also holds the partial sums of the
+metric line in progress, so the first line after a resume is the uninterrupted one.
+
+A run folder belongs to one process: a new run creates it with an exclusive ``mkdir``
+(a taken name is an error; default names end in a random suffix), and training holds
+an exclusive lock on ``RUN/.lock`` (a second ``--resume`` of a running run is refused).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import fcntl
 import json
 import math
 import os
 import random
+import secrets
+import shutil
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -34,7 +49,9 @@ from aerohrl.algorithms import config as C
 from aerohrl.algorithms.base import Algorithm, build_algorithm
 from aerohrl.algorithms.data import Dataset, GoalBatchSampler, fit_normalizer, load_dataset
 from aerohrl.algorithms.networks import Normalizer
-from aerohrl.errors import UserError
+from aerohrl import atomic
+from aerohrl.atomic import CheckpointDamaged
+from aerohrl.errors import UserError, warn
 
 CHECKPOINT_FORMAT = "aerohrl-checkpoint/1"
 CKPT_DIR = "checkpoints"
@@ -49,41 +66,14 @@ class TrainingDiverged(UserError):
 # ----------------------------------------------------------------------------- files
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def atomic_write_json(path: Path, obj) -> None:
-    atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
-
-
-def atomic_torch_save(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        torch.save(obj, tmp)
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def checkpoint_paths(run_dir) -> list[Path]:
     """Checkpoints of a run, oldest first."""
     d = Path(run_dir) / CKPT_DIR
     return sorted(d.glob("step-*.pt")) if d.is_dir() else []
+
+
+def checkpoint_step(path) -> int:
+    return int(Path(path).stem.split("-")[1])
 
 
 def read_json(path: Path) -> dict:
@@ -96,15 +86,43 @@ def read_json(path: Path) -> dict:
 
 
 def load_checkpoint(path, map_location="cpu") -> dict:
-    try:
-        ck = torch.load(path, map_location=map_location, weights_only=False)
-    except FileNotFoundError:
-        raise UserError(f"no checkpoint at {path}") from None
-    except Exception as e:  # torch raises many types on a truncated/damaged file
-        raise UserError(f"checkpoint {path} is damaged: {type(e).__name__}: {e}") from None
+    """A checkpoint, its SHA-256 verified; CheckpointDamaged (one line naming the file)
+    when it differs, is unreadable or is no aerohrl checkpoint. One written before
+    checkpoints had checksums loads with a warning."""
+    if not Path(path).exists():
+        raise UserError(f"no checkpoint at {path}")
+    ck = atomic.torch_load(path, map_location=map_location, warn=lambda _: _warn_unverified(Path(path).parent))
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
-        raise UserError(f"{path} is not an aerohrl checkpoint")
+        raise CheckpointDamaged(f"{path} is not an aerohrl checkpoint")
     return ck
+
+
+_unverified_folders: set[Path] = set()
+
+
+def _warn_unverified(folder: Path) -> None:
+    """Once per folder: a run from before checkpoints had checksums has ten of them."""
+    if folder not in _unverified_folders:
+        _unverified_folders.add(folder)
+        warn(f"the checkpoints in {folder} have no .sha256 files (written before checkpoints had checksums); loaded unverified")
+
+
+def checkpoint_problem(path) -> str | None:
+    """Why the checkpoint at ``path`` cannot be trusted, or None. Without loading it: its
+    SHA-256 against the sidecar, or for an old checkpoint without one, the CRC-32 of
+    every member of its zip container (what torch.save writes)."""
+    import zipfile
+
+    try:
+        if atomic.verify(path):
+            return None
+        with zipfile.ZipFile(path) as z:
+            bad = z.testzip()
+        return None if bad is None else f"{path} is damaged: zip member {bad} fails its CRC"
+    except CheckpointDamaged as e:
+        return str(e)
+    except (zipfile.BadZipFile, OSError, EOFError) as e:
+        return f"{path} is damaged: {e}"
 
 
 def read_metrics(run_dir) -> list[dict]:
@@ -123,9 +141,33 @@ def read_metrics(run_dir) -> list[dict]:
 
 
 def dataset_identity(data: Dataset) -> dict:
+    """What a run records of its dataset: the absolute path (so that eval and resume work
+    from any folder), the version (to find it again when it moved) and its checksum."""
     i = data.info
-    return {"path": i.get("path"), "version": i.get("version"), "checksum": i.get("checksum"),
+    path = str(Path(i["path"]).resolve()) if i.get("path") else None
+    return {"path": path, "version": i.get("version"), "checksum": i.get("checksum"),
             "shapes": i.get("shapes"), "frames": i.get("frames"), "episodes": i.get("episodes")}
+
+
+def locate_dataset(identity: dict, run_dir, override=None) -> Path:
+    """The folder of a run's dataset: ``override`` (``--dataset``), else the recorded path,
+    else a folder ``datasets/*/<version>`` (under the current folder or the run's
+    project, RUN/../../datasets) when the data moved. UserError saying ``--dataset``
+    when none exists."""
+    if override:
+        return Path(override)
+    recorded = identity.get("path")
+    if recorded and Path(recorded).is_dir():
+        return Path(recorded)
+    version = identity.get("version")
+    roots = dict.fromkeys([Path("datasets"), Path(run_dir).resolve().parent.parent / "datasets"])
+    for root in roots if version else ():
+        found = sorted(p for p in root.glob(f"*/{version}") if p.is_dir())
+        if found:
+            warn(f"the run's dataset {recorded} is gone; using {found[0]} (same version {version}; its checksum is checked)")
+            return found[0]
+    raise UserError(f"the run's dataset {recorded or '(none recorded)'} (version {version}) is missing and no "
+                    f"datasets/*/{version} was found; pass --dataset PATH")
 
 
 def check_same_dataset(expected: dict, data: Dataset) -> None:
@@ -139,13 +181,52 @@ def check_same_dataset(expected: dict, data: Dataset) -> None:
 
 
 def new_run_dir(cfg: C.TrainConfig, runs_root="runs", name: str | None = None) -> Path:
+    """The folder of a new run: ``--name``, or ``ALGO-PRESET-sSEED-TIMESTAMP-XXXXXX`` whose
+    random suffix keeps runs started in the same second apart. Not created here:
+    :func:`claim_run_dir` does that, exclusively."""
     if name is None:
         stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
-        name = f"{cfg.algo}-{cfg.preset}-s{cfg.seed}-{stamp}"
+        name = f"{cfg.algo}-{cfg.preset}-s{cfg.seed}-{stamp}-{secrets.token_hex(3)}"
     d = Path(runs_root) / name
     if (d / "config.json").exists():
         raise UserError(f"run {d} exists; use --resume {d} to continue it")
     return d
+
+
+def claim_run_dir(run_dir: Path) -> None:
+    """Create ``run_dir`` with an exclusive mkdir: of two runs given one folder, the
+    second gets a one-line error instead of writing into the first's."""
+    if not atomic.new_folder(run_dir):
+        if (run_dir / "config.json").exists():
+            raise UserError(f"run {run_dir} exists; use --resume {run_dir} to continue it")
+        raise UserError(f"run folder {run_dir} is taken (another run is starting there, or it is a leftover); "
+                        "choose another --name")
+
+
+class RunLock:
+    """An exclusive lock on ``RUN/.lock`` while a process trains the run (released by the
+    kernel when the process dies, even by kill -9). The file holds the owner's pid."""
+
+    def __init__(self, run_dir: Path):
+        self.path = run_dir / ".lock"
+        try:
+            self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise atomic.write_error(self.path, e) from None
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pid = os.pread(self.fd, 32, 0).decode(errors="replace").strip() or "?"
+            os.close(self.fd)
+            raise UserError(f"run {run_dir} is being trained by another process (pid {pid}); wait for it to end") from None
+        try:  # who holds it, for that message; the lock itself needs no disk space
+            os.ftruncate(self.fd, 0)
+            os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
+        except OSError:
+            pass
+
+    def release(self) -> None:
+        os.close(self.fd)
 
 
 # ----------------------------------------------------------------------------- RNG
@@ -192,12 +273,15 @@ class MetricsLog:
 
     def __init__(self, run_dir: Path, keep_until_step: int | None):
         self.path = run_dir / "metrics.jsonl"
-        if keep_until_step is not None and self.path.exists():  # resume: drop what came after the checkpoint
-            kept = [r for r in read_metrics(run_dir) if r.get("step", 0) <= keep_until_step]
-            atomic_write_bytes(self.path, "".join(json.dumps(r) + "\n" for r in kept).encode())
-        elif keep_until_step is None and self.path.exists():
-            self.path.unlink()
-        self._f = open(self.path, "a")
+        try:
+            if keep_until_step is not None and self.path.exists():  # resume: drop what came after the checkpoint
+                kept = [r for r in read_metrics(run_dir) if r.get("step", 0) <= keep_until_step]
+                atomic.write_text(self.path, "".join(json.dumps(r) + "\n" for r in kept))
+            elif keep_until_step is None and self.path.exists():
+                self.path.unlink()
+            self._f = open(self.path, "a")
+        except OSError as e:
+            raise atomic.write_error(self.path, e) from None
         self.tb = None
         try:
             from torch.utils.tensorboard import SummaryWriter
@@ -209,8 +293,11 @@ class MetricsLog:
             self.tb = SummaryWriter(str(run_dir / "tb"), purge_step=purge)
 
     def write(self, record: dict) -> None:
-        self._f.write(json.dumps(record) + "\n")
-        self._f.flush()
+        try:
+            self._f.write(json.dumps(record) + "\n")
+            self._f.flush()
+        except OSError as e:
+            raise atomic.write_error(self.path, e) from None
         if self.tb is not None:
             step = record.get("step", 0)
             for k, v in record.items():
@@ -218,7 +305,10 @@ class MetricsLog:
                     self.tb.add_scalar(k, v, step)
 
     def close(self) -> None:
-        self._f.close()
+        try:
+            self._f.close()
+        except OSError:
+            pass  # a full disk: the error that stopped the run has been raised already
         if self.tb is not None:
             self.tb.close()
 
@@ -233,17 +323,25 @@ class Trainer:
     """Owns a run: the algorithm, the batch sampler, the checkpoints and the logs."""
 
     def __init__(self, run_dir, cfg: C.TrainConfig, data: Dataset, *, progress: bool = True,
-                 evaluators: dict[str, Evaluator] | None = None):
+                 evaluators: dict[str, Evaluator] | None = None, lock: "RunLock | None" = None):
         self.run_dir = Path(run_dir)
         self.cfg = cfg
         self.data = data
         self.progress = progress
         self.device = resolve_device(cfg.device)
+        self._lock = lock or RunLock(self.run_dir)  # held until train() returns
         self.evaluators = evaluators
         self.step = 0
+        self.set_aside: list[tuple[Path, str]] = []  # damaged checkpoints skipped on resume, and why
+        # what the metric line in progress has summed so far (restored on resume)
+        self._acc = {"sums": {}, "count": 0, "seconds": 0.0}
+        self._acc_restored = True
+        self._t0 = time.perf_counter()
+        for d in (self.run_dir, self.run_dir / CKPT_DIR):  # temporaries of a killed write
+            atomic.remove_stale_temporaries(d)
         ckpts = checkpoint_paths(self.run_dir)
         if ckpts:
-            self._resume(ckpts[-1])
+            self._resume(ckpts)
         else:
             self._fresh()
         self.sampler = GoalBatchSampler(data, self.algo.normalizer, cfg.batch_size, cfg.relabel_prob, self.generator, device=self.device,
@@ -260,12 +358,32 @@ class Trainer:
         norm = fit_normalizer(self.data, cfg.relabel_prob, seed=cfg.seed, future=C.relabel_future(cfg), bc_target=cfg.bc_target)
         self.algo = build_algorithm(cfg, norm).to(self.device)
         self.dataset = dataset_identity(self.data)
-        atomic_write_json(self.run_dir / "config.json", {"config": C.to_dict(cfg), "dataset": self.dataset,
-                                                           "created": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+        atomic.write_json(self.run_dir / "config.json", {"config": C.to_dict(cfg), "dataset": self.dataset,
+                                                         "created": datetime.now(timezone.utc).isoformat(timespec="seconds")})
         self.resumed_from = None
 
-    def _resume(self, path: Path):
-        ck = load_checkpoint(path, map_location=self.device)
+    def _newest_intact(self, ckpts: list[Path]) -> tuple[Path, dict]:
+        """The newest checkpoint that loads and matches its SHA-256; the damaged ones after
+        it are renamed ``*.damaged`` (kept, out of the way of eval and the next resume)."""
+        damaged = []
+        for path in reversed(ckpts):
+            try:
+                ck = load_checkpoint(path, map_location=self.device)
+            except CheckpointDamaged as e:
+                damaged.append((path, str(e)))
+                continue
+            for bad, why in damaged:
+                aside = bad.with_name(bad.name + ".damaged")
+                os.replace(bad, aside)
+                atomic.checksum_path(bad).unlink(missing_ok=True)
+                self.set_aside.append((aside, why))
+            return path, ck
+        raise CheckpointDamaged(f"no intact checkpoint to resume from: {damaged[0][1]}"
+                                + (f" (and the {len(damaged) - 1} older ones)" if len(damaged) > 1 else "")
+                                + f"; delete {self.run_dir / CKPT_DIR} to start the run over")
+
+    def _resume(self, ckpts: list[Path]):
+        path, ck = self._newest_intact(ckpts)
         check_same_dataset(ck["dataset"], self.data)
         self.dataset = ck["dataset"]
         self.generator = torch.Generator()
@@ -279,11 +397,15 @@ class Trainer:
         self.algo.load_extra_state(ck.get("extra", {}))
         self.step = int(ck["step"])
         self._pending_rng = ck["rng"]
+        if "metrics_acc" in ck:
+            self._acc = ck["metrics_acc"]
+        else:  # a checkpoint from before the partial sums were saved: the next line covers fewer steps
+            self._acc_restored = self.step % self.cfg.log_every == 0
         self.resumed_from = path
 
     def checkpoint(self) -> Path:
         path = self.run_dir / CKPT_DIR / f"step-{self.step:09d}.pt"
-        atomic_torch_save(path, {
+        atomic.torch_save(path, {
             "format": CHECKPOINT_FORMAT,
             "step": self.step,
             "algo": self.cfg.algo,
@@ -293,10 +415,11 @@ class Trainer:
             "optimizers": {k: o.state_dict() for k, o in self.algo.optimizers().items()},
             "extra": self.algo.extra_state(),
             "rng": rng_state(self.generator),
+            "metrics_acc": {**self._acc, "seconds": self._acc["seconds"] + time.perf_counter() - self._t0},
             "time": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         })
         for old in checkpoint_paths(self.run_dir)[: -self.cfg.keep_checkpoints]:
-            old.unlink(missing_ok=True)
+            atomic.remove(old)
         return path
 
     # --- the loop -----------------------------------------------------------------
@@ -315,18 +438,37 @@ class Trainer:
                 out[f"eval/{name}/{k}"] = v
         return out
 
+    def _metrics_line(self) -> dict:
+        """The line for the steps summed since the last one (their mean losses, the step
+        rate); marked partial when a resume lost the sums of its first steps."""
+        acc = self._acc
+        acc["seconds"] += time.perf_counter() - self._t0
+        rec = {"step": self.step, **{k: v / acc["count"] for k, v in acc["sums"].items()},
+               "steps_per_s": acc["count"] / max(acc["seconds"], 1e-9)}
+        if not self._acc_restored:
+            rec["partial"] = True  # averages acc["count"] steps, fewer than an uninterrupted run's line
+            self._acc_restored = True
+        self._acc = {"sums": {}, "count": 0, "seconds": 0.0}
+        self._t0 = time.perf_counter()
+        return rec
+
     def train(self, until: int | None = None) -> int:
         """Train up to ``cfg.steps`` (or ``until``); returns the step reached."""
         from tqdm import tqdm
 
         cfg = self.cfg
         end = cfg.steps if until is None else min(until, cfg.steps)
-        log = MetricsLog(self.run_dir, keep_until_step=self.step if self.resumed_from else None)
+        if self._lock is None:  # a second train() call of this Trainer
+            self._lock = RunLock(self.run_dir)
+        try:
+            log = MetricsLog(self.run_dir, keep_until_step=self.step if self.resumed_from else None)
+        except BaseException:
+            self.release()
+            raise
         if self.evaluators is None:
             self.evaluators = self._default_evaluators()
         bar = tqdm(total=cfg.steps, initial=self.step, disable=not self.progress, desc=f"{cfg.algo}", unit="step", dynamic_ncols=True)
-        sums: dict[str, float] = {}
-        count, t0 = 0, time.perf_counter()
+        self._t0 = time.perf_counter()
         try:
             self.algo.train()
             opts = list(self.algo.optimizers().values())
@@ -349,27 +491,35 @@ class Trainer:
                     kept = f"last good checkpoint kept: {last[-1]}" if last else "no checkpoint was written yet"
                     raise TrainingDiverged(f"{', '.join(bad)} became NaN/inf at step {self.step + 1}; training stopped; {kept}")
                 self.step += 1
+                sums = self._acc["sums"]
                 for k, v in zip(metrics, vals.tolist()):
                     sums[k] = sums.get(k, 0.0) + v
-                count += 1
+                self._acc["count"] += 1
                 bar.update(1)
-                if self.step % cfg.log_every == 0 or self.step == end:
-                    dt = time.perf_counter() - t0
-                    rec = {"step": self.step, **{k: v / count for k, v in sums.items()}, "steps_per_s": count / max(dt, 1e-9)}
+                # the lines fall where an uninterrupted run's do (a stop at `until` leaves the sums to the checkpoint)
+                if self.step % cfg.log_every == 0 or self.step == cfg.steps:
+                    rec = self._metrics_line()
                     log.write(rec)
-                    bar.set_postfix({k: f"{rec[k]:.3g}" for k in list(sums)[:2]})
-                    sums, count, t0 = {}, 0, time.perf_counter()
+                    bar.set_postfix({k: f"{rec[k]:.3g}" for k in list(metrics)[:2]})
                 if self.evaluators and cfg.eval_every > 0 and (self.step % cfg.eval_every == 0 or self.step == cfg.steps):
+                    self._acc["seconds"] += time.perf_counter() - self._t0
                     ev = self.evaluate()
                     if ev:
                         log.write({"step": self.step, **ev})
-                    t0 = time.perf_counter()
+                    self._t0 = time.perf_counter()
                 if self.step % cfg.checkpoint_every == 0 or self.step == cfg.steps:
                     self.checkpoint()
         finally:
             bar.close()
             log.close()
+            self.release()
         return self.step
+
+    def release(self) -> None:
+        """Let another process train this run (train() does it when it returns)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
 
 # ----------------------------------------------------------------------------- entry points
@@ -377,21 +527,31 @@ class Trainer:
 
 def start_run(cfg: C.TrainConfig, run_dir, *, data: Dataset | None = None, progress: bool = True,
               evaluators=None) -> Trainer:
-    """A new run in ``run_dir`` (config.json written, no step taken yet)."""
+    """A new run in ``run_dir`` (config.json written, no step taken yet). Everything that
+    can be refused (config values, the device, the dataset) is checked before the folder
+    is created, exclusively; a failure after that removes it again."""
     run_dir = Path(run_dir)
-    if (run_dir / "config.json").exists():
-        raise UserError(f"run {run_dir} exists; use --resume {run_dir} to continue it")
+    C.check(cfg)
+    resolve_device(cfg.device)
     if data is None:
         if not cfg.dataset:
             raise UserError("no dataset given (--dataset PATH)")
         data = load_dataset(cfg.dataset)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators)
+    if cfg.dataset:  # config.json and the checkpoints name it absolutely: eval and resume work from any folder
+        cfg = dataclasses.replace(cfg, dataset=str(Path(cfg.dataset).resolve()))
+    claim_run_dir(run_dir)
+    lock = RunLock(run_dir)
+    try:
+        return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock)
+    except BaseException:
+        lock.release()
+        shutil.rmtree(run_dir, ignore_errors=True)  # ours alone (claimed above), and nothing trained yet
+        raise
 
 
 def resume_run(run_dir, *, data: Dataset | None = None, progress: bool = True, evaluators=None,
                overrides: dict | None = None) -> Trainer:
-    """Continue ``run_dir`` from its last checkpoint (or from scratch when it has none)."""
+    """Continue ``run_dir`` from its newest intact checkpoint (or from scratch when it has none)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise UserError(f"no run at {run_dir}")
@@ -406,13 +566,20 @@ def resume_run(run_dir, *, data: Dataset | None = None, progress: bool = True, e
             setattr(cfg, k, v)
             changed = True
     C.check(cfg)
-    if changed:  # e.g. more --steps: the run's config says so from now on
-        atomic_write_json(run_dir / "config.json", {**meta, "config": C.to_dict(cfg)})
+    resolve_device(cfg.device)
     if data is None:  # --dataset on resume: the same data moved elsewhere (identity is checked)
-        data = load_dataset((overrides or {}).get("dataset") or cfg.dataset)
+        data = load_dataset(locate_dataset(meta.get("dataset") or {"path": cfg.dataset}, run_dir, (overrides or {}).get("dataset")))
     if not checkpoint_paths(run_dir):
         check_same_dataset(meta["dataset"], data)
-    return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators)
+    lock = RunLock(run_dir)  # before anything in the run changes
+    try:
+        if changed:  # e.g. more --steps: the run's config says so from now on
+            atomic.write_json(run_dir / "config.json", {**meta, "config": C.to_dict(cfg)})
+        return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock)
+    except BaseException:
+        lock.release()
+        raise
 
 
-__all__ = ["Trainer", "TrainingDiverged", "start_run", "resume_run", "new_run_dir", "checkpoint_paths", "load_checkpoint", "read_metrics"]
+__all__ = ["Trainer", "TrainingDiverged", "start_run", "resume_run", "new_run_dir", "claim_run_dir", "checkpoint_paths",
+           "load_checkpoint", "checkpoint_problem", "locate_dataset", "read_metrics"]

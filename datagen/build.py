@@ -556,24 +556,24 @@ def _continuation_note(meta: dict) -> str:
             "state one of the rest-start flights passes through, moved to the origin)")
 
 
-def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log=print) -> BuildResult:
-    """Build ``<out>/<name>/<version>/`` for ``spec``; verify instead if it exists."""
+def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log=print, force: bool = False) -> BuildResult:
+    """Build ``<out>/<name>/<version>/`` for ``spec``; verify instead if it exists.
+
+    Before generating, the expected frames, disk and memory are logged; a build that
+    would not fit in the free memory or disk is refused unless ``force``. Two builds of
+    one version at once: the one that finishes second finds the first's result in
+    place, verifies it and keeps it (``created`` False)."""
+    import errno
+
+    from aerohrl import atomic
+    from aerohrl.datagen.estimate import available_disk, available_memory, estimate, human, shortfall
+
     t0 = time.perf_counter()
     version = version_name(spec)
     parent = Path(out) / spec.name
     final = parent / version
     if final.exists():
-        problems = validate(final)
-        if problems:
-            more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
-            raise UserError(f"{final} exists but is damaged: {problems[0]}{more}; delete it to rebuild")
-        stored = read_manifest(final).get("spec_sha256")
-        if stored != spec_hash(spec):
-            raise UserError(f"{final} exists but holds another spec (spec_sha256 {stored}); delete it to rebuild")
-        meta = read_manifest(final)
-        log(f"{final} exists: verified {len(meta.get('checksums', {}))} files against their checksums; nothing rebuilt")
-        return BuildResult(final, False, meta["episodes"], meta["frames"], meta["expert_success_rate"], meta["resampled_goals"],
-                           time.perf_counter() - t0)
+        return _verified_existing(spec, final, t0, log)
     try:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -582,8 +582,16 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
         raise UserError(f"output directory {parent} is not writable")
     _remove_stale_temporaries(parent)
 
+    est = estimate(spec)
+    mem, disk = available_memory(), available_disk(parent)
+    log(f"estimate: {est.episodes:,} episodes, {est.frames:,} frames, {human(est.disk)} on disk, "
+        f"{human(est.memory)} of memory at peak ({human(disk)} disk free, {human(mem)} memory available)")
+    short = shortfall(est, mem, disk)
+    if short and not force:
+        raise UserError(f"this build needs about {short}; build fewer goals, or pass --force to try anyway")
+
     data = generate(spec, progress=progress)
-    tmp = parent / f".tmp-{version}-{os.getpid()}"
+    tmp = atomic.temp_path(final)
     try:
         tmp.mkdir()
         columns = frame_columns(data)
@@ -595,6 +603,9 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
         write_manifest(tmp, meta)
         os.rename(tmp, final)
     except OSError as e:
+        if e.errno in (errno.EEXIST, errno.ENOTEMPTY) and final.is_dir():
+            log(f"another build of {version} finished first")  # the same spec gives the same bytes: keep it
+            return _verified_existing(spec, final, t0, log)
         raise UserError(f"writing the dataset failed: {e}") from None
     finally:
         if tmp.exists():
@@ -603,8 +614,27 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
                        time.perf_counter() - t0)
 
 
+def _verified_existing(spec: DatasetSpec, final: Path, t0: float, log) -> BuildResult:
+    """The existing version at ``final``, verified (checksums, spec) instead of rebuilt."""
+    problems = validate(final)
+    if problems:
+        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise UserError(f"{final} exists but is damaged: {problems[0]}{more}; delete it to rebuild")
+    stored = read_manifest(final).get("spec_sha256")
+    if stored != spec_hash(spec):
+        raise UserError(f"{final} exists but holds another spec (spec_sha256 {stored}); delete it to rebuild")
+    meta = read_manifest(final)
+    log(f"{final} exists: verified {len(meta.get('checksums', {}))} files against their checksums; nothing rebuilt")
+    return BuildResult(final, False, meta["episodes"], meta["frames"], meta["expert_success_rate"], meta["resampled_goals"],
+                       time.perf_counter() - t0)
+
+
 def _remove_stale_temporaries(parent: Path) -> None:
-    """Delete temporaries left by builds that were killed (their process is gone)."""
+    """Delete temporaries left by builds that were killed (their process is gone): the
+    current ``.VERSION.tmp-PID`` and the ``.tmp-VERSION-PID`` of earlier releases."""
+    from aerohrl import atomic
+
+    atomic.remove_stale_temporaries(parent)
     for p in parent.glob(".tmp-*"):
         try:
             pid = int(p.name.rsplit("-", 1)[1])

@@ -12,7 +12,8 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from aerohrl.errors import ArgumentParser, UserError, run_cli
+from aerohrl import cli_types as T
+from aerohrl.errors import ArgumentParser, UserError, run_cli, warn
 from aerohrl.datagen.spec import DatasetSpec
 
 PROG = "datagen"
@@ -38,15 +39,24 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
         "start_rate": "perturbed: |w_i| bound (rad/s)",
         "rollouts_per_goal": "flights per goal (each with its own noise / start)",
     }
+    # parse-time checks (aerohrl.cli_types); ranges are any finite LOW < HIGH (DatasetSpec.check)
+    nonneg = {"seed", "continuations"}
+    nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate"}  # 0 switches the part off
     for f in fields(DatasetSpec):
         flag = "--" + f.name.replace("_", "-")
         default = f.default
         if f.name == "action_noise":
-            p.add_argument(flag, type=float, nargs="+", metavar="SIGMA", default=None, help=f"{helps[f.name]} [0 = off]")
+            p.add_argument(flag, type=T.nonneg_float, nargs="+", metavar="SIGMA", default=None, help=f"{helps[f.name]} [0 = off]")
         elif isinstance(default, tuple):
-            p.add_argument(flag, type=float, nargs=2, metavar=("LOW", "HIGH"), default=None, help=f"{helps[f.name]} [{default[0]} {default[1]}]")
+            p.add_argument(flag, type=T.finite_float, nargs=2, metavar=("LOW", "HIGH"), default=None,
+                           help=f"{helps[f.name]} [{default[0]} {default[1]}]")
+        elif isinstance(default, str):
+            p.add_argument(flag, default=None, help=f"{helps[f.name]} [{default}]")
+        elif f.name in nonneg_float:
+            p.add_argument(flag, type=T.nonneg_float, default=None, help=f"{helps[f.name]} [{default}]")
         else:
-            p.add_argument(flag, type=type(default), default=None, help=f"{helps[f.name]} [{default}]")
+            kind = (T.nonneg_int if f.name in nonneg else T.positive_int) if isinstance(default, int) else T.positive_float
+            p.add_argument(flag, type=kind, default=None, help=f"{helps[f.name]} [{default}]")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -57,6 +67,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--spec", type=Path, default=None, help="dataset spec TOML (default: built-in defaults = datasets/quadrotor-reach.toml)")
     b.add_argument("--out", type=Path, default=Path("datasets"), help="root folder; the dataset goes to OUT/NAME/VERSION [datasets]")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
+    b.add_argument("--force", action="store_true", help="build even when the estimate exceeds the free memory or disk")
     _spec_flags(b)
 
     i = sub.add_parser("info", help="summary, spec, checksums and expert success of a dataset")
@@ -68,13 +79,13 @@ def parser() -> argparse.ArgumentParser:
 
     m = sub.add_parser("export-mcap", help="one episode as MCAP (Foxglove-viewable)")
     m.add_argument("path", type=Path)
-    m.add_argument("--episode", type=int, required=True)
+    m.add_argument("--episode", type=T.nonneg_int, required=True)
     m.add_argument("-o", "--output", type=Path, required=True)
 
     pl = sub.add_parser("plot", help="3-D expert trajectories and goals (thesis Fig. 3.2 analogue)")
     pl.add_argument("path", type=Path)
     pl.add_argument("-o", "--output", type=Path, required=True)
-    pl.add_argument("--max-episodes", type=int, default=250, help="episodes drawn [250]")
+    pl.add_argument("--max-episodes", type=T.positive_int, default=250, help="episodes drawn [250]")
     return ap
 
 
@@ -84,7 +95,7 @@ def cmd_build(a) -> int:
 
     overrides = {f.name: getattr(a, f.name) for f in fields(DatasetSpec)}
     spec = load_spec(a.spec, **overrides)
-    res = build(spec, a.out, progress=not a.quiet and sys.stderr.isatty())
+    res = build(spec, a.out, progress=not a.quiet and sys.stderr.isatty(), force=a.force)
     if res.created:
         print(f"built {res.path}: {res.episodes} episodes, {res.frames} frames, "
               f"{res.resampled} goals resampled, in {res.seconds:.1f} s")
@@ -99,13 +110,13 @@ def cmd_build(a) -> int:
 
 
 def cmd_info(a) -> int:
-    from aerohrl.datagen.manifest import read_manifest, validate
+    from aerohrl.datagen.manifest import read_manifest
 
     meta = read_manifest(a.path)
     if a.json:
         print(json.dumps(meta, indent=2, sort_keys=True))
         return 0
-    problems = validate(a.path)
+    problems = warn_if_damaged(a.path)
     s = meta["spec"]
     d = meta["reference_duration_s"]
     sizes = sum((a.path / r).stat().st_size for r in meta["checksums"] if (a.path / r).exists())
@@ -141,9 +152,23 @@ def cmd_validate(a) -> int:
     return 0
 
 
+def warn_if_damaged(path: Path) -> list[str]:
+    """The dataset's integrity problems (every file's SHA-256, the manifest, the LeRobot
+    structure; about a second per 2 M frames), with a warning when there are any: the
+    reading commands go on, but say that what they print may come from damaged files."""
+    from aerohrl.datagen.manifest import validate
+
+    problems = validate(path) if path.is_dir() else []
+    if problems:
+        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
+        warn(f"{path} is damaged: {problems[0]}{more}; what follows may be wrong (`datagen validate {path}` lists it all)")
+    return problems
+
+
 def cmd_export_mcap(a) -> int:
     from aerohrl.datagen.mcap_export import export_mcap
 
+    warn_if_damaged(a.path)
     counts = export_mcap(a.path, a.episode, a.output)
     print(f"wrote {a.output}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
     return 0
@@ -152,6 +177,7 @@ def cmd_export_mcap(a) -> int:
 def cmd_plot(a) -> int:
     from aerohrl.datagen.plots import plot_dataset
 
+    warn_if_damaged(a.path)
     plot_dataset(a.path, a.output, max_episodes=a.max_episodes)
     print(f"wrote {a.output}")
     return 0

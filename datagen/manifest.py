@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
+from aerohrl import atomic
+from aerohrl.atomic import sha256_file
 from aerohrl.errors import UserError
 
 MANIFEST_PATH = "meta/aerohrl.json"
 SELF_HASH_KEY = "manifest_sha256"
 CHECKSUMS_KEY = "checksums"
-_CHUNK = 1 << 20
 
 
 def _jsonable(obj, where: str = "metadata"):
@@ -68,14 +69,6 @@ def _self_hash(manifest: dict) -> str:
     return hashlib.sha256(canonical_json(body)).hexdigest()
 
 
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(_CHUNK):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _dataset_files(root: Path) -> list[str]:
     """Relative POSIX paths of every file under root (symlinks included), sorted."""
     out = []
@@ -98,15 +91,7 @@ def write_manifest(root, metadata: dict) -> dict:
     manifest = _jsonable(metadata)
     manifest[CHECKSUMS_KEY] = {rel: sha256_file(root / rel) for rel in _dataset_files(root) if rel != MANIFEST_PATH}
     manifest[SELF_HASH_KEY] = _self_hash(manifest)
-    path = root / MANIFEST_PATH
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_bytes(canonical_json(manifest))
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    atomic.write_bytes(root / MANIFEST_PATH, canonical_json(manifest))
     return manifest
 
 

@@ -23,7 +23,6 @@ frames has ``L + 1`` poses and ``L`` actions. Quaternions come from R via
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +30,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from aerohrl import task
+from aerohrl.atomic import atomic_path
 from aerohrl.errors import UserError
 
 EPOCH_NS = 0
@@ -208,13 +208,8 @@ def export_mcap(root, episode: int, out_path) -> dict[str, int]:
     q_vehicle = _quats(states[:, task.ROT])
     q_goal = _quats(goal[:, task.ROT])
 
-    try:
-        out_path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UserError(f"cannot create {out_path.parent}: {e.strerror or e}") from None
-    tmp = out_path.with_name(f".{out_path.name}.tmp-{os.getpid()}")
     counts = {t: 0 for t in TOPICS}
-    try:
+    with atomic_path(out_path) as tmp:
         with open(tmp, "wb") as f:
             w = Writer(f, compression=CompressionType.ZSTD)
             w.start(profile="", library=LIBRARY)
@@ -253,12 +248,6 @@ def export_mcap(root, episode: int, out_path) -> dict[str, int]:
                                        "frame_index": int(d["frame_index"][i]), "reward": float(d["next.reward"][i]),
                                        "done": bool(d["next.done"][i]), "success": bool(d["next.success"][i])})
             w.finish()
-        os.replace(tmp, out_path)
-    except OSError as e:
-        raise UserError(f"writing {out_path} failed: {e.strerror or e}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return counts
 
 

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 
+from aerohrl.atomic import save_figure
 from aerohrl.errors import UserError
 
 
@@ -55,14 +55,8 @@ def plot_dataset(path: str | Path, out: str | Path, max_episodes: int = 250) -> 
     ax2.set(xlabel="minimum-time reference duration T (s)", ylabel="episodes", title="reference durations (thesis Alg. 1)")
     fig.tight_layout()
 
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}{out.suffix}")
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, out)
-    except OSError as e:
-        raise UserError(f"cannot write {out}: {e.strerror}") from None
+        save_figure(fig, out, dpi=110)
     finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
     return out

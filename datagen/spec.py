@@ -100,6 +100,8 @@ class DatasetSpec:
             raise UserError(f"invalid dataset name {self.name!r}")
         if isinstance(self.goals, bool) or int(self.goals) != self.goals or self.goals <= 0:
             raise UserError(f"--goals must be a positive integer, got {self.goals}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise UserError(f"--seed must be an integer >= 0, got {self.seed!r}")
         for f in ("pos_range", "vel_range", "acc_range"):
             r = getattr(self, f)
             if len(r) != 2 or not all(math.isfinite(x) for x in r):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from aerohrl import cli_types as T
 from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl eval"
@@ -32,34 +33,34 @@ def _eval_parser() -> ArgumentParser:
                         "(subcommands: `table RUN...`, `plot ...`, `oracle ...`).")
     ap.add_argument("--task", required=True, help=f"{' | '.join(TASKS)}")
     ap.add_argument("--run", required=True, type=Path, help="training run folder (runs/<run>)")
-    ap.add_argument("--episodes", type=int, default=d.episodes, help=f"episodes per checkpoint [{d.episodes}]")
-    ap.add_argument("--checkpoints", type=int, default=d.checkpoints, help=f"newest checkpoints evaluated [{d.checkpoints}]")
+    ap.add_argument("--episodes", type=T.positive_int, default=d.episodes, help=f"episodes per checkpoint [{d.episodes}]")
+    ap.add_argument("--checkpoints", type=T.positive_int, default=d.checkpoints, help=f"newest checkpoints evaluated [{d.checkpoints}]")
     ap.add_argument("--planner", default=d.planner, help=f"ood only: {' | '.join(PLANNERS)} [{d.planner}]")
-    ap.add_argument("--waypoints", type=int, default=d.waypoints, help=f"multi: intermediate goals (Eq. 3.6 n) [{d.waypoints}]")
-    ap.add_argument("--beam", type=int, default=d.beam, help=f"multi: beam width [{d.beam}]")
-    ap.add_argument("--alpha", type=float, default=d.alpha, help=f"variance penalty of Eq. 3.6/3.7 [{d.alpha}]")
-    ap.add_argument("--candidates", type=int, default=d.candidates,
+    ap.add_argument("--waypoints", type=T.positive_int, default=d.waypoints, help=f"multi: intermediate goals (Eq. 3.6 n) [{d.waypoints}]")
+    ap.add_argument("--beam", type=T.positive_int, default=d.beam, help=f"multi: beam width [{d.beam}]")
+    ap.add_argument("--alpha", type=T.nonneg_float, default=d.alpha, help=f"variance penalty of Eq. 3.6/3.7 [{d.alpha}]")
+    ap.add_argument("--candidates", type=T.nonneg_int, default=d.candidates,
                     help=f"achieved goals scored by the planner (seeded subset; 0 = all) [{d.candidates}]")
-    ap.add_argument("--replan-every", type=int, default=d.replan_every,
+    ap.add_argument("--replan-every", type=T.nonneg_int, default=d.replan_every,
                     help="re-plan from the current state every K steps during intermediate legs (0: never) [0]")
     ap.add_argument("--no-replan", action="store_true", help="multi: keep the take-off plan (no re-planning at reached goals)")
-    ap.add_argument("--horizon", type=int, default=d.horizon, help=f"ood: steps per episode, every planner [{d.horizon}]")
-    ap.add_argument("--leg-horizon", type=int, default=d.leg_horizon,
+    ap.add_argument("--horizon", type=T.positive_int, default=d.horizon, help=f"ood: steps per episode, every planner [{d.horizon}]")
+    ap.add_argument("--leg-horizon", type=T.nonneg_int, default=d.leg_horizon,
                     help="ood: step budget to reach an intermediate goal [horizon / (intermediate goals + 1)]")
-    ap.add_argument("--min-leg", type=float, default=d.min_leg,
+    ap.add_argument("--min-leg", type=T.nonneg_float, default=d.min_leg,
                     help=f"planner: skip candidates closer than this (m) to the start as first goal [{d.min_leg:g}: none skipped]")
     ap.add_argument("--floor", default=d.floor, choices=["none", "hover", "no-goal"],
                     help="fly a trivial floor instead of the run's policy: hover (constant [g, 0, 0, 0]) | no-goal (the "
                          "policy with its goal inputs at their mean); results go to <task>-floor-<floor> [none]")
-    ap.add_argument("--goal-tol", type=float, default=d.goal_tol,
+    ap.add_argument("--goal-tol", type=T.positive_float, default=d.goal_tol,
                     help=f"the task goal's tolerances x this (0.5: 0.075 m, 0.175 m/s, 0.075 rad; results go to <task>-goaltol0.5) [{d.goal_tol}]")
-    ap.add_argument("--waypoint-tol", type=float, default=d.waypoint_tol,
+    ap.add_argument("--waypoint-tol", type=T.positive_float, default=d.waypoint_tol,
                     help=f"an intermediate goal is reached with the goal tolerances x this (2.5: near success) [{d.waypoint_tol}]")
     ap.add_argument("--dataset", default=None, help="the run's dataset at another path (identity is checked)")
     ap.add_argument("--out", default=None, help="result folder [RUN/eval/<task>[-<planner>]]")
     ap.add_argument("--device", default=d.device, help="cpu | cuda [cpu]")
-    ap.add_argument("--seed", type=int, default=d.seed, help="episode-set seed [0]")
-    ap.add_argument("--threads", type=int, default=1, help="torch threads [1]")
+    ap.add_argument("--seed", type=T.nonneg_int, default=d.seed, help="episode-set seed [0]")
+    ap.add_argument("--threads", type=T.positive_int, default=1, help="torch threads [1]")
     ap.add_argument("--no-progress", action="store_true")
     return ap
 
@@ -112,7 +113,7 @@ def _plot_parser() -> ArgumentParser:
     ap.add_argument("--planner", default=None, help="ood: which evaluation (none | single | multi) [the planned one present]")
     ap.add_argument("--run", type=Path, default=None)
     ap.add_argument("--curves", type=Path, nargs="+", default=None, metavar="RUN", help="learning curves of these runs")
-    ap.add_argument("--max", type=int, default=12, help="trajectories per panel [12]")
+    ap.add_argument("--max", type=T.positive_int, default=12, help="trajectories per panel [12]")
     ap.add_argument("-o", "--output", type=Path, required=True)
     return ap
 
@@ -135,12 +136,12 @@ def _oracle_parser() -> ArgumentParser:
                         "(Eq. 3.7) to bound what any planner over the achieved goals can reach with this policy.")
     ap.add_argument("--run", type=Path, required=True)
     ap.add_argument("--task", default="ood", help="goals of: ood | reach-novel [ood]")
-    ap.add_argument("--goals", type=int, default=40, help="task goals [40]")
-    ap.add_argument("--candidates", type=int, default=150, help="achieved goals (seeded subset) [150]")
-    ap.add_argument("--leg-horizon", type=int, default=500, help="steps per leg [500]")
-    ap.add_argument("--alpha", type=float, default=1.0, help="variance penalty of the Eq. 3.7 choice [1.0]")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--goals", type=T.positive_int, default=40, help="task goals [40]")
+    ap.add_argument("--candidates", type=T.positive_int, default=150, help="achieved goals (seeded subset) [150]")
+    ap.add_argument("--leg-horizon", type=T.positive_int, default=500, help="steps per leg [500]")
+    ap.add_argument("--alpha", type=T.nonneg_float, default=1.0, help="variance penalty of the Eq. 3.7 choice [1.0]")
+    ap.add_argument("--seed", type=T.nonneg_int, default=0)
+    ap.add_argument("--threads", type=T.positive_int, default=1)
     ap.add_argument("--out", type=Path, default=None, help="report folder [RUN/eval/oracle-TASK]")
     ap.add_argument("--no-progress", action="store_true")
     return ap
@@ -175,31 +176,19 @@ def cmd_oracle(a) -> int:
     return 0
 
 
-def _io(fn):
-    """File-system failures (unwritable output, full disk) as one-line errors."""
-
-    def wrapped(a):
-        try:
-            return fn(a)
-        except OSError as e:
-            raise UserError(f"{e.strerror or e}: {e.filename or ''}".rstrip(": ")) from None
-
-    return wrapped
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "table":
         a = _table_parser().parse_args(argv[1:])
-        return run_cli(PROG, lambda: _io(cmd_table)(a))
+        return run_cli(PROG, lambda: cmd_table(a))
     if argv and argv[0] == "oracle":
         a = _oracle_parser().parse_args(argv[1:])
-        return run_cli(PROG, lambda: _io(cmd_oracle)(a))
+        return run_cli(PROG, lambda: cmd_oracle(a))
     if argv and argv[0] == "plot":
         a = _plot_parser().parse_args(argv[1:])
-        return run_cli(PROG, lambda: _io(cmd_plot)(a))
+        return run_cli(PROG, lambda: cmd_plot(a))
     a = _eval_parser().parse_args(argv)
-    return run_cli(PROG, lambda: _io(cmd_eval)(a))
+    return run_cli(PROG, lambda: cmd_eval(a))
 
 
 if __name__ == "__main__":

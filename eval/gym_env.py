@@ -10,7 +10,11 @@ Observation (the goal-env convention of gymnasium-robotics, which external GC-RL
 such as HER implementations expects): a dict with ``observation`` (18: the state
 ``[p, v, R, w]``), ``achieved_goal`` (15: its ``[p, v, R]``) and ``desired_goal`` (15).
 Action: CTBR ``[c, wx, wy, wz]`` (clipped to the action space: ``0 <= c <=`` the
-vehicle's maximum collective thrust, ``|w_i| <= 20`` rad/s). Reward (SPEC.md): sparse,
+vehicle's maximum collective thrust, ``|w_i| <= 20`` rad/s). A NaN or infinite action
+raises :class:`NonFiniteAction` (a ``ValueError``) naming the vehicles: there is no
+safe value to clip it to (zero thrust would cut the motors), so the step is refused
+and the simulation is left as it was; the vehicles a ``NEXT_STEP`` autoreset is
+resetting ignore their action, whatever it holds. Reward (SPEC.md): sparse,
 ``compute_reward(achieved_goal, desired_goal, info)`` = 1 when the goal-reached test
 holds, else 0, batched over any leading dimensions (HER relabels with it). An episode
 *terminates* when the goal is reached (``tolerance_scale`` scales the test's
@@ -37,11 +41,16 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from aerohrl import task
+from aerohrl.errors import UserError
 from aerohrl.eval.tasks import hover_states
 from aerohrl.sim.params import GRAVITY
 
 ENV_ID = "aerohrl/QuadrotorReach-v0"
 RATE_LIMIT = 20.0  # rad/s, commanded body-rate bound of the action space
+
+
+class NonFiniteAction(UserError, ValueError):
+    """An action with NaN or inf: refused (a one-line error in the commands that fly policies)."""
 
 
 def compute_reward(achieved_goal, desired_goal, info=None):
@@ -162,9 +171,14 @@ class QuadrotorReachVectorEnv(VectorEnv):
 
     def step(self, actions):
         n = self.num_envs
-        a = np.nan_to_num(np.asarray(actions, np.float64).reshape(n, 4), nan=0.0, posinf=0.0, neginf=0.0)
-        a = np.clip(a, self.single_action_space.low, self.single_action_space.high)
+        a = np.asarray(actions, np.float64).reshape(n, 4).copy()
         resetting = self._needs_reset.copy() if self.autoreset else np.zeros(n, bool)
+        bad_action = ~np.isfinite(a).all(1) & ~resetting
+        if bad_action.any():
+            rows = np.flatnonzero(bad_action)
+            raise NonFiniteAction(f"non-finite action (NaN or inf) for vehicle(s) {rows[:8].tolist()}"
+                                  + (f" and {len(rows) - 8} more" if len(rows) > 8 else "") + ": step refused")
+        a = np.clip(a, self.single_action_space.low, self.single_action_space.high)
         if resetting.any():  # NEXT_STEP autoreset: these ignore their action
             a[resetting] = [GRAVITY, 0.0, 0.0, 0.0]  # hover command
         self.state = self.sim.step(a)
@@ -229,4 +243,4 @@ def register() -> None:
                  vector_entry_point="aerohrl.eval.gym_env:QuadrotorReachVectorEnv", max_episode_steps=None)
 
 
-__all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "compute_reward", "register", "ENV_ID"]
+__all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "NonFiniteAction", "compute_reward", "register", "ENV_ID"]

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from aerohrl import atomic
 from aerohrl.errors import UserError
 
 PLANNERS = ("none", "single", "multi")
@@ -91,14 +92,14 @@ def run_checkpoints(run_dir, k: int) -> list[Path]:
 
 
 def load_run_dataset(run_dir, override=None):
-    """The run's dataset (``config.json``), or ``override``; identity checked against the run."""
+    """The run's dataset (``config.json``; found by version under ``datasets/`` when it
+    moved), or ``override``; identity checked against the run."""
     from aerohrl.algorithms.data import load_dataset
-    from aerohrl.algorithms.trainer import check_same_dataset, read_json
+    from aerohrl.algorithms.trainer import check_same_dataset, locate_dataset, read_json
 
     meta = read_json(Path(run_dir) / "config.json")
-    path = override or (meta.get("dataset") or {}).get("path") or (meta.get("config") or {}).get("dataset")
-    if not path:
-        raise UserError(f"run {run_dir} names no dataset; pass --dataset PATH")
+    identity = meta.get("dataset") or {"path": (meta.get("config") or {}).get("dataset")}
+    path = locate_dataset(identity, run_dir, override)  # the recorded path, else found by version, else "pass --dataset"
     data = load_dataset(path)
     try:
         check_same_dataset(meta.get("dataset") or {}, data)
@@ -161,6 +162,11 @@ def check_options(opt: EvalOptions) -> None:
 def build_episodes(data, opt: EvalOptions):
     from aerohrl.eval.tasks import make_episodes
 
+    goals = int(data.rest_start_episodes().numel())
+    if opt.task == "reach-desired" and opt.episodes > goals:  # a repeated goal would be flown the same way again
+        raise UserError(f"--episodes {opt.episodes} exceeds the {goals} desired goals of dataset {data.info.get('path')} "
+                        f"(reach-desired flies each goal once); pass --episodes {goals} or fewer")
+
     kw = {}
     if opt.task == "ood":
         # every OOD variant flies the same goals with the same total time
@@ -186,6 +192,7 @@ def evaluate_run(run_dir, opt: EvalOptions) -> dict:
     data, meta = load_run_dataset(run_dir, opt.dataset)
     episodes = build_episodes(data, opt)
     out_dir = Path(opt.out) if opt.out else run_dir / "eval" / opt.name()
+    atomic.remove_stale_temporaries(out_dir)  # left by an evaluation that was killed while writing
     per_ckpt = []
     t_start = time.perf_counter()
     bar = tqdm(ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=not opt.progress, dynamic_ncols=True)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aerohrl.atomic import save_figure
 from aerohrl.errors import UserError
 
 
@@ -29,12 +30,7 @@ def _plt():
 
 
 def _save(fig, out: Path) -> Path:
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.tmp{out.suffix or '.png'}")
-    fig.savefig(tmp, dpi=110)
-    tmp.replace(out)
-    return out
+    return save_figure(fig, out, dpi=110)
 
 
 def _eval_dir(run, task: str, planner: str | None) -> Path:

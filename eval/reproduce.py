@@ -31,7 +31,6 @@ Every stage is the real command line run as a subprocess with ``OMP_NUM_THREADS=
 
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 import sys
@@ -39,7 +38,9 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from aerohrl.errors import UserError, run_cli
+from aerohrl import atomic
+from aerohrl import cli_types as T
+from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl.eval.reproduce"
 ALGOS = ("gcsl", "td3bc", "td3awbc", "cql")
@@ -112,30 +113,28 @@ def update_readme(readme: Path, block: str, begin: str = BEGIN, end: str = END) 
         return False
     head, rest = text.split(begin, 1)
     _, tail = rest.split(end, 1)
-    tmp = readme.with_name(f".{readme.name}.tmp-{os.getpid()}")
-    tmp.write_text(head + begin + "\n" + block.rstrip() + "\n" + end + tail)
-    tmp.replace(readme)
+    atomic.write_text(readme, head + begin + "\n" + block.rstrip() + "\n" + end + tail)
     return True
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog=PROG, description="Build data, train all four algorithms, evaluate, write the tables.")
+    ap = ArgumentParser(prog=PROG, description="Build data, train all four algorithms, evaluate, write the tables.")
     ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
     ap.add_argument("--runs", default="runs", help="runs root [runs]")
     ap.add_argument("--out", default="results", help="tables and plots [results]")
     ap.add_argument("--readme", default="README.md", help="README to write the tables into (between the markers) [README.md]")
     ap.add_argument("--algos", nargs="+", default=list(ALGOS))
-    ap.add_argument("--steps", type=int, default=None, help="override the cpu preset's training steps (smoke runs)")
-    ap.add_argument("--episodes", type=int, default=250)
-    ap.add_argument("--checkpoints", type=int, default=10)
-    ap.add_argument("--oracle-goals", type=int, default=40, help="OOD goals of the planner oracle [40]")
-    ap.add_argument("--oracle-candidates", type=int, default=150, help="candidates of the planner oracle [150]")
-    ap.add_argument("--jobs", type=int, default=2, help="training runs at a time, one thread each [2 = the 2 cores]")
+    ap.add_argument("--steps", type=T.positive_int, default=None, help="override the cpu preset's training steps (smoke runs)")
+    ap.add_argument("--episodes", type=T.positive_int, default=250)
+    ap.add_argument("--checkpoints", type=T.positive_int, default=10)
+    ap.add_argument("--oracle-goals", type=T.positive_int, default=40, help="OOD goals of the planner oracle [40]")
+    ap.add_argument("--oracle-candidates", type=T.positive_int, default=150, help="candidates of the planner oracle [150]")
+    ap.add_argument("--jobs", type=T.positive_int, default=2, help="training runs at a time, one thread each [2 = the 2 cores]")
     ap.add_argument("--planner-algos", nargs="+", default=["gcsl"], help="runs evaluated on OOD with the planners [gcsl]")
-    ap.add_argument("--continuations", type=int, default=5000,
+    ap.add_argument("--continuations", type=T.nonneg_int, default=5000,
                     help="planner experiment: goals and continuation episodes of its dataset (0: skip it) [5000]")
-    ap.add_argument("--continuation-steps", type=int, default=60000, help="planner experiment: GCSL steps [60000]")
-    ap.add_argument("--critic-random-goal-prob", type=float, default=CONT_RANDOM_GOAL,
+    ap.add_argument("--continuation-steps", type=T.positive_int, default=60000, help="planner experiment: GCSL steps [60000]")
+    ap.add_argument("--critic-random-goal-prob", type=T.nonneg_float, default=CONT_RANDOM_GOAL,
                     help=f"planner experiment: the critics' random-goal probability [{CONT_RANDOM_GOAL}]")
     ap.add_argument("--reevaluate", action="store_true", help="redo evaluations whose results are up to date")
     a = ap.parse_args(argv)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerohrl import task
+from aerohrl import atomic, task
 from aerohrl.errors import UserError
 
 # thesis Table 3.1 (success %, mean ± std over the last 10 checkpoints) and Table 3.2
@@ -38,11 +38,7 @@ ALGO_NAMES = {"gcsl": "GCSL", "td3bc": "TD3-BC", "td3awbc": "TD3-AWBC", "cql": "
 
 
 def write_text(path, text: str) -> Path:
-    from aerohrl.algorithms.trainer import atomic_write_bytes  # temporary name, fsync, rename
-
-    path = Path(path)
-    atomic_write_bytes(path, text.encode())
-    return path
+    return atomic.write_text(path, text)  # temporary name, fsync, rename
 
 
 def episode_rows(episodes, r: dict) -> tuple[list[str], list[list]]:
@@ -93,10 +89,7 @@ def write_trajectories(out_dir, step: int, episodes, r: dict) -> Path:
     extra = {k: r[k] for k in ("waypoints", "planned_waypoints") if k in r}
     np.savez_compressed(buf, positions=r["positions"], goals=episodes.goals, start_states=episodes.start_states,
                         success=r["success"], near_success=r["near_success"], steps=r["steps"], **extra)
-    from aerohrl.algorithms.trainer import atomic_write_bytes
-
-    atomic_write_bytes(path, buf.getvalue())
-    return path
+    return atomic.write_bytes(path, buf.getvalue())
 
 
 FAR_AHEAD = 10  # Reach-Intermediate goals at least this many steps ahead: "far" (hovering cannot succeed)

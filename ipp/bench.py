@@ -16,7 +16,7 @@ import numpy as np
 
 from aerohrl.errors import UserError
 
-from ._io import atomic_path
+from aerohrl.atomic import atomic_path
 from .baselines import PLANNERS, TEACHERS, THESIS_NAMES, PlannerConfig, make_planner
 from .env import EnvConfig, SearchEnv, create_env, sample_for
 from .lattice import Lattice
@@ -139,7 +139,7 @@ def render_episode(env: SearchEnv, n: int, path, title: str = "") -> Path:
         fig.suptitle(title)
     fig.tight_layout()
     path = Path(path)
-    with atomic_path(path, path.suffix or ".png") as tmp:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format=(path.suffix.lstrip(".") or "png"))
     plt.close(fig)
     return path

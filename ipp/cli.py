@@ -23,6 +23,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from aerohrl import atomic
+from aerohrl import cli_types as T
 from aerohrl.errors import UserError, run_cli
 
 PROG = "aerohrl ipp"
@@ -49,14 +51,14 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("-o", "--output", required=True, help="lattice file to write (.npz)")
     b.add_argument("--plot", help="figure path (default: <output>.png)")
     b.add_argument("--no-plot", action="store_true")
-    b.add_argument("--vertices", type=int, default=lc.n_vertices, dest="n_vertices")
-    b.add_argument("--v-max", type=float, default=lc.v_max)
-    b.add_argument("--a-max", type=float, default=lc.a_max)
-    b.add_argument("--rho", type=float, default=lc.rho)
-    b.add_argument("--reach", type=int, default=lc.reach)
-    b.add_argument("--max-edges", type=int, default=lc.max_edges)
-    b.add_argument("--footprint-radius", type=int, default=lc.footprint_radius)
-    b.add_argument("--sense-dt", type=float, default=lc.sense_dt)
+    b.add_argument("--vertices", type=T.positive_int, default=lc.n_vertices, dest="n_vertices")
+    b.add_argument("--v-max", type=T.positive_float, default=lc.v_max)
+    b.add_argument("--a-max", type=T.positive_float, default=lc.a_max)
+    b.add_argument("--rho", type=T.positive_float, default=lc.rho)
+    b.add_argument("--reach", type=T.positive_int, default=lc.reach)
+    b.add_argument("--max-edges", type=T.positive_int, default=lc.max_edges)
+    b.add_argument("--footprint-radius", type=T.nonneg_int, default=lc.footprint_radius)
+    b.add_argument("--sense-dt", type=T.positive_float, default=lc.sense_dt)
 
     def world_flags(q):
         q.add_argument("--world", choices=("targets", "semantic"), default=None,
@@ -64,20 +66,20 @@ def _parser() -> argparse.ArgumentParser:
                        "(Table 2.2)")
         q.add_argument("--raster", help="semantic: class raster (.npy/.npz/.png) instead of "
                        "procedural campus maps (see aerohrl.ipp.semantic)")
-        q.add_argument("--map-size", type=int, default=None,
+        q.add_argument("--map-size", type=T.positive_int, default=None,
                        help=f"cells per side (default {ec.map_size}; semantic 256)")
-        q.add_argument("--budget", type=float, default=None,
+        q.add_argument("--budget", type=T.positive_float, default=None,
                        help=f"cost budget (default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
 
     def env_flags(q):
         q.add_argument("--lattice", help="lattice file (default: the shipped one)")
         world_flags(q)
         q.add_argument("--start", choices=("center", "random"), default=ec.start)
-        q.add_argument("--seed", type=int, default=TEST_SEED, help="test-suite seed")
-        q.add_argument("--depth", type=int, default=None, help="tree depth (greedy/dp/coverage)")
-        q.add_argument("--horizon", type=int, default=5, help="CMA-ES horizon")
-        q.add_argument("--popsize", type=int, default=12)
-        q.add_argument("--generations", type=int, default=15)
+        q.add_argument("--seed", type=T.nonneg_int, default=TEST_SEED, help="test-suite seed")
+        q.add_argument("--depth", type=T.positive_int, default=None, help="tree depth (greedy/dp/coverage)")
+        q.add_argument("--horizon", type=T.positive_int, default=5, help="CMA-ES horizon")
+        q.add_argument("--popsize", type=T.positive_int, default=12)
+        q.add_argument("--generations", type=T.positive_int, default=15)
         q.add_argument("--budget-aware", action=argparse.BooleanOptionalAction, default=None,
                        help="tree planners: score by min(cost, remaining budget) (default: "
                        "on for detect only)")
@@ -91,31 +93,31 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--resume", metavar="RUN",
                     help="continue RUN from its checkpoint.pt with its config.json "
                     "(only --iterations, --lattice, --no-progress may be given)")
-    tr.add_argument("--envs", type=int, default=None, dest="n_envs")
-    tr.add_argument("--iterations", type=int, default=None, help="PPO iterations")
-    tr.add_argument("--bc-iterations", type=int, default=None,
+    tr.add_argument("--envs", type=T.positive_int, default=None, dest="n_envs")
+    tr.add_argument("--iterations", type=T.nonneg_int, default=None, help="PPO iterations")
+    tr.add_argument("--bc-iterations", type=T.nonneg_int, default=None,
                     help="DAgger warm-start iterations before PPO (0: none)")
     tr.add_argument("--teacher", default=None, help=" | ".join(TEACHER_PLANNERS))
-    tr.add_argument("--teacher-depth", type=int, default=None)
+    tr.add_argument("--teacher-depth", type=T.positive_int, default=None)
     tr.add_argument("--adv-weights", type=_floats, default=None,
                     help="per-term advantage weights, comma-separated: entropy,coverage,"
                     "target,cost,invalid (thesis: 1,1,1,1,1)")
-    tr.add_argument("--seed", type=int, default=None)
-    tr.add_argument("--threads", type=int, default=None)
+    tr.add_argument("--seed", type=T.nonneg_int, default=None)
+    tr.add_argument("--threads", type=T.positive_int, default=None)
     tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
     tr.add_argument("--no-features", action="store_true",
                     help="map observations only (thesis), no per-primitive features")
-    tr.add_argument("--lr", type=float, default=None)
-    tr.add_argument("--bc-lr", type=float, default=None)
-    tr.add_argument("--bc-anchor", type=float, default=None,
+    tr.add_argument("--lr", type=T.positive_float, default=None)
+    tr.add_argument("--bc-lr", type=T.positive_float, default=None)
+    tr.add_argument("--bc-anchor", type=T.nonneg_float, default=None,
                     help="PPO: weight of a cross entropy to the teacher (0: off)")
-    tr.add_argument("--entropy-coef", type=float, default=None)
-    tr.add_argument("--eval-every", type=int, default=None,
+    tr.add_argument("--entropy-coef", type=T.nonneg_float, default=None)
+    tr.add_argument("--eval-every", type=T.nonneg_int, default=None,
                     help="validate the greedy policy every N iterations (0: never)")
     tr.add_argument("--init", help="warm start from a trained run (fine-tuning)")
     tr.add_argument("--start", choices=("center", "random"), default=None,
                     help="training start cells (default random; test suite: center)")
-    tr.add_argument("--run-dir", help="output directory (default runs/ipp-<preset>-<time>)")
+    tr.add_argument("--run-dir", help="output directory, must be new (default runs/ipp-<preset>-<time>-<random>)")
     tr.add_argument("--lattice", help="lattice file (default: the shipped one)")
     world_flags(tr)
     tr.add_argument("--no-progress", action="store_true")
@@ -129,15 +131,15 @@ def _parser() -> argparse.ArgumentParser:
     g = be.add_mutually_exclusive_group()
     g.add_argument("--planner", help=f"one of {', '.join(PLANNERS + TEACHERS)}, rl (default dp)")
     g.add_argument("--all", action="store_true", help="every baseline (+ rl with --run)")
-    be.add_argument("--envs", type=int, default=None,
+    be.add_argument("--envs", type=T.positive_int, default=None,
                     help="test environments (default 100; semantic 30, as the thesis)")
-    be.add_argument("--batch", type=int, default=100, help="environments stepped together")
+    be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together")
     be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
     be.add_argument("--no-progress", action="store_true")
     env_flags(be)
 
     sh = sub.add_parser("show", help="Fig. 2.3 analogue: truth, prior, path over the budget")
-    sh.add_argument("--env", type=int, default=0, help="test-suite world index")
+    sh.add_argument("--env", type=T.nonneg_int, default=0, help="test-suite world index")
     sh.add_argument("--planner", default="dp")
     sh.add_argument("-o", "--output", required=True)
     env_flags(sh)
@@ -276,6 +278,7 @@ def _bench(a) -> int:
 
 
 def _train(a) -> int:
+    import secrets
     import time
 
     from tqdm import tqdm
@@ -317,7 +320,7 @@ def _train(a) -> int:
                      features=False if a.no_features else None)
         cfg = replace(cfg, env=_env_config(a, a.start or "random"))
         run = Path(a.run_dir or f"runs/ipp-{a.preset}{'-nornn' if a.no_rnn else ''}-"
-                   f"{time.strftime('%Y%m%d-%H%M%S')}")
+                   f"{time.strftime('%Y%m%d-%H%M%S')}-{secrets.token_hex(3)}")  # two runs in one second differ
         lat = get_lattice(a.lattice, cfg.env.kind)
     if a.threads is not None and a.threads < 1:
         raise UserError(f"--threads must be >= 1, got {a.threads}")
@@ -326,6 +329,8 @@ def _train(a) -> int:
     cfg.validate()
     from .env import create_env
     create_env(cfg.env, lat)
+    if not a.resume and not atomic.new_folder(run):  # exclusive: a second run never writes into the first's
+        raise UserError(f"run folder {run} exists; choose another --run-dir, or --resume {run}")
     bar = tqdm(total=cfg.total_iterations, desc="train", file=sys.stderr, disable=a.no_progress)
     last = train(cfg, lat, run, progress=bar, resume=bool(a.resume))
     bar.close()

@@ -66,7 +66,7 @@ import numpy as np
 
 from aerohrl.errors import UserError
 
-from ._io import atomic_path
+from aerohrl.atomic import atomic_path
 
 FORMAT = "aerohrl-ipp-lattice"
 VERSION = 1
@@ -407,7 +407,7 @@ def save_lattice(lat: Lattice, path: str | os.PathLike) -> Path:
     """Write ``lat`` to ``path`` (.npz) atomically (temp file, then rename)."""
     path = Path(path)
     meta = {"format": FORMAT, "version": VERSION, "config": asdict(lat.config)}
-    with atomic_path(path, ".npz") as tmp:
+    with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, meta=np.array(json.dumps(meta)),
                                 **{k: getattr(lat, k) for k in _ARRAYS})

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._io import atomic_path
+from aerohrl.atomic import atomic_path
 
 METRICS = ("coverage", "entropy_reduction", "search_efficiency")
 

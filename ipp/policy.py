@@ -26,7 +26,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from aerohrl.errors import UserError
+from aerohrl import atomic
+from aerohrl.errors import UserError, warn
 
 from .baselines import Planner
 from .env import TERMS
@@ -101,10 +102,9 @@ def valid_loss(phi_logits, valid, beta1: float = 1.0, beta2: float = 0.2):
 
 
 def save_policy(model: ActorCritic, dims: dict, path, env_kind: str = "targets") -> None:
-    from ._io import atomic_path
-    with atomic_path(path, ".pt") as tmp:
-        torch.save({"state_dict": model.state_dict(), "dims": dims,
-                    "config": asdict(model.cfg), "env_kind": env_kind}, tmp)
+    """Atomically, with a SHA-256 sidecar (``model.pt.sha256``) checked by :func:`load_policy`."""
+    atomic.torch_save(path, {"state_dict": model.state_dict(), "dims": dims,
+                             "config": asdict(model.cfg), "env_kind": env_kind})
 
 
 def load_policy(path) -> ActorCritic:
@@ -113,8 +113,8 @@ def load_policy(path) -> ActorCritic:
         path = path / "model.pt"
     if not path.is_file():
         raise UserError(f"no trained policy at {path} (run 'aerohrl ipp train' first)")
+    ck = atomic.torch_load(path, weights_only=True, warn=warn)  # CheckpointDamaged names the file
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
         model = ActorCritic(**ck["dims"], cfg=PolicyConfig(**ck["config"]))
         model.env_kind = ck.get("env_kind", "targets")
         model.load_state_dict(ck["state_dict"])

@@ -54,9 +54,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from aerohrl.errors import UserError
+from aerohrl.errors import UserError, warn
 
-from ._io import atomic_path
+from aerohrl import atomic
+from aerohrl.atomic import atomic_path
 from .env import TERMS, EnvConfig, create_env, sample_for, semantic_config
 from .features import N_FEAT
 from .lattice import Lattice
@@ -394,13 +395,12 @@ def evaluate(model, lattice: Lattice, env_cfg: EnvConfig, seed: int, n: int) -> 
 
 # ------------------------------------------------------------------------ checkpoints
 def _save_checkpoint(path, model, opt, it, buffer, best, elapsed, dims, kind):
-    with atomic_path(path, ".pt") as tmp:
-        torch.save({"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
-                    "iteration": it, "model": model.state_dict(), "opt": opt.state_dict(),
-                    "torch_rng": torch.get_rng_state(),
-                    "numpy_rng": _np_rng_state(),
-                    "buffer": buffer, "best": best, "elapsed": elapsed, "dims": dims,
-                    "env_kind": kind}, tmp)
+    atomic.torch_save(path, {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
+                             "iteration": it, "model": model.state_dict(), "opt": opt.state_dict(),
+                             "torch_rng": torch.get_rng_state(),
+                             "numpy_rng": _np_rng_state(),
+                             "buffer": buffer, "best": best, "elapsed": elapsed, "dims": dims,
+                             "env_kind": kind})
 
 
 def _np_rng_state() -> dict:
@@ -417,10 +417,7 @@ def _set_np_rng_state(d: dict) -> None:
 def _load_checkpoint(path) -> dict:
     if not Path(path).is_file():
         raise UserError(f"{path.parent}: no checkpoint.pt to resume from")
-    try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise UserError(f"{path}: not a training checkpoint ({type(e).__name__})") from None
+    ck = atomic.torch_load(path, weights_only=True, warn=warn)  # CheckpointDamaged names the file
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
         raise UserError(f"{path}: not a training checkpoint")
     if ck.get("version") != CHECKPOINT_VERSION:
@@ -446,6 +443,7 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None,
     torch.set_num_threads(cfg.threads)
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
+    atomic.remove_stale_temporaries(run_dir)  # a kill during a write leaves its temporary
     env = create_env(cfg.env, lattice)
     obs = env.reset(sample_for(cfg.env, cfg.seed, range(cfg.n_envs)))
     dims = _dims(env, obs, cfg)
@@ -628,7 +626,7 @@ def plot_learning_curve(run_dir, out=None) -> Path:
                  f"{rows[-1].get('time_s', 0) / 60:.1f} min")
     fig.tight_layout()
     path = Path(out) if out is not None else Path(run_dir) / "learning_curve.png"
-    with atomic_path(path, path.suffix or ".png") as tmp:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format=path.suffix.lstrip(".") or "png")
     plt.close(fig)
     return path

@@ -3,10 +3,98 @@
 The Hugging Face Hub is made unreachable for the whole suite: lerobot silently falls
 back to the Hub when a local dataset is missing or inconsistent, and a test must fail
 loudly then instead of passing by download (or hanging).
+
+``small_disk`` is a folder on a file system that is nearly full: a real 2 MB tmpfs
+where the tests run as root and may mount one, else a folder whose writes fail with
+ENOSPC once ``fill()`` is called (a monkeypatched ``os.write`` path would miss torch's
+own writer, so the fallback patches the file object ``open`` returns).
 """
 
+import errno
 import os
+import subprocess
+import uuid
+from pathlib import Path
+
+import pytest
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+class SmallDisk:
+    """A folder whose file system can be filled up (``fill``) and freed (``free``)."""
+
+    def __init__(self, path: Path, real: bool, monkeypatch):
+        self.path, self.real, self._mp = path, real, monkeypatch
+        self._filler = path / f".filler-{uuid.uuid4().hex}"
+
+    def fill(self, leave: int = 0) -> None:
+        """Use up the space, leaving about ``leave`` bytes free."""
+        if self.real:
+            with open(self._filler, "wb", buffering=0) as f:
+                try:
+                    while True:
+                        f.write(b"\0" * 65536)
+                except OSError as e:
+                    assert e.errno == errno.ENOSPC
+            if leave:
+                size = self._filler.stat().st_size
+                os.truncate(self._filler, max(0, size - leave))
+            return
+        import builtins
+
+        real_open, root, budget = builtins.open, str(self.path), [leave]
+
+        class Full:
+            def __init__(self, f):
+                self._f = f
+
+            def write(self, b):
+                budget[0] -= len(b)
+                if budget[0] < 0:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                return self._f.write(b)
+
+            def __getattr__(self, k):
+                return getattr(self._f, k)
+
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *a):
+                return self._f.__exit__(*a)
+
+        def fake_open(file, mode="r", *a, **k):
+            f = real_open(file, mode, *a, **k)
+            return Full(f) if str(file).startswith(root) and any(c in mode for c in "wa") else f
+
+        self._mp.setattr(builtins, "open", fake_open)
+
+    def free(self) -> None:
+        if self.real:
+            self._filler.unlink(missing_ok=True)
+        else:
+            self._mp.undo()
+
+
+@pytest.fixture
+def dead_pid() -> int:
+    """The pid of a process that has exited (what a killed writer leaves in its temporaries' names)."""
+    p = subprocess.Popen(["true"])
+    p.wait()
+    return p.pid
+
+
+@pytest.fixture
+def small_disk(tmp_path, monkeypatch):
+    mnt = tmp_path / "small-disk"
+    mnt.mkdir()
+    real = os.geteuid() == 0 and subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
+                                               capture_output=True).returncode == 0
+    try:
+        yield SmallDisk(mnt, real, monkeypatch)
+    finally:
+        if real:
+            subprocess.run(["umount", "-l", str(mnt)], capture_output=True)

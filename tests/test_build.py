@@ -100,6 +100,44 @@ def test_interrupted_build_leaves_nothing(tmp_path, monkeypatch):
     assert left == [], left
 
 
+def test_estimate_is_logged_and_a_build_that_does_not_fit_refused(tmp_path, monkeypatch):
+    from aerohrl.datagen import estimate as est_mod
+
+    said = []
+    res = build(DatasetSpec(goals=40, seed=3), tmp_path, progress=False, log=said.append)
+    line = next(s for s in said if s.startswith("estimate:"))
+    frames = int(line.split(" episodes, ")[1].split(" frames")[0].replace(",", ""))
+    assert abs(frames - res.frames) < 0.15 * res.frames and "40 episodes" in line and "on disk" in line
+    monkeypatch.setattr(est_mod, "available_memory", lambda: 50e6)  # less than the 200 MB base
+    monkeypatch.setattr(build_mod, "generate", lambda *a, **k: pytest.fail("started a build that cannot fit"))
+    with pytest.raises(UserError, match=r"needs about 2\d\d\.\d MB of memory \(50\.0 MB available\).*--force"):
+        build(DatasetSpec(goals=40, seed=4), tmp_path, progress=False, log=lambda *a: None)
+    monkeypatch.undo()
+    monkeypatch.setattr(est_mod, "available_disk", lambda folder: 1000.0)
+    assert build(DatasetSpec(goals=3, seed=4), tmp_path, progress=False, log=lambda *a: None, force=True).created
+
+
+def test_two_builds_of_one_version_at_once_both_succeed(tmp_path, monkeypatch):
+    """The second to finish finds the first's result in place (rename fails: ENOTEMPTY),
+    verifies it and keeps it instead of failing with 'Directory not empty'."""
+    spec = DatasetSpec(goals=3, seed=5)
+    real = build_mod.generate
+    first = []
+
+    def racing(s, progress=True):
+        data = real(s, progress)
+        monkeypatch.setattr(build_mod, "generate", real)
+        first.append(build(s, tmp_path, progress=False, log=lambda *a: None))  # the other process, finishing first
+        return data
+
+    monkeypatch.setattr(build_mod, "generate", racing)
+    said = []
+    second = build(spec, tmp_path, progress=False, log=said.append)
+    assert first[0].created and not second.created and second.path == first[0].path
+    assert any("another build of" in s for s in said) and validate(second.path) == []
+    assert sorted(p.name for p in (tmp_path / "quadrotor-reach").iterdir()) == [second.path.name]
+
+
 def test_version_name_derives_from_spec():
     a = version_name(DatasetSpec())
     assert a == version_name(DatasetSpec())
@@ -157,7 +195,7 @@ def test_continuation_episodes_are_not_reach_desired_goals(tmp_path):
 
 
 @pytest.mark.parametrize("kw,msg", [
-    ({"continuations": -1}, "non-negative"),
+    ({"continuations": -1}, "non-negative"), ({"seed": -1}, "--seed must be an integer >= 0"),
     ({"goals": 0}, "positive"), ({"goals": -4}, "positive"), ({"pos_range": (2.0, 1.0)}, "inverted"),
     ({"vel_range": (1.0, 1.0)}, "empty"), ({"solver": "cvx"}, "solver"), ({"degree": 7}, "closed-form"),
 ])

@@ -22,6 +22,7 @@ def assert_one_line_error(p):
 @pytest.mark.parametrize("flags", [
     ["--goals", "0"], ["--goals", "-3"], ["--goals", "many"], ["--pos-range", "2", "1"], ["--vel-range", "1", "1"],
     ["--acc-range", "5", "-5"], ["--solver", "magic"], ["--vehicle", "blimp"], ["--spec", "/nonexistent.toml"],
+    ["--seed", "-1"], ["--fps", "0"], ["--a-max", "-1"], ["--t-max", "nan"], ["--continuations", "-2"],
 ])
 def test_build_bad_input(flags, tmp_path):
     assert_one_line_error(run("aerohrl.datagen.cli", "build", "--out", str(tmp_path), *flags))
@@ -58,6 +59,33 @@ def test_cli_round_trip_and_damage(tmp_path):
     open(card, "wb").write(bytes(raw))
     v = run("aerohrl.datagen.cli", "validate", path)
     assert v.returncode != 0 and "README.md" in v.stderr and "Traceback" not in v.stderr
+
+
+def test_build_that_cannot_fit_is_refused_before_it_starts(tmp_path):
+    """The probe `--goals 100000000`: an estimate, then a one-line refusal (about 21 TB of memory)."""
+    p = run("aerohrl.datagen.cli", "build", "--goals", "100000000", "--out", str(tmp_path))
+    assert_one_line_error(p)
+    assert "needs about" in p.stderr and "memory" in p.stderr and "--force" in p.stderr
+    assert "estimate: 100,000,000 episodes" in p.stdout
+    assert not list((tmp_path / "quadrotor-reach").iterdir())
+
+
+def test_reading_commands_warn_on_a_damaged_dataset(tmp_path, capsys):
+    from aerohrl.datagen.build import build
+    from aerohrl.datagen.cli import main
+    from aerohrl.datagen.spec import DatasetSpec
+
+    path = build(DatasetSpec(goals=3, seed=4), tmp_path, progress=False, log=lambda *a: None).path
+    for cmd in (["info"], ["plot", "-o", str(tmp_path / "g.png")], ["export-mcap", "--episode", "0", "-o", str(tmp_path / "e.mcap")]):
+        assert main([cmd[0], str(path), *cmd[1:]]) == 0
+        assert "warning" not in capsys.readouterr().err
+    card = path / "README.md"
+    card.write_bytes(card.read_bytes().replace(b"Expert", b"expert", 1))
+    for cmd in (["info"], ["plot", "-o", str(tmp_path / "g.png")], ["export-mcap", "--episode", "0", "-o", str(tmp_path / "e.mcap")]):
+        assert main([cmd[0], str(path), *cmd[1:]]) == 0, cmd
+        err = capsys.readouterr().err.strip()
+        assert err == f"datagen: warning: {path} is damaged: checksum mismatch: README.md; what follows may be wrong " \
+                      f"(`datagen validate {path}` lists it all)", cmd
 
 
 def test_umbrella_unknown_command():

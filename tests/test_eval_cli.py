@@ -12,6 +12,7 @@ import torch
 from aerohrl.algorithms.config import make_config
 from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
 from aerohrl.algorithms.trainer import start_run
+from aerohrl.atomic import torch_save
 from aerohrl.cli import main
 
 warnings.filterwarnings("ignore", category=UserWarning)
@@ -34,7 +35,10 @@ def setup(tmp_path_factory):
 
 
 def _err(capsys, argv):
-    code = main(argv)
+    try:
+        code = main(argv)
+    except SystemExit as e:  # a usage error found while parsing (aerohrl.cli_types): one line, exit 2
+        code = e.code
     err = capsys.readouterr().err.strip()
     return code, err
 
@@ -85,7 +89,8 @@ def test_intermediate_ood_planners_table_and_plots(setup, capsys, tmp_path):
     assert all((tmp_path / f).stat().st_size > 1000 for f in ("ood.png", "rd.png", "c.png"))
 
 
-@pytest.mark.parametrize("case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals"])
+@pytest.mark.parametrize("case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals",
+                                  "more-than-goals", "bad-seed"])
 def test_bad_input_is_one_line(setup, capsys, case):
     run, empty = str(setup["run"]), str(setup["empty"])
     argv, match = {
@@ -93,9 +98,12 @@ def test_bad_input_is_one_line(setup, capsys, case):
         "no-ckpt": (["eval", "--task", "reach-desired", "--run", empty], "has no checkpoints"),
         "no-run": (["eval", "--task", "reach-desired", "--run", run + "-missing"], "no run at"),
         "mismatch": (["eval", "--task", "reach-desired", "--run", run, "--dataset", str(setup["other"])], "does not belong"),
-        "empty-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "0"], "empty goal set"),
+        "empty-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "0"], "--episodes: must be >= 1"),
         "planner-task": (["eval", "--task", "reach-desired", "--run", run, "--planner", "single"], "ood only"),
         "no-evals": (["eval", "table", empty], "none of the runs has evaluation results"),
+        "more-than-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "5"],
+                            "--episodes 5 exceeds the 4 desired goals of dataset"),
+        "bad-seed": (["eval", "--task", "ood", "--run", run, "--seed", "-1"], "--seed: must be >= 0"),
     }[case]
     code, err = _err(capsys, argv)
     assert code == 2 and err.startswith("aerohrl eval: error: ") and match in err and "\n" not in err
@@ -108,7 +116,7 @@ def test_checkpoint_from_another_dataset_is_refused(setup, tmp_path, capsys):
     shutil.copytree(setup["run"], run)
     ck = torch.load(run / "checkpoints" / "step-000000040.pt", weights_only=False)
     ck["dataset"]["checksum"] = "0" * 64
-    torch.save(ck, run / "checkpoints" / "step-000000040.pt")
+    torch_save(run / "checkpoints" / "step-000000040.pt", ck)  # a checkpoint written so, its SHA-256 beside it
     code, err = _err(capsys, ["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2"])
     assert code == 2 and "do not belong together" in err and "step-000000040.pt" in err
 

@@ -82,3 +82,24 @@ def test_tolerance_scale(tol):
     env.reset(options={"goals": g})
     _, _, term, _, info = env.step(np.array([HOVER]))
     assert bool(term[0]) == (tol == 2.5) and not info["is_success"][0]
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_actions_are_refused_not_turned_into_motors_off(bad):
+    from aerohrl.eval.gym_env import NonFiniteAction
+
+    env = QuadrotorReachVectorEnv(3, horizon=50)
+    env.reset(seed=0)
+    before = env.state.copy()
+    a = np.tile(HOVER, (3, 1))
+    a[1, 0] = bad
+    with pytest.raises(NonFiniteAction, match=r"vehicle\(s\) \[1\].*step refused"):
+        env.step(a)
+    assert np.array_equal(env.state, before) and (env.elapsed == 0).all()  # nothing flew
+    single = gym.make(ENV_ID)
+    single.reset(seed=0)
+    with pytest.raises(ValueError):  # NonFiniteAction is a ValueError for Gymnasium code
+        single.step(np.array([bad, 0.0, 0.0, 0.0]))
+    # finite but huge: clipped to the action space (full thrust), as documented
+    _, _, _, _, info = env.step(np.tile([1e30, 0.0, 0.0, 0.0], (3, 1)))
+    assert not info["diverged"].any() and (env.state[:, 5] > 0).all()  # climbing: the motors are on

@@ -37,7 +37,8 @@ def test_bench_and_show(tmp_path, capsys):
     (["bench", "--budget", "10"], "budget"),
     (["bench", "--budget", "nan"], "budget"),
     (["bench", "--map-size", "4"], "too small"),
-    (["bench", "--map-size", "0"], "map size"),
+    (["bench", "--map-size", "0"], "--map-size: must be >= 1"),
+    (["bench", "--seed", "-1"], "--seed: must be >= 0"),
     (["bench", "--envs", "0"], "--envs"),
     (["bench", "--depth", "7", "--envs", "1"], "depth"),
     (["bench", "--lattice", "MISSING.npz"], "not found"),
@@ -47,7 +48,7 @@ def test_bench_and_show(tmp_path, capsys):
     (["train", "--preset", "gpu-cluster"], "unknown preset"),
     (["train", "--preset", "test", "--iterations", "-1"], "--iterations"),
     (["lattice", "build"], "required"),
-    (["lattice", "build", "-o", "x.npz", "--vertices", "0"], "n_vertices"),
+    (["lattice", "build", "-o", "x.npz", "--vertices", "0"], "--vertices: must be >= 1"),
 ])
 def test_bad_input_one_line_error(argv, msg, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -72,3 +73,11 @@ def test_train_then_bench_rl(tmp_path, capsys):
     assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
                  "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 0
     assert "Ours-LSTM" in capsys.readouterr().out
+    model = run / "model.pt"
+    raw = bytearray(model.read_bytes())
+    raw[len(raw) // 2] ^= 0x01  # a weight: torch alone would load it
+    model.write_bytes(bytes(raw))
+    assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
+                 "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"aerohrl ipp: error: checkpoint {model} is damaged: its SHA-256 differs from model.pt.sha256"
