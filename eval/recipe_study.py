@@ -68,6 +68,7 @@ EVALS = [  # (column, aerohrl eval flags)
     ("ood-goaltol0.5", ["--task", "ood", "--planner", "none", "--goal-tol", "0.5"]),
 ]
 EVAL_DIR = {"ood": "ood-none", "ood-goaltol0.5": "ood-none-goaltol0.5"}
+EPISODES = 250  # per task and checkpoint (Table 3.1 protocol)
 FLOORS = ("hover", "no-goal")  # eval/floors.py: flown on the newest checkpoint of every seed-0 run
 FLOOR_COLS = ("reach-desired", "reach-novel", "reach-intermediate", "ood")
 
@@ -110,14 +111,18 @@ def _run(cmd: list[str], log) -> str:
     return p.stdout
 
 
+def flights_per_goal(recipe: str) -> int:
+    """The recipe's ``--rollouts-per-goal`` (1 when it has none)."""
+    flags = RECIPES.get(recipe, [])
+    return int(flags[flags.index("--rollouts-per-goal") + 1]) if "--rollouts-per-goal" in flags else 1
+
+
 def dataset_for(py: str, recipe: str, goals: int, root: str, log) -> str:
     """Build (or verify) the dataset of ``recipe`` with ``goals`` goals; its path."""
     if recipe not in RECIPES:
         raise UserError(f"unknown recipe {recipe!r} (choose from {', '.join(RECIPES)})")
     flags = list(RECIPES[recipe])
-    if "--rollouts-per-goal" in flags:  # equal flights: k flights of goals / k goals
-        k = int(flags[flags.index("--rollouts-per-goal") + 1])
-        goals = max(1, goals // k)
+    goals = max(1, goals // flights_per_goal(recipe))  # equal flights: k flights of goals / k goals
     out = _run([py, "-m", "aerohrl.datagen.cli", "build", "--goals", str(goals), "--seed", "0", "--out", root, "--quiet",
                 *flags], log)
     return out.strip().splitlines()[-1].strip()
@@ -140,8 +145,9 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log) -> Path:
         todo += [(f"{EVAL_DIR.get(col, col)}-floor-{f}", flags + ["--floor", f], 1)
                  for f in FLOORS for col, flags in EVALS if col in FLOOR_COLS]
     for name, flags, kk in todo:
-        if not _evaluated(rd, name, 250, kk):
-            _run([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", "250", "--checkpoints", str(kk),
+        n = min(EPISODES, row.goals) if name.startswith("reach-desired") else EPISODES  # one flight per own goal at most
+        if not _evaluated(rd, name, n, kk):
+            _run([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", str(n), "--checkpoints", str(kk),
                   "--no-progress"], log)
     return rd
 
@@ -164,13 +170,27 @@ def critics_auc(rd: Path) -> float:
         return float("nan")
     with open(f) as fh:
         success = np.array([int(r["success"]) for r in csv.DictReader(fh)], bool)
-    spec = read_json(rd / "config.json").get("dataset", {}).get("spec", {})
+    from aerohrl.datagen.manifest import read_manifest
+
+    spec = read_manifest(read_json(rd / "config.json")["dataset"]["path"]).get("spec", {})  # its ranges: the task's goals
     eps = reach_novel(SimpleNamespace(info={"spec": spec}), len(success), 0)
+    if not np.allclose(eps.goals, _episode_goals(f)):
+        raise UserError(f"{f}: its Reach-Novel goals are not the task's (the dataset moved or changed?)")
     algo, _ = load_policy(ck)
     s = torch.as_tensor(eps.start_states, dtype=torch.float32)
     g = torch.as_tensor(eps.goals, dtype=torch.float32)
     v = algo.critics(s, g, algo.act(s, g)).mean(0).numpy()
     return roc_auc(v, success)
+
+
+def _episode_goals(csv_path: Path) -> np.ndarray:
+    """(E, 15) goals of an evaluation's per-episode file."""
+    import csv
+
+    from aerohrl import task
+
+    with open(csv_path) as fh:
+        return np.array([[float(r[f"goal_{n}"]) for n in task.GOAL_NAMES] for r in csv.DictReader(fh)])
 
 
 def row_figures(rd: Path, suffix: str = "") -> dict:
@@ -239,11 +259,8 @@ def _cell(c: dict | None, digits: int = 1) -> str:
 
 
 def _flights(recipe: str, goals: int) -> str:
-    flags = RECIPES.get(recipe, [])
-    if "--rollouts-per-goal" in flags:
-        k = int(flags[flags.index("--rollouts-per-goal") + 1])
-        return f"{goals // k:,} x {k}"
-    return f"{goals:,}"
+    k = flights_per_goal(recipe)
+    return f"{goals // k:,} x {k}" if k > 1 else f"{goals:,}"
 
 
 def table(recs: list[dict]) -> str:
