@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from aerohrl.errors import UserError, run_cli
+from aerohrl.eval.reproduce import _evaluated, update_readme
 
 PROG = "aerohrl.eval.recipe_study"
 BEGIN, END = "<!-- recipes:begin -->", "<!-- recipes:end -->"
@@ -130,8 +131,6 @@ def dataset_for(py: str, recipe: str, goals: int, root: str, log) -> str:
 
 def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log) -> Path:
     """Train (or resume) the row's run, then every evaluation not yet up to date."""
-    from aerohrl.eval.reproduce import _evaluated
-
     rd = runs / row.name
     train = [py, "-m", "aerohrl.algorithms.cli"]
     if (rd / "config.json").exists():
@@ -340,6 +339,13 @@ def main(argv=None) -> int:
         import concurrent.futures as cf
         import io
 
+        # everything the report needs, imported now: a study runs for hours, and modules
+        # edited meanwhile must not be mixed with the ones already loaded
+        import aerohrl.eval.harness  # noqa: F401
+        import aerohrl.eval.oracle  # noqa: F401
+        import aerohrl.eval.tasks  # noqa: F401
+        import aerohrl.datagen.manifest  # noqa: F401
+
         if a.jobs < 1 or a.goals_scale <= 0 or (a.steps is not None and a.steps < 1):
             raise UserError("--jobs and --steps must be >= 1, --goals-scale > 0")
         py = sys.executable
@@ -385,8 +391,6 @@ def main(argv=None) -> int:
                  + ".\n\n" + "\n".join(sections) + (f"\nPlot: `{fig}`.\n" if fig else ""))
         (out / "recipes.md").write_text(block)
         (out / "recipes.json").write_text(json.dumps(all_recs, indent=1))
-        from aerohrl.eval.reproduce import update_readme
-
         where = a.readme if update_readme(Path(a.readme), block, BEGIN, END) else f"{out / 'recipes.md'}"
         print(f"recipe tables written to {where} ({(time.perf_counter() - t0) / 60:.1f} min)")
         return 0

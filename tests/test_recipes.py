@@ -216,3 +216,10 @@ def test_bc_target_expert_imitates_the_clean_command(tmp_path):
         else:
             torch.testing.assert_close(norm.action_from_unit(actor["action"]), expect[i])
             torch.testing.assert_close(norm.action_from_unit(b["action"]), data.action[i])  # unchanged by actor_batch
+
+
+def test_the_recommended_spec_is_the_measured_dataset():
+    """datasets/quadrotor-reach-dart.toml is the dataset of the recipe study's best rows."""
+    root = Path(__file__).resolve().parents[1]
+    spec = load_spec(root / "datasets" / "quadrotor-reach-dart.toml")
+    assert version_name(spec) == version_name(DatasetSpec(goals=25000, action_noise=(1.0, 0.5))) == "n25000-s0-81b96355"
