@@ -24,13 +24,18 @@ from aerohrl.sim.params import GRAVITY
 FLOORS = ("none", "hover", "no-goal")
 
 
-class HoverPolicy(nn.Module):
-    """``act(s, g) = [g, 0, 0, 0]``; the wrapped policy's normaliser bounds the clip."""
+class _Floor(nn.Module):
+    """A policy built on a trained algorithm ``inner``, sharing its normaliser (which the
+    closed loop's action clip reads)."""
 
     def __init__(self, algo):
         super().__init__()
         self.inner = algo
         self.normalizer = algo.normalizer
+
+
+class HoverPolicy(_Floor):
+    """``act(s, g) = [g, 0, 0, 0]``, whatever the goal."""
 
     @torch.no_grad()
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
@@ -39,13 +44,8 @@ class HoverPolicy(nn.Module):
         return a
 
 
-class NoGoalPolicy(nn.Module):
+class NoGoalPolicy(_Floor):
     """The wrapped policy with its normalised relative-goal inputs set to 0 (their mean)."""
-
-    def __init__(self, algo):
-        super().__init__()
-        self.inner = algo
-        self.normalizer = algo.normalizer
 
     @torch.no_grad()
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:

@@ -30,8 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -41,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from aerohrl.errors import UserError, run_cli
-from aerohrl.eval.reproduce import _evaluated, update_readme
+from aerohrl.eval.reproduce import _evaluated, _run, update_readme  # one thread per subprocess, output to the log
 
 PROG = "aerohrl.eval.recipe_study"
 BEGIN, END = "<!-- recipes:begin -->", "<!-- recipes:end -->"
@@ -99,17 +97,6 @@ PLANS: dict[str, list[Row]] = {
     "seeds": [Row(r, 2500, s, 15000) for r in ("noise", "replan + noise") for s in (1, 2)],
 }
 CHECKPOINTS = {"best": 10}  # last K checkpoints evaluated (others: 3)
-
-
-def _run(cmd: list[str], log) -> str:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    log.write("+ " + " ".join(cmd) + "\n" + p.stdout + "\n")
-    log.flush()
-    if p.returncode != 0:
-        tail = p.stdout.strip().splitlines()[-1:] or ["(no output)"]
-        raise UserError(f"`{' '.join(cmd[:5])} ...` failed (exit {p.returncode}): {tail[0]}")
-    return p.stdout
 
 
 def flights_per_goal(recipe: str) -> int:
