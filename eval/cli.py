@@ -49,6 +49,9 @@ def _eval_parser() -> ArgumentParser:
                     help="ood: step budget to reach an intermediate goal [horizon / (intermediate goals + 1)]")
     ap.add_argument("--min-leg", type=T.nonneg_float, default=d.min_leg,
                     help=f"planner: skip candidates closer than this (m) to the start as first goal [{d.min_leg:g}: none skipped]")
+    ap.add_argument("--decline-margin", type=T.finite_float, default=None, metavar="M",
+                    help="planner: fly straight to G where the plan's score <= V(s0, G) + M (flying straight stays a "
+                         "candidate; results go to ood-<planner>-decline<M>) [never: the thesis]")
     ap.add_argument("--floor", default=d.floor, choices=["none", "hover", "no-goal"],
                     help="fly a trivial floor instead of the run's policy: hover (constant [g, 0, 0, 0]) | no-goal (the "
                          "policy with its goal inputs at their mean); results go to <task>-floor-<floor> [none]")
@@ -73,7 +76,7 @@ def cmd_eval(a) -> int:
     torch.set_num_threads(max(1, a.threads))
     opt = EvalOptions(task=a.task, episodes=a.episodes, checkpoints=a.checkpoints, planner=a.planner, waypoints=a.waypoints,
                       beam=a.beam, alpha=a.alpha, candidates=a.candidates, replan=not a.no_replan, replan_every=a.replan_every,
-                      horizon=a.horizon, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, goal_tol=a.goal_tol, floor=a.floor, min_leg=a.min_leg, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
+                      horizon=a.horizon, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, goal_tol=a.goal_tol, floor=a.floor, decline_margin=a.decline_margin, min_leg=a.min_leg, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
                       progress=not a.no_progress and sys.stderr.isatty())
     s = evaluate_run(a.run, opt)
     print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "

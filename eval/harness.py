@@ -41,6 +41,7 @@ class EvalOptions:
     waypoint_tol: float = 1.0  # an intermediate goal counts as reached with the tolerances x this
     floor: str = "none"  # none | hover | no-goal: a trivial floor instead of the learned policy (eval/floors.py)
     goal_tol: float = 1.0  # the task goal's tolerances x this (0.5: the precision variant; 1: the thesis's test)
+    decline_margin: float | None = None  # planner: fly straight where plan score <= direct score + this (None: never)
     min_leg: float = 0.0  # planner: candidates closer than this (m) to the start are not chosen first (0: all)
     seed: int = 0
     device: str = "cpu"
@@ -56,7 +57,8 @@ class EvalOptions:
             + (f"-replan{self.replan_every}" if self.replan_every and self.planner != "none" else "") \
             + (f"-tol{self.waypoint_tol:g}" if self.waypoint_tol != 1.0 and self.planner != "none" else "") \
             + (f"-a{self.alpha:g}" if self.alpha != 1.0 and self.planner != "none" else "") \
-            + (f"-minleg{self.min_leg:g}" if self.min_leg > 0 and self.planner != "none" else "") + tol
+            + (f"-minleg{self.min_leg:g}" if self.min_leg > 0 and self.planner != "none" else "") \
+            + (f"-decline{self.decline_margin:g}" if self.decline_margin is not None and self.planner != "none" else "") + tol
 
 
 def load_policy(ckpt_path, device="cpu"):
@@ -153,6 +155,8 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError("--floor replaces the policy; it takes no --planner")
     if not 0 < opt.goal_tol <= 10:
         raise UserError(f"--goal-tol must be in (0, 10] (a factor on the goal tolerances), got {opt.goal_tol}")
+    if opt.decline_margin is not None and not np.isfinite(opt.decline_margin):
+        raise UserError(f"--decline-margin must be a finite number, got {opt.decline_margin}")
     if not opt.min_leg >= 0:
         raise UserError(f"--min-leg must be >= 0 m, got {opt.min_leg}")
     if opt.horizon < 1 or opt.leg_horizon < 0 or opt.beam < 1 or opt.candidates < 0 or opt.replan_every < 0:
@@ -205,12 +209,13 @@ def evaluate_run(run_dir, opt: EvalOptions) -> dict:
         record = opt.record and i == len(ckpts) - 1
         t0 = time.perf_counter()
         r = rollout(algo, episodes, planner=planner, n_waypoints=nw, leg_horizon=leg_h, replan=opt.replan,
-                    replan_every=opt.replan_every, waypoint_tol=opt.waypoint_tol, goal_tol=opt.goal_tol, record=record, progress=opt.progress, desc=f"step {ck['step']}",
+                    replan_every=opt.replan_every, waypoint_tol=opt.waypoint_tol, goal_tol=opt.goal_tol, decline_margin=opt.decline_margin, record=record, progress=opt.progress, desc=f"step {ck['step']}",
                     **sim_kwargs(data))
         wall = time.perf_counter() - t0
         results.write_episodes(out_dir, int(ck["step"]), episodes, r)
         per_ckpt.append({"checkpoint": path.name, "step": int(ck["step"]), "success": float(r["success"].mean()),
                          "near_success": float(r["near_success"].mean()), "seconds": wall,
+                         **({"declined": float(r["declined"].mean())} if "declined" in r else {}),
                          **results.kind_rates(episodes, r)})
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
         if record:

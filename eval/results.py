@@ -53,7 +53,7 @@ def episode_rows(episodes, r: dict) -> tuple[list[str], list[list]]:
     for k in range(nw):
         head += [f"wp{k}_frame", f"wp{k}_px", f"wp{k}_py", f"wp{k}_pz"]
     if nw:
-        head += ["plan_score", "direct_score", "legs_reached"]
+        head += ["plan_score", "direct_score", "legs_reached"] + (["declined"] if "declined" in r else [])
     kind = episodes.kind()
     rows = []
     for i in range(E):
@@ -67,6 +67,8 @@ def episode_rows(episodes, r: dict) -> tuple[list[str], list[list]]:
             row += [int(r["waypoint_frame"][i, k])] + [float(x) for x in wp[i, k, :3]]
         if nw:
             row += [float(r["plan_score"][i]), float(r["direct_score"][i]), int(r["legs_reached"][i])]
+            if "declined" in r:
+                row.append(int(r["declined"][i]))
         rows.append(row)
     return head, rows
 

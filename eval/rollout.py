@@ -49,7 +49,8 @@ class PolicyFn:
 
 
 def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, leg_horizon: int | None = None,
-            replan: bool = True, replan_every: int = 0, waypoint_tol: float = 1.0, goal_tol: float = 1.0, record: bool = False,
+            replan: bool = True, replan_every: int = 0, waypoint_tol: float = 1.0, goal_tol: float = 1.0,
+            decline_margin: float | None = None, record: bool = False,
             vehicle: str = "hummingbird",
             fps: int = 100, substeps: int = 5, progress: bool = False, desc: str = "rollout") -> dict:
     """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
@@ -57,7 +58,11 @@ def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, l
     ``planner`` (a :class:`~aerohrl.eval.planner.Planner`) with ``n_waypoints >= 1``
     plans intermediate goals before take-off (thesis Eq. 3.7 / 3.6). ``goal_tol`` scales
     the tolerances of the task goal's test (success, and near success = x 2.5 of it;
-    0.5 = the precision variant of eval/README.md). Returns a dict of
+    0.5 = the precision variant of eval/README.md). ``decline_margin = m`` lets the
+    planner decline: an episode whose plan scores no more than flying straight plus ``m``
+    (``plan_score <= direct_score + m``, the critics' composed value against V(s0, G))
+    flies straight to G from take-off (``declined``); None never declines (the thesis).
+    Returns a dict of
     (E,)-arrays (success, near_success, first_success_step, first_near_step, steps,
     final_pos_err / final_vel_err / final_rot_err at the episode's last step,
     min_pos_err) plus the plan (``waypoints`` (E, n, 15), ``waypoint_frame``,
@@ -93,6 +98,12 @@ def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, l
     legs_reached = np.zeros(E, np.int64)  # intermediate goals reached (env terminated, not truncated)
     first_goal = wp[:, 0] if nw else G
     first_budget = np.minimum(leg_h, total) if nw else total
+    if nw and decline_margin is not None:  # flying straight stays a candidate
+        declined = plan.score <= plan.direct_score + float(decline_margin)
+        leg[declined] = nw
+        first_goal = np.where(declined[:, None], G, first_goal)
+        first_budget = np.where(declined, total, first_budget)
+        out["declined"] = declined
     obs, _ = env.reset(options={"start_states": episodes.start_states, "goals": first_goal, "horizons": first_budget})
     success = np.zeros(E, bool)
     near = np.zeros(E, bool)

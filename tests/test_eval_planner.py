@@ -187,3 +187,41 @@ def test_beam_search_in_episode_blocks_equals_one_block(monkeypatch):
     blocks = Planner(algo, cand, n=3, alpha=0.3, beam=4).plan(s0, G)
     assert np.array_equal(one.index, blocks.index) and np.allclose(one.score, blocks.score)
     assert one.index.shape == (9, 3)
+
+
+def test_a_planner_that_declines_flies_straight_where_its_plan_is_no_better():
+    """decline_margin: episodes whose plan scores <= V(s0, G) + margin fly straight from
+    take-off (and match the flight without planner); the others follow their plan."""
+    algo = FakeAlgo()
+    rng = np.random.default_rng(4)
+    cand = _cands(rng, 10)
+    G = hover_states(4)[:, :15]
+    G[:, 2] = [0.05, 3.0, 0.5, 2.0]
+    eps = EpisodeSet("ood", hover_states(4), G, np.full(4, 40), -np.ones(4, int), -np.ones(4, int), np.zeros(4, int),
+                     meta={"leg_horizon": 20})
+    planner = Planner(algo, cand, n=1, alpha=0.0)
+    plan = planner.plan(eps.start_states, G)
+    straight = rollout(algo, eps)
+    always = rollout(algo, eps, planner=planner, n_waypoints=1)
+    never = rollout(algo, eps, planner=planner, n_waypoints=1, decline_margin=np.inf)
+    assert never["declined"].all() and never["final_leg"].tolist() == [1, 1, 1, 1] and never["legs_reached"].sum() == 0
+    for k in ("success", "steps", "final_pos_err"):
+        np.testing.assert_array_equal(never[k], straight[k])
+    m = float(np.median(plan.score - plan.direct_score))
+    some = rollout(algo, eps, planner=planner, n_waypoints=1, decline_margin=m)
+    np.testing.assert_array_equal(some["declined"], plan.score <= plan.direct_score + m)
+    assert 0 < some["declined"].sum() < 4
+    kept = ~some["declined"]
+    for k in ("success", "steps", "legs_reached"):
+        np.testing.assert_array_equal(some[k][kept], always[k][kept])
+        np.testing.assert_array_equal(some[k][~kept], straight[k][~kept] if k != "legs_reached" else 0 * straight["steps"][~kept])
+
+
+def test_evaluation_folders_name_the_options_that_change_results():
+    from aerohrl.eval.harness import EvalOptions as E
+
+    assert E(task="ood", planner="single", decline_margin=0.05).name() == "ood-single-decline0.05"
+    assert E(task="ood", planner="none", decline_margin=0.05).name() == "ood-none"
+    assert E(task="reach-novel", goal_tol=0.5).name() == "reach-novel-goaltol0.5"
+    assert E(task="reach-intermediate", floor="hover").name() == "reach-intermediate-floor-hover"
+    assert E(task="ood", planner="none", goal_tol=0.5).name() == "ood-none-goaltol0.5"
