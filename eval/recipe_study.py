@@ -31,6 +31,7 @@ import argparse
 import json
 import math
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -92,7 +93,8 @@ PLANS: dict[str, list[Row]] = {
     # the recipe table: every recipe on the same 2,500 goals, 15k steps
     "table": [Row(r, 2500, 0, 15000) for r in RECIPES],
     # data efficiency: Reach-Novel against dataset size at equal steps
-    "size": [Row("noise", n, 0, 15000) for n in (250, 1000, 10000, 25000, 100000)] + [Row("clean", 10000, 0, 15000)],
+    "size": [Row("noise", n, 0, 15000) for n in (250, 1000, 10000, 25000)] + [Row("clean", 10000, 0, 15000),
+                                                                            Row("noise", 100000, 0, 15000)],
     # seeds for the leading table rows
     "seeds": [Row(r, 2500, s, 15000) for r in ("noise", "replan + noise") for s in (1, 2)],
 }
@@ -341,28 +343,46 @@ def main(argv=None) -> int:
         plan_rows = {p: [Row(r.recipe, max(1, int(r.goals * a.goals_scale)), r.seed, a.steps or r.steps) for r in PLANS[p]]
                      for p in a.plan}
         t0 = time.perf_counter()
+        failed = 0
         with open(out / "study.log", "a") as log:
             log.write(f"=== {datetime.now(timezone.utc).isoformat(timespec='seconds')} {' '.join(sys.argv)}\n")
             if not a.report_only:
                 todo = [(r, CHECKPOINTS.get(p, 3)) for p, rs in plan_rows.items() for r in rs]
-                datasets = {}
-                for r, _ in todo:  # sequential: seconds each, and the runs need them all
+                datasets: dict = {}
+                locks: dict = {}
+                guard = threading.Lock()
+
+                def dataset(r: Row) -> str:
+                    """Built when a row first needs it (the first thread builds, the others wait)."""
                     key = (r.recipe, r.goals)
-                    if key not in datasets:
-                        datasets[key] = dataset_for(py, r.recipe, r.goals, a.datasets, log)
+                    with guard:
+                        lock = locks.setdefault(key, threading.Lock())
+                    with lock:
+                        if key not in datasets:
+                            buf = io.StringIO()
+                            datasets[key] = dataset_for(py, r.recipe, r.goals, a.datasets, buf)
+                            with guard:
+                                log.write(buf.getvalue())
+                        return datasets[key]
 
                 def one(item):
                     r, k = item
                     buf = io.StringIO()
                     s = time.perf_counter()
-                    run_row(py, r, datasets[(r.recipe, r.goals)], runs, k, buf)
-                    return r, time.perf_counter() - s, buf.getvalue()
+                    try:
+                        run_row(py, r, dataset(r), runs, k, buf)
+                        return r, time.perf_counter() - s, buf.getvalue(), None
+                    except UserError as e:  # one row's failure is reported; the others go on
+                        return r, time.perf_counter() - s, buf.getvalue(), str(e)
 
                 with cf.ThreadPoolExecutor(max_workers=a.jobs) as ex:
-                    for r, dt, text in ex.map(one, todo):
-                        log.write(text)
-                        log.flush()
-                        print(f"{r.name}: {dt / 60:.1f} min", flush=True)
+                    for fut in cf.as_completed([ex.submit(one, item) for item in todo]):
+                        r, dt, text, err = fut.result()
+                        with guard:
+                            log.write(text)
+                            log.flush()
+                        print(f"{r.name}: {dt / 60:.1f} min" + (f"; FAILED: {err}" if err else ""), flush=True)
+                        failed += bool(err)
         sections = []
         all_recs = {}
         for p, rs in plan_rows.items():
@@ -380,6 +400,8 @@ def main(argv=None) -> int:
         (out / "recipes.json").write_text(json.dumps(all_recs, indent=1))
         where = a.readme if update_readme(Path(a.readme), block, BEGIN, END) else f"{out / 'recipes.md'}"
         print(f"recipe tables written to {where} ({(time.perf_counter() - t0) / 60:.1f} min)")
+        if failed:
+            raise UserError(f"{failed} row(s) failed (see {out / 'study.log'}); the tables hold the others")
         return 0
 
     return run_cli(PROG, go)
