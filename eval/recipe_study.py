@@ -56,7 +56,10 @@ RECIPES: dict[str, list[str]] = {
     "replan + noise": ["--expert", "replan", *NOISE],
     "noise + perturbed starts": [*NOISE, "--start-states", "perturbed"],
     "noise + 4 flights per goal": [*NOISE, "--rollouts-per-goal", "4"],
+    "noise, imitating the flown action": NOISE,
 }
+# train flags of a recipe beyond the cpu preset (the label ablation: what GCSL imitates)
+TRAIN_FLAGS: dict[str, list[str]] = {"noise, imitating the flown action": ["--bc-target", "executed"]}
 EVALS = [  # (column, aerohrl eval flags)
     ("reach-desired", ["--task", "reach-desired"]),
     ("reach-novel", ["--task", "reach-novel"]),
@@ -82,7 +85,7 @@ class Row:
 
     @property
     def name(self) -> str:
-        slug = self.recipe.replace(" + ", "+").replace(" ", "-")
+        slug = self.recipe.replace(" + ", "+").replace(", ", "-").replace(" ", "-")
         return f"{slug}-n{self.goals}-s{self.seed}-{self.steps // 1000}k"
 
 
@@ -125,7 +128,8 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log) -> Path:
     if (rd / "config.json").exists():
         _run(train + ["--resume", str(rd), "--no-progress", "--steps", str(row.steps)], log)
     else:
-        _run(train + ["--algo", "gcsl", "--preset", "cpu", "--dataset", ds, "--seed", str(row.seed), "--steps", str(row.steps),
+        _run(train + ["--algo", "gcsl", "--preset", "cpu", *TRAIN_FLAGS.get(row.recipe, []), "--dataset", ds,
+                      "--seed", str(row.seed), "--steps", str(row.steps),
                       "--checkpoint-every", str(max(1, row.steps // 30)), "--out", str(runs), "--name", row.name,
                       "--no-progress"], log)
     todo = [(EVAL_DIR.get(col, col), flags, k) for col, flags in EVALS]
