@@ -185,16 +185,20 @@ def main(argv=None) -> int:
             times.update(_run_parallel(cmds, log, a.jobs))
             ev = [py, "-m", "aerohrl.eval.cli"]
             oracles = []
-            common = ["--episodes", str(a.episodes), "--checkpoints", str(a.checkpoints), "--no-progress"]
 
-            def evaluate(rd: Path, name: str, flags: list[str]) -> None:
-                if a.reevaluate or not _evaluated(rd, name, a.episodes, a.checkpoints):
-                    _run(ev + flags + ["--run", str(rd)] + common, log)
+            def evaluate(rd: Path, name: str, flags: list[str], checkpoints: int | None = None) -> None:
+                k = checkpoints or a.checkpoints
+                if a.reevaluate or not _evaluated(rd, name, a.episodes, k):
+                    _run(ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k),
+                                       "--no-progress"], log)
 
             for rd, algo, label in runs:
                 t0 = time.perf_counter()
                 for t in ("reach-desired", "reach-intermediate", "reach-novel"):
                     evaluate(rd, t, ["--task", t])
+                    if algo in a.planner_algos:  # the floors beside it: hover, and its policy without goal
+                        for f in ("hover", "no-goal"):
+                            evaluate(rd, f"{t}-floor-{f}", ["--task", t, "--floor", f], checkpoints=1)
                 if algo in a.planner_algos:
                     for name, pl in (("none", ["none"]), ("single", ["single"]), ("multi2", ["multi", "--waypoints", "2"])):
                         evaluate(rd, f"ood-{name}", ["--task", "ood", "--planner"] + pl)

@@ -208,6 +208,24 @@ def _paired_cell(pv: dict | None) -> str:
             f"p = {pv['p']:.2f})")
 
 
+def _t31_row(rd, suffix: str, th: dict) -> list[str] | None:
+    """Table 3.1 cells of a run's evaluations (``suffix`` "-floor-hover" / "-floor-no-goal":
+    of a floor flown on its data); None when it has neither main task."""
+    cells = []
+    for name in ("reach-desired", "reach-intermediate"):
+        s = read_summary(rd, name + suffix)
+        cells.append(_pm(s["success_mean"], s["success_std"]) if s else "—")
+        cells.append(f"{s['near_success_mean'] * 100:.1f}" if s else "—")
+        cells.append(f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—")
+        cells.append(f"{len(s['checkpoints'])} x {s['episodes']}" if s else "0")
+        if name == "reach-intermediate":  # goals >= FAR_AHEAD steps ahead, beyond what hovering meets
+            far = [c["success_intermediate_far"] for c in s["checkpoints"] if "success_intermediate_far" in c] if s else []
+            cells.append(f"{100 * np.mean(far):.1f}" if far else "—")
+    nov = read_summary(rd, "reach-novel" + suffix)  # the generalisation diagnostic, beyond the thesis
+    cells.append(f"{_pm(nov['success_mean'], nov['success_std'])} (near {100 * nov['near_success_mean']:.1f})" if nov else "—")
+    return cells if any(c != "—" for c in (cells[0], cells[4])) else None
+
+
 def tables(run_dirs) -> dict:
     """Table 3.1 / 3.2 analogues from the runs' evaluation summaries.
 
@@ -219,18 +237,11 @@ def tables(run_dirs) -> dict:
         if not Path(rd).is_dir():
             raise UserError(f"no run at {rd}")
         algo = _algo_of(rd)
-        th = THESIS_T31.get(algo, {})
-        cells = []
-        for name in ("reach-desired", "reach-intermediate"):
-            s = read_summary(rd, name)
-            cells.append(_pm(s["success_mean"], s["success_std"]) if s else "—")
-            cells.append(f"{s['near_success_mean'] * 100:.1f}" if s else "—")
-            cells.append(f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—")
-            cells.append(f"{len(s['checkpoints'])} x {s['episodes']}" if s else "0")
-        nov = read_summary(rd, "reach-novel")  # the generalisation diagnostic, beyond the thesis
-        cells.append(f"{_pm(nov['success_mean'], nov['success_std'])} (near {100 * nov['near_success_mean']:.1f})" if nov else "—")
-        if any(c != "—" for c in cells[:8:4] + cells[1:8:4]):
-            t31.append([ALGO_NAMES.get(algo, algo), str(rd)] + cells)
+        for suffix, label in (("", ALGO_NAMES.get(algo, algo)), ("-floor-hover", "floor: hover"),
+                              ("-floor-no-goal", f"floor: {ALGO_NAMES.get(algo, algo)} without goal")):
+            row = _t31_row(rd, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
+            if row:
+                t31.append([label, str(rd)] + row)
         evals = sorted(p.name for p in (Path(rd) / "eval").glob("ood-*") if (p / "summary.json").exists())
         for name in evals:
             s = read_summary(rd, name)
@@ -242,7 +253,8 @@ def tables(run_dirs) -> dict:
     if not t31 and not t32:
         raise UserError("none of the runs has evaluation results (run `aerohrl eval --task ... --run RUN` first)")
     h31 = ["algorithm", "run", "Reach-Desired success %", "near %", "thesis %", "ckpts x episodes",
-           "Reach-Intermediate success %", "near %", "thesis %", "ckpts x episodes", "Reach-Novel % (diagnostic)"]
+           "Reach-Intermediate success %", "near %", "thesis %", "ckpts x episodes", f"RI >= {FAR_AHEAD} steps ahead %",
+           "Reach-Novel % (diagnostic)"]
     h32 = ["algorithm", "run", "planner", "success %", "near success %", "thesis success %", "thesis near %", "ckpts x episodes",
            "success vs none, paired: points ± s.e. (episodes won only by planner : only by none, sign test)"]
     return {"t31": (h31, t31), "t32": (h32, t32)}
