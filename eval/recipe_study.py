@@ -247,7 +247,9 @@ def _cell(c: dict | None, digits: int = 1) -> str:
     if len(c["values"]) == 1:
         return f"{c['mean']:.{digits}f}"
     vals = "/".join(f"{v:.{digits}f}" for v in c["values"])
-    return f"{c['mean']:.{digits}f} ± {c['std']:.{digits}f} ({vals})"
+    lo, hi = c["ci95"]
+    ci = f" [{lo:.{digits}f}, {hi:.{digits}f}]" if len(c["values"]) >= 3 else ""  # 95 % bootstrap interval of the mean
+    return f"{c['mean']:.{digits}f} ± {c['std']:.{digits}f}{ci} ({vals})"
 
 
 def _flights(recipe: str, goals: int) -> str:
@@ -393,7 +395,8 @@ def main(argv=None) -> int:
             recs = aggregate(rs, runs)
             all_recs[p] = recs
             sections.append(f"**{p}** ({len(rs)} runs: GCSL, cpu preset; last {CHECKPOINTS.get(p, 3)} checkpoints x 250 "
-                            f"episodes per task; success %, mean ± std over seeds (per-seed values))\n\n" + table(recs))
+                            f"episodes per task; success %, mean ± std over seeds [95 % bootstrap interval of the mean, "
+                            f"from 3 seeds] (per-seed values))\n\n" + table(recs))
         pooled = [r for recs in all_recs.values() for r in recs]
         fig = plot_size(pooled, out / "reach_novel_vs_size.png")
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

@@ -44,7 +44,8 @@ def test_seeds_are_aggregated_with_their_values_and_floors(tmp_path, monkeypatch
     assert rn["mean"] == pytest.approx(94.0) and rn["std"] == pytest.approx(4.0) and rn["ckpts"] == 2
     assert rec["floors"]["hover"] == {"reach-novel": 0.0, "reach-intermediate": pytest.approx(30.0)}
     md = rs.table([rec])
-    assert "94.0 ± 4.0 (90.0/94.0/98.0)" in md and "*floor, hover" in md and "| 0.750 ± 0.000" in md
+    lo, hi = rs.bootstrap_ci([90.0, 94.0, 98.0])
+    assert f"94.0 ± 4.0 [{lo:.1f}, {hi:.1f}] (90.0/94.0/98.0)" in md and "*floor, hover" in md and "| 0.750 ± 0.000" in md
 
 
 def test_rows_name_their_runs_and_repeats_count_flights():
