@@ -41,6 +41,7 @@ import numpy as np
 
 from aerohrl.errors import UserError, run_cli
 from aerohrl.eval.reproduce import _evaluated, _run, update_readme  # one thread per subprocess, output to the log
+from aerohrl.eval.results import seed_cell, seed_stats
 
 PROG = "aerohrl.eval.recipe_study"
 BEGIN, END = "<!-- recipes:begin -->", "<!-- recipes:end -->"
@@ -198,16 +199,6 @@ def row_figures(rd: Path, suffix: str = "") -> dict:
     return out
 
 
-def bootstrap_ci(values, n: int = 10_000, seed: int = 0) -> tuple[float, float]:
-    """95 % percentile bootstrap interval of the mean over seeds (nan below 2 seeds)."""
-    v = np.asarray(values, float)
-    if len(v) < 2:
-        return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = v[rng.integers(0, len(v), size=(n, len(v)))].mean(1)
-    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
-
-
 def aggregate(rows: list[Row], runs: Path) -> list[dict]:
     """One record per (recipe, goals, steps): per-seed figures, mean ± std over seeds."""
     groups: dict[tuple, list[Row]] = {}
@@ -234,22 +225,9 @@ def aggregate(rows: list[Row], runs: Path) -> list[dict]:
         for col in [c for c, _ in EVALS] + ["auc"]:
             vals = [per_seed[s][col][0] for s in rec["seeds"] if col in per_seed[s]]
             if vals:
-                rec["cols"][col] = {"mean": float(np.mean(vals)), "std": float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0,
-                                    "values": vals, "ci95": bootstrap_ci(vals),
-                                    "ckpts": per_seed[rec["seeds"][0]][col][2]}
+                rec["cols"][col] = {**seed_stats(vals), "ckpts": per_seed[rec["seeds"][0]][col][2]}
         out.append(rec)
     return out
-
-
-def _cell(c: dict | None, digits: int = 1) -> str:
-    if not c:
-        return "—"
-    if len(c["values"]) == 1:
-        return f"{c['mean']:.{digits}f}"
-    vals = "/".join(f"{v:.{digits}f}" for v in c["values"])
-    lo, hi = c["ci95"]
-    ci = f" [{lo:.{digits}f}, {hi:.{digits}f}]" if len(c["values"]) >= 3 else ""  # 95 % bootstrap interval of the mean
-    return f"{c['mean']:.{digits}f} ± {c['std']:.{digits}f}{ci} ({vals})"
 
 
 def _flights(recipe: str, goals: int) -> str:
@@ -265,11 +243,11 @@ def table(recs: list[dict]) -> str:
     for r in recs:
         c = r["cols"]
         auc = c.get("auc")
-        auc_s = "—" if not auc or any(math.isnan(v) for v in auc["values"]) else _cell(auc, 3)
+        auc_s = "—" if not auc or any(math.isnan(v) for v in auc["values"]) else seed_cell(auc, 3)
         lines.append(f"| {r['recipe']} | {_flights(r['recipe'], r['goals'])} | {r['steps'] // 1000}k | {len(r['seeds'])} | "
-                     + " | ".join(_cell(c.get(k)) for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
+                     + " | ".join(seed_cell(c.get(k)) for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
                      + f" | {auc_s} | "
-                     + " | ".join(_cell(c.get(k)) for k in ("reach-desired-goaltol0.5", "reach-novel-goaltol0.5",
+                     + " | ".join(seed_cell(c.get(k)) for k in ("reach-desired-goaltol0.5", "reach-novel-goaltol0.5",
                                                              "reach-intermediate-goaltol0.5", "ood-goaltol0.5")) + " |")
     floors = [(r, fl, v) for r in recs[:1] for fl, v in r["floors"].items()]
     for r, fl, v in floors:  # one set of floors per table: on the first row's data and policy

@@ -5,8 +5,9 @@
                                                                     # a smoke run of the same pipeline
 
 1. ``datagen build --goals 250`` (seed 0; verified, not rebuilt, when it exists);
-2. ``train --algo A --preset cpu --checkpoint-every STEPS/30`` for GCSL, TD3-BC,
-   TD3-AWBC and CQL, ``--jobs`` (2) at a time with one thread each (an existing run is
+2. ``train --algo A --preset cpu --checkpoint-every STEPS/30 --seed S`` for GCSL, TD3-BC,
+   TD3-AWBC and CQL and every seed of ``--seeds`` (0 1 2; seed 0's runs keep the names
+   ``ALGO-cpu`` of the one-seed tables, the others are ``ALGO-cpu-sS``), ``--jobs`` (2) at a time with one thread each (an existing run is
    resumed, a finished one is left as it is); checkpoints every 1/30 of the run so that "the last 10 checkpoints"
    are the final third of training, as the thesis' last 10 epochs are its end;
 3. ``aerohrl eval`` Reach-Desired, Reach-Intermediate and the Reach-Novel diagnostic for
@@ -124,6 +125,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="tables and plots [results]")
     ap.add_argument("--readme", default="README.md", help="README to write the tables into (between the markers) [README.md]")
     ap.add_argument("--algos", nargs="+", default=list(ALGOS))
+    ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=[0, 1, 2],
+                    help="training seeds of every run; seed 0 keeps the names ALGO-cpu, others ALGO-cpu-sN [0 1 2]")
     ap.add_argument("--steps", type=T.positive_int, default=None, help="override the cpu preset's training steps (smoke runs)")
     ap.add_argument("--episodes", type=T.positive_int, default=250)
     ap.add_argument("--checkpoints", type=T.positive_int, default=10)
@@ -140,6 +143,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     def go() -> int:
+        a.seeds = list(dict.fromkeys(a.seeds))
         py = sys.executable
         out = Path(a.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -169,19 +173,22 @@ def main(argv=None) -> int:
                 return [py, "-m", "aerohrl.algorithms.cli", *flags, "--preset", "cpu", "--out", a.runs, "--name", rd.name,
                         "--no-progress"] + (["--steps", str(steps)] if steps else [])
 
-            runs, cmds = [], []  # (run dir, algorithm, label)
-            for algo in a.algos:
-                rd = Path(a.runs) / f"{algo}-cpu"
-                cmds.append((f"train {algo}", train(rd, ["--algo", algo, "--dataset", ds, "--checkpoint-every", str(ckpt_every)],
-                                                    a.steps)))
-                runs.append((rd, algo, algo))
-            if a.continuations:
-                rd = Path(a.runs) / "gcsl-cpu-cont"
-                c_steps = a.steps or a.continuation_steps
-                cmds.append(("train gcsl-cont", train(rd, ["--algo", "gcsl", "--dataset", ds_cont, "--checkpoint-every",
-                                                          str(max(1, c_steps // 30)), "--critic-random-goal-prob",
-                                                          str(a.critic_random_goal_prob)], c_steps)))
-                runs.append((rd, "gcsl", "gcsl-cont"))
+            runs, cmds = [], []  # (run dir, algorithm, label, seed); seed 0 keeps the one-seed names (runs reused)
+            for seed in a.seeds:
+                sfx = f"-s{seed}" if seed else ""
+                sflag = ["--seed", str(seed)]
+                for algo in a.algos:
+                    rd = Path(a.runs) / f"{algo}-cpu{sfx}"
+                    cmds.append((f"train {algo}{sfx}", train(rd, ["--algo", algo, "--dataset", ds, "--checkpoint-every",
+                                                                  str(ckpt_every), *sflag], a.steps)))
+                    runs.append((rd, algo, f"{algo}{sfx}", seed))
+                if a.continuations:
+                    rd = Path(a.runs) / f"gcsl-cpu-cont{sfx}"
+                    c_steps = a.steps or a.continuation_steps
+                    cmds.append((f"train gcsl-cont{sfx}", train(rd, ["--algo", "gcsl", "--dataset", ds_cont, "--checkpoint-every",
+                                                                    str(max(1, c_steps // 30)), "--critic-random-goal-prob",
+                                                                    str(a.critic_random_goal_prob), *sflag], c_steps)))
+                    runs.append((rd, "gcsl", f"gcsl-cont{sfx}", seed))
             times.update(_run_parallel(cmds, log, a.jobs))
             ev = [py, "-m", "aerohrl.eval.cli"]
             oracles = []
@@ -192,16 +199,17 @@ def main(argv=None) -> int:
                     _run(ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k),
                                        "--no-progress"], log)
 
-            for rd, algo, label in runs:
+            for rd, algo, label, seed in runs:
                 t0 = time.perf_counter()
                 for t in ("reach-desired", "reach-intermediate", "reach-novel"):
                     evaluate(rd, t, ["--task", t])
-                    if algo in a.planner_algos:  # the floors beside it: hover, and its policy without goal
+                    if algo in a.planner_algos and seed == a.seeds[0]:  # the floors beside it: hover, its policy without goal
                         for f in ("hover", "no-goal"):
                             evaluate(rd, f"{t}-floor-{f}", ["--task", t, "--floor", f], checkpoints=1)
                 if algo in a.planner_algos:
                     for name, pl in (("none", ["none"]), ("single", ["single"]), ("multi2", ["multi", "--waypoints", "2"])):
                         evaluate(rd, f"ood-{name}", ["--task", "ood", "--planner"] + pl)
+                if algo in a.planner_algos and seed == a.seeds[0]:  # the oracle and the figures: the first seed's run
                     rep = _run(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
                                      str(a.oracle_candidates), "--no-progress"], log)
                     oracles.append(f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
@@ -210,7 +218,7 @@ def main(argv=None) -> int:
                     _run(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")], log)
                 _run(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log)
                 times[f"eval {label}"] = time.perf_counter() - t0
-            dirs = [str(rd) for rd, _, _ in runs]
+            dirs = [str(rd) for rd, *_ in runs]
             _run(ev + ["plot", "--curves", *dirs, "-o", str(out / "learning-curves.png")], log)
             tables = _run(ev + ["table", *dirs, "-o", str(out / "tables")], log)
         total = time.perf_counter() - t_all
@@ -219,7 +227,7 @@ def main(argv=None) -> int:
         # the runs' own step rates: true training times also when this invocation resumed runs
         from aerohrl.algorithms.runs import summary
 
-        trained = ", ".join(f"{label} {summary(rd)['training_s'] / 60:.1f} min" for rd, _, label in runs)
+        trained = ", ".join(f"{label} {summary(rd)['training_s'] / 60:.1f} min" for rd, _, label, _ in runs)
         block = (f"Reproduced by `make results` on {stamp} (dataset `{ds}`"
                  + (f"; planner experiment `gcsl-cpu-cont` on `{ds_cont}`, {a.steps or a.continuation_steps} steps, "
                     f"critic random-goal probability {a.critic_random_goal_prob}" if a.continuations else "")

@@ -153,10 +153,6 @@ def read_summary(run_dir, name: str) -> dict | None:
         raise UserError(f"cannot read {p}: {e}") from None
 
 
-def _pm(mean, std) -> str:
-    return f"{100 * mean:.1f} ± {100 * std:.1f}"
-
-
 def _algo_of(run_dir) -> str:
     try:
         return json.loads((Path(run_dir) / "config.json").read_text())["config"]["algo"]
@@ -173,25 +169,27 @@ def _episode_success(path: Path) -> np.ndarray:
         return np.array([r[col] in ("1", "True", "true") for r in rows], bool)
 
 
-def paired_vs_none(run_dir, name: str) -> dict | None:
+def paired_vs_none(run_dirs, name: str) -> dict | None:
     """OOD planner ``name`` against flying straight (``ood-none``) on the same goals and
-    checkpoints: per-checkpoint success difference (mean, standard error over
-    checkpoints), the episodes only one of them succeeds in, and the exact two-sided
-    sign test on those (McNemar). None when the two share no checkpoint."""
+    checkpoints, pooled over ``run_dirs`` (one run, or the seeds of one experiment):
+    per-checkpoint success difference (mean, standard error over all checkpoints of all
+    seeds), the episodes only one of them succeeds in, and the exact two-sided sign test
+    on those (McNemar). None when no checkpoint has both."""
     from scipy.stats import binomtest
 
-    d = Path(run_dir) / "eval"
     diffs, only_planner, only_none = [], 0, 0
-    for f in sorted((d / name).glob("episodes-step-*.csv")):
-        g = d / "ood-none" / f.name
-        if not g.exists():
-            continue
-        a, b = _episode_success(f), _episode_success(g)
-        if len(a) != len(b):
-            continue
-        diffs.append(a.mean() - b.mean())
-        only_planner += int((a & ~b).sum())
-        only_none += int((b & ~a).sum())
+    for rd in [run_dirs] if isinstance(run_dirs, (str, Path)) else run_dirs:
+        d = Path(rd) / "eval"
+        for f in sorted((d / name).glob("episodes-step-*.csv")):
+            g = d / "ood-none" / f.name
+            if not g.exists():
+                continue
+            a, b = _episode_success(f), _episode_success(g)
+            if len(a) != len(b):
+                continue
+            diffs.append(a.mean() - b.mean())
+            only_planner += int((a & ~b).sum())
+            only_none += int((b & ~a).sum())
     if not diffs:
         return None
     n = only_planner + only_none
@@ -208,54 +206,127 @@ def _paired_cell(pv: dict | None) -> str:
             f"p = {pv['p']:.2f})")
 
 
-def _t31_row(rd, suffix: str, th: dict) -> list[str] | None:
-    """Table 3.1 cells of a run's evaluations (``suffix`` "-floor-hover" / "-floor-no-goal":
-    of a floor flown on its data); None when it has neither main task."""
+# ----------------------------------------------------------------------------- seeds
+
+
+def bootstrap_ci(values, n: int = 10_000, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of the mean over seeds (nan below 2 values)."""
+    v = np.asarray(values, float)
+    if len(v) < 2:
+        return float("nan"), float("nan")
+    rng = np.random.default_rng(seed)
+    means = v[rng.integers(0, len(v), size=(n, len(v)))].mean(1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def seed_stats(values) -> dict:
+    """A claim over seeds: mean, std (ddof 1; 0 for one seed), the 95 % bootstrap interval
+    of the mean and every seed's value."""
+    v = [float(x) for x in values]
+    return {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1)) if len(v) > 1 else 0.0,
+            "ci95": bootstrap_ci(v), "values": v}
+
+
+def seed_cell(st: dict | None, digits: int = 1) -> str:
+    """``mean ± std [lo, hi] (v1/v2/v3)``: the interval from 3 seeds on; one seed: its value."""
+    if not st:
+        return "—"
+    if len(st["values"]) == 1:
+        return f"{st['mean']:.{digits}f}"
+    vals = "/".join(f"{v:.{digits}f}" for v in st["values"])
+    lo, hi = st["ci95"]
+    ci = f" [{lo:.{digits}f}, {hi:.{digits}f}]" if len(st["values"]) >= 3 else ""
+    return f"{st['mean']:.{digits}f} ± {st['std']:.{digits}f}{ci} ({vals})"
+
+
+def group_runs(run_dirs) -> list[list[Path]]:
+    """The runs grouped into experiments: the same config but for the seed, on the same
+    dataset version; in the order given."""
+    groups: dict[str, list[Path]] = {}
+    for rd in run_dirs:
+        rd = Path(rd)
+        if not rd.is_dir():
+            raise UserError(f"no run at {rd}")
+        try:
+            meta = json.loads((rd / "config.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            meta = {}
+        cfg = {k: v for k, v in (meta.get("config") or {}).items() if k not in ("seed", "dataset")}
+        key = json.dumps([cfg, (meta.get("dataset") or {}).get("version"), None if cfg else str(rd)], sort_keys=True)
+        groups.setdefault(key, []).append(rd)
+    return list(groups.values())
+
+
+def _seed_figures(runs: list[Path], name: str) -> dict | None:
+    """Over the runs (seeds) with an evaluation ``name``: success (a seed's figure = the mean
+    over its checkpoints), the checkpoint spread (mean over seeds of the std over
+    checkpoints), near success, sizes; and Reach-Intermediate's far-goal success."""
+    sums = [(rd, s) for rd in runs if (s := read_summary(rd, name))]
+    if not sums:
+        return None
+    far = [np.mean(f) for _, s in sums if (f := [c["success_intermediate_far"] for c in s["checkpoints"]
+                                                 if "success_intermediate_far" in c])]
+    return {"success": seed_stats([100 * s["success_mean"] for _, s in sums]),
+            "spread": float(np.mean([100 * s["success_std"] for _, s in sums])),
+            "near": seed_stats([100 * s["near_success_mean"] for _, s in sums]),
+            "near_std": float(np.mean([100 * s["near_success_std"] for _, s in sums])),
+            "seeds": len(sums), "ckpts": len(sums[0][1]["checkpoints"]), "episodes": sums[0][1]["episodes"],
+            "far": seed_stats([100 * x for x in far]) if far else None, "planner": sums[0][1].get("planner")}
+
+
+def _t31_row(runs: list[Path], suffix: str, th: dict) -> list[str] | None:
+    """Table 3.1 cells of an experiment's evaluations (``suffix`` "-floor-hover" /
+    "-floor-no-goal": of a floor flown on its data); None when it has neither main task."""
     cells = []
     for name in ("reach-desired", "reach-intermediate"):
-        s = read_summary(rd, name + suffix)
-        cells.append(_pm(s["success_mean"], s["success_std"]) if s else "—")
-        cells.append(f"{s['near_success_mean'] * 100:.1f}" if s else "—")
-        cells.append(f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—")
-        cells.append(f"{len(s['checkpoints'])} x {s['episodes']}" if s else "0")
+        f = _seed_figures(runs, name + suffix)
+        cells += [seed_cell(f["success"]) if f else "—", f"{f['spread']:.1f}" if f else "—",
+                  f"{f['near']['mean']:.1f}" if f else "—", f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—",
+                  f"{f['seeds']} x {f['ckpts']} x {f['episodes']}" if f else "0"]
         if name == "reach-intermediate":  # goals >= FAR_AHEAD steps ahead, beyond what hovering meets
-            far = [c["success_intermediate_far"] for c in s["checkpoints"] if "success_intermediate_far" in c] if s else []
-            cells.append(f"{100 * np.mean(far):.1f}" if far else "—")
-    nov = read_summary(rd, "reach-novel" + suffix)  # the generalisation diagnostic, beyond the thesis
-    cells.append(f"{_pm(nov['success_mean'], nov['success_std'])} (near {100 * nov['near_success_mean']:.1f})" if nov else "—")
-    return cells if any(c != "—" for c in (cells[0], cells[4])) else None
+            cells.append(seed_cell(f["far"]) if f and f["far"] else "—")
+    nov = _seed_figures(runs, "reach-novel" + suffix)  # the generalisation diagnostic, beyond the thesis
+    cells.append(f"{seed_cell(nov['success'])} (near {nov['near']['mean']:.1f})" if nov else "—")
+    return cells if any(c != "—" for c in (cells[0], cells[5])) else None
+
+
+def _runs_label(runs: list[Path]) -> str:
+    return str(runs[0]) if len(runs) == 1 else f"{runs[0]} (+{len(runs) - 1} seeds: " + ", ".join(p.name for p in runs[1:]) + ")"
 
 
 def tables(run_dirs) -> dict:
-    """Table 3.1 / 3.2 analogues from the runs' evaluation summaries.
+    """Table 3.1 / 3.2 analogues from the runs' evaluation summaries, one row per
+    experiment: runs that differ only in their seed are one row, their figures over seeds
+    (mean ± std, 95 % bootstrap interval, per-seed values), the checkpoint spread in a
+    column of its own.
 
     Returns ``{"t31": (head, rows), "t32": (head, rows)}``; UserError if no run has any."""
     if not run_dirs:
         raise UserError("no runs given")
     t31, t32 = [], []
-    for rd in run_dirs:
-        if not Path(rd).is_dir():
-            raise UserError(f"no run at {rd}")
-        algo = _algo_of(rd)
+    for runs in group_runs(run_dirs):
+        algo = _algo_of(runs[0])
         for suffix, label in (("", ALGO_NAMES.get(algo, algo)), ("-floor-hover", "floor: hover"),
                               ("-floor-no-goal", f"floor: {ALGO_NAMES.get(algo, algo)} without goal")):
-            row = _t31_row(rd, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
+            row = _t31_row(runs, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
             if row:
-                t31.append([label, str(rd)] + row)
-        evals = sorted(p.name for p in (Path(rd) / "eval").glob("ood-*") if (p / "summary.json").exists())
+                t31.append([label, _runs_label(runs)] + row)
+        evals = sorted({p.name for rd in runs for p in (rd / "eval").glob("ood-*") if (p / "summary.json").exists()})
         for name in evals:
-            s = read_summary(rd, name)
-            th2 = THESIS_T32.get(s["planner"]) if algo == "gcsl" and name in ("ood-none", "ood-single") else None
-            t32.append([ALGO_NAMES.get(algo, algo), str(rd), name[4:], _pm(s["success_mean"], s["success_std"]),
-                        _pm(s["near_success_mean"], s["near_success_std"]),
-                        f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—", f"{len(s['checkpoints'])} x {s['episodes']}",
-                        _paired_cell(paired_vs_none(rd, name)) if name != "ood-none" else "—"])
+            f = _seed_figures(runs, name)
+            th2 = THESIS_T32.get(f["planner"]) if algo == "gcsl" and name in ("ood-none", "ood-single") else None
+            t32.append([ALGO_NAMES.get(algo, algo), _runs_label(runs), name[4:], seed_cell(f["success"]), f"{f['spread']:.1f}",
+                        f"{f['near']['mean']:.1f} ± {f['near_std']:.1f}" if f["seeds"] == 1 else seed_cell(f["near"]),
+                        f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—",
+                        f"{f['seeds']} x {f['ckpts']} x {f['episodes']}",
+                        _paired_cell(paired_vs_none(runs, name)) if name != "ood-none" else "—"])
     if not t31 and not t32:
         raise UserError("none of the runs has evaluation results (run `aerohrl eval --task ... --run RUN` first)")
-    h31 = ["algorithm", "run", "Reach-Desired success %", "near %", "thesis %", "ckpts x episodes",
-           "Reach-Intermediate success %", "near %", "thesis %", "ckpts x episodes", f"RI >= {FAR_AHEAD} steps ahead %",
-           "Reach-Novel % (diagnostic)"]
-    h32 = ["algorithm", "run", "planner", "success %", "near success %", "thesis success %", "thesis near %", "ckpts x episodes",
+    h31 = ["algorithm", "runs", "Reach-Desired success %", "ckpt spread", "near %", "thesis %", "seeds x ckpts x episodes",
+           "Reach-Intermediate success %", "ckpt spread", "near %", "thesis %", "seeds x ckpts x episodes",
+           f"RI >= {FAR_AHEAD} steps ahead %", "Reach-Novel % (diagnostic)"]
+    h32 = ["algorithm", "runs", "planner", "success %", "ckpt spread", "near success %", "thesis success %", "thesis near %",
+           "seeds x ckpts x episodes",
            "success vs none, paired: points ± s.e. (episodes won only by planner : only by none, sign test)"]
     return {"t31": (h31, t31), "t32": (h32, t32)}
 
@@ -269,13 +340,17 @@ def markdown(head, rows) -> str:
 def tables_markdown(t: dict) -> str:
     out = []
     if t["t31"][1]:
-        out += ["**Table 3.1 analogue** (success %, mean ± std over the evaluated checkpoints; near = near success, mean; "
-                "thesis values beside: last 10 checkpoints x 250 episodes)\n", markdown(*t["t31"])]
+        out += ["**Table 3.1 analogue** (success %: a seed's figure is the mean over its evaluated checkpoints; over "
+                "seeds mean ± std [95 % bootstrap interval of the mean, from 3 seeds] (per-seed values); ckpt spread = the "
+                "std over checkpoints, mean over seeds; near = near success, mean; thesis values beside: last 10 "
+                "checkpoints x 250 episodes, one run; floors: hover, and the policy without its goal inputs)\n",
+                markdown(*t["t31"])]
     if t["t32"][1]:
-        out += ["**Table 3.2 analogue** (OOD goals; mean ± std over checkpoints; thesis values for GCSL; the last column "
-                "compares each planner with flying straight on the same goals and checkpoints)\n", markdown(*t["t32"])]
+        out += ["**Table 3.2 analogue** (OOD goals; over seeds as above; thesis values for GCSL; the last column "
+                "compares each planner with flying straight on the same goals and checkpoints, pooled over seeds)\n",
+                markdown(*t["t32"])]
     return "\n".join(out)
 
 
 __all__ = ["write_episodes", "write_trajectories", "write_summary", "read_summary", "summarize", "tables", "tables_markdown",
-           "markdown", "to_csv", "THESIS_T31", "THESIS_T32"]
+           "markdown", "to_csv", "group_runs", "seed_stats", "seed_cell", "bootstrap_ci", "THESIS_T31", "THESIS_T32"]

@@ -142,12 +142,13 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text("<!-- results:begin -->\n<!-- results:end -->\n")
     p = subprocess.run([sys.executable, "-m", "aerohrl.eval.reproduce", "--steps", "60", "--episodes", "6", "--checkpoints", "2",
-                        "--algos", "gcsl", "td3bc", "--continuations", "20", "--oracle-goals", "3", "--oracle-candidates", "8", "--datasets", str(tmp_path / "ds"), "--runs", str(tmp_path / "runs"),
+                        "--algos", "gcsl", "td3bc", "--seeds", "0", "1", "--continuations", "20", "--oracle-goals", "3", "--oracle-candidates", "8", "--datasets", str(tmp_path / "ds"), "--runs", str(tmp_path / "runs"),
                         "--out", str(tmp_path / "res"), "--readme", str(readme)], capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     text = readme.read_text()
     assert "Table 3.1 analogue" in text and "Table 3.2 analogue" in text and "wall time" in text and "TD3-BC" in text
     assert "Oracle of the single-goal planner for gcsl" in text and "Reach-Novel" in text
+    assert "(+1 seeds: gcsl-cpu-s1)" in text and "floor: hover" in text  # rows over seeds, floors beside GCSL
     assert (tmp_path / "res" / "tables-t31.csv").exists() and (tmp_path / "res" / "ood-gcsl.png").exists()
     assert "Oracle of the single-goal planner for gcsl-cont" in text and "runs/gcsl-cpu-cont" in text
     assert (tmp_path / "res" / "ood-gcsl-cont.png").exists()

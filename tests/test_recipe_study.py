@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from aerohrl.eval import recipe_study as rs
+from aerohrl.eval import results
 
 
 def _fake_run(root, row: rs.Row, rates: dict, floors: dict | None = None):
@@ -26,10 +27,10 @@ def _fake_run(root, row: rs.Row, rates: dict, floors: dict | None = None):
 
 
 def test_bootstrap_interval_brackets_the_mean_and_needs_two_seeds():
-    assert all(math.isnan(x) for x in rs.bootstrap_ci([90.0]))
-    lo, hi = rs.bootstrap_ci([97.0, 99.0, 98.0])
+    assert all(math.isnan(x) for x in results.bootstrap_ci([90.0]))
+    lo, hi = results.bootstrap_ci([97.0, 99.0, 98.0])
     assert 97.0 <= lo <= 98.0 <= hi <= 99.0
-    assert rs.bootstrap_ci([95.0, 95.0, 95.0]) == (95.0, 95.0)
+    assert results.bootstrap_ci([95.0, 95.0, 95.0]) == (95.0, 95.0)
 
 
 def test_seeds_are_aggregated_with_their_values_and_floors(tmp_path, monkeypatch):
@@ -44,7 +45,7 @@ def test_seeds_are_aggregated_with_their_values_and_floors(tmp_path, monkeypatch
     assert rn["mean"] == pytest.approx(94.0) and rn["std"] == pytest.approx(4.0) and rn["ckpts"] == 2
     assert rec["floors"]["hover"] == {"reach-novel": 0.0, "reach-intermediate": pytest.approx(30.0)}
     md = rs.table([rec])
-    lo, hi = rs.bootstrap_ci([90.0, 94.0, 98.0])
+    lo, hi = results.bootstrap_ci([90.0, 94.0, 98.0])
     assert f"94.0 ± 4.0 [{lo:.1f}, {hi:.1f}] (90.0/94.0/98.0)" in md and "*floor, hover" in md and "| 0.750 ± 0.000" in md
 
 
