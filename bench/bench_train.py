@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import resource
 import sys
 import tempfile
 import time
@@ -50,6 +51,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(a.threads)
     data = load_dataset(a.dataset) if a.dataset else load_dataset(straight_columns(n_eps=250, length=200))
     print(f"torch {torch.__version__}, {a.threads} threads, amp {a.amp or 'preset'}, dataset {data.info['version']} ({len(data)} frames), preset {a.preset}")
+    print(f"resident after loading the dataset: {_peak_gb():.2f} GB (peak so far)")
     print(f"{'algo':8s} {'steps/s':>8s} {'loop ms':>8s} {'update ms':>9s} {'overhd ms':>9s} {'sample ms':>9s} {'non-network':>11s}")
     for algo in a.algos:
         cfg = make_config(a.preset, algo=algo, steps=10**9, eval_every=0, log_every=200, checkpoint_every=10**9, amp=a.amp)
@@ -84,7 +86,12 @@ def main(argv=None) -> int:
         share = overhead / (overhead + update)
         print(f"{algo:8s} {1 / loop:8.1f} {1e3 * loop:8.2f} {1e3 * update:9.2f} {1e3 * overhead:9.2f} {1e3 * sample:9.2f} {100 * share:10.1f}%")
         sys.stdout.flush()
+    print(f"peak resident memory of the whole bench: {_peak_gb():.2f} GB (dataset once, one run at a time, {a.steps} held batches)")
     return 0
+
+
+def _peak_gb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # KB on Linux
 
 
 if __name__ == "__main__":
