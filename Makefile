@@ -48,7 +48,7 @@ test: venv
 test-fast: venv
 	$(BIN)/python -m pytest
 
-# The whole chapter-3 reproduction (dataset -> 4 trained algorithms -> Tables 3.1/3.2 in README.md); about 1.5 h on 2 cores
+# The whole chapter-3 reproduction (dataset -> 4 algorithms x 3 seeds -> Tables 3.1/3.2 in README.md); about 2 h on 2 cores per seed
 results: venv
 	$(BIN)/python -m aerohrl.eval.reproduce
 
