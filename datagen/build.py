@@ -202,7 +202,11 @@ def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.nda
 ROLLOUT_BLOCK = 8192
 NOISE_STREAM = 11  # seed stream of the action noise: [spec.seed, 11, part, block]
 START_STREAM = 13  # seed stream of the perturbed start states: [spec.seed, 13]
-MIN_EXPERT_SUCCESS = 0.4  # below this a recipe demonstrates failing more than reaching: refused
+# Below this a recipe is refused. Not a quality bar: the labels are the clean command at
+# every flown state, and sigma x 2 (44.6 % expert success) gives the best Reach-Novel of the
+# 2,500-flight rows (eval/README.md "Recipes"); below 20 % the flights rarely come near their
+# goals, and the data would miss how a flight ends at its goal.
+MIN_EXPERT_SUCCESS = 0.2
 
 
 @dataclass
