@@ -272,13 +272,14 @@ def plot_size(recs: list[dict], path: Path) -> Path | None:
     if not by:
         return None
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    colour = {"noise": "tab:red", "clean": "tab:blue"}  # one colour per recipe, one line style per column
     for recipe, rs in sorted(by.items()):
         rs.sort(key=lambda r: r["goals"])
         x = [r["goals"] for r in rs]
-        for col, style, label in (("reach-novel", "-o", "Reach-Novel"), ("reach-novel-goaltol0.5", ":o", "Reach-Novel @ half tol"),
+        for col, style, label in (("reach-novel", "-o", "Reach-Novel"), ("reach-novel-goaltol0.5", ":^", "Reach-Novel @ half tol"),
                                   ("ood", "--s", "OOD straight")):
             y = [r["cols"].get(col, {}).get("mean", np.nan) for r in rs]
-            ax.plot(x, y, style, label=f"{recipe}: {label}", alpha=0.9 if recipe == "noise" else 0.5)
+            ax.plot(x, y, style, color=colour.get(recipe), label=f"{recipe}: {label}")
     ax.axhline(95, color="grey", lw=0.8, ls="--")
     ax.set_xscale("log")
     ax.set_xlabel("goals in the dataset (one flight each)")
@@ -292,6 +293,14 @@ def plot_size(recs: list[dict], path: Path) -> Path | None:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def _figure_line(fig: Path, readme: Path) -> str:
+    """The plot as an image in the README when it sits beside it, else its path."""
+    try:
+        return f"![Reach-Novel against dataset size]({fig.relative_to(readme.parent).as_posix()})"
+    except ValueError:
+        return f"Plot: `{fig}`."
 
 
 def main(argv=None) -> int:
@@ -377,10 +386,16 @@ def main(argv=None) -> int:
                             f"from 3 seeds] (per-seed values))\n\n" + table(recs))
         pooled = [r for recs in all_recs.values() for r in recs]
         fig = plot_size(pooled, out / "reach_novel_vs_size.png")
+        readme = Path(a.readme)
+        if fig and readme.exists() and BEGIN in readme.read_text():  # the figure beside the table it plots
+            shown = readme.parent / "figures" / fig.name
+            shown.parent.mkdir(parents=True, exist_ok=True)
+            shown.write_bytes(fig.read_bytes())
+            fig = shown
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         block = (f"Written by `python -m aerohrl.eval.recipe_study --plan {' '.join(a.plan)}` on {stamp}"
                  + (f" (steps overridden: {a.steps})" if a.steps else "") + (f" (goals x {a.goals_scale})" if a.goals_scale != 1 else "")
-                 + ".\n\n" + "\n".join(sections) + (f"\nPlot: `{fig}`.\n" if fig else ""))
+                 + ".\n\n" + "\n".join(sections) + (f"\n{_figure_line(fig, readme)}\n" if fig else ""))
         (out / "recipes.md").write_text(block)
         (out / "recipes.json").write_text(json.dumps(all_recs, indent=1))
         where = a.readme if update_readme(Path(a.readme), block, BEGIN, END) else f"{out / 'recipes.md'}"
