@@ -378,10 +378,18 @@ def main(argv=None) -> int:
                         failed += bool(err)
         sections = []
         all_recs = {}
+        # a (recipe, goals, steps) experiment is reported once, in the first plan that has it,
+        # with the seeds of every plan (the "seeds" plan adds seeds to the table's rows)
+        seen: set = set()
         for p, rs in plan_rows.items():
-            recs = aggregate(rs, runs)
+            keys = [k for k in dict.fromkeys((r.recipe, r.goals, r.steps) for r in rs) if k not in seen]
+            seen.update(keys)
+            rows = [r for q in plan_rows.values() for r in q if (r.recipe, r.goals, r.steps) in keys]
+            recs = aggregate(list(dict.fromkeys(rows)), runs)
+            if not recs:
+                continue
             all_recs[p] = recs
-            sections.append(f"**{p}** ({len(rs)} runs: GCSL, cpu preset; last {CHECKPOINTS.get(p, 3)} checkpoints x 250 "
+            sections.append(f"**{p}** (GCSL, cpu preset; last {CHECKPOINTS.get(p, 3)} checkpoints x 250 "
                             f"episodes per task; success %, mean ± std over seeds [95 % bootstrap interval of the mean, "
                             f"from 3 seeds] (per-seed values))\n\n" + table(recs))
         pooled = [r for recs in all_recs.values() for r in recs]
