@@ -44,7 +44,12 @@ def _eval_parser() -> ArgumentParser:
     ap.add_argument("--replan-every", type=T.nonneg_int, default=d.replan_every,
                     help="re-plan from the current state every K steps during intermediate legs (0: never) [0]")
     ap.add_argument("--no-replan", action="store_true", help="multi: keep the take-off plan (no re-planning at reached goals)")
-    ap.add_argument("--horizon", type=T.positive_int, default=d.horizon, help=f"ood: steps per episode, every planner [{d.horizon}]")
+    ap.add_argument("--horizon", type=T.positive_int, default=None,
+                    help="ood: steps per episode, every planner [1000; a family ring: its own, scaled to distance]")
+    ap.add_argument("--family", default=None, help="ood: goals that leave rho_D along one axis: position | velocity | "
+                    "acceleration | combined (eval/families.py) [the thesis's OOD set]")
+    ap.add_argument("--ring", default=None, help="ood --family: step 1..K of the family, or a range LO:HI of |x_i| "
+                    "(m, m/s or m/s^2) [1]")
     ap.add_argument("--leg-horizon", type=T.nonneg_int, default=d.leg_horizon,
                     help="ood: step budget to reach an intermediate goal [horizon / (intermediate goals + 1)]")
     ap.add_argument("--min-leg", type=T.nonneg_float, default=d.min_leg,
@@ -76,7 +81,7 @@ def cmd_eval(a) -> int:
     torch.set_num_threads(max(1, a.threads))
     opt = EvalOptions(task=a.task, episodes=a.episodes, checkpoints=a.checkpoints, planner=a.planner, waypoints=a.waypoints,
                       beam=a.beam, alpha=a.alpha, candidates=a.candidates, replan=not a.no_replan, replan_every=a.replan_every,
-                      horizon=a.horizon, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, goal_tol=a.goal_tol, floor=a.floor, decline_margin=a.decline_margin, min_leg=a.min_leg, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
+                      horizon=a.horizon, family=a.family, ring=a.ring, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, goal_tol=a.goal_tol, floor=a.floor, decline_margin=a.decline_margin, min_leg=a.min_leg, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
                       progress=not a.no_progress and sys.stderr.isatty())
     s = evaluate_run(a.run, opt)
     print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "

@@ -22,6 +22,7 @@ from aerohrl import atomic
 from aerohrl.errors import UserError
 
 PLANNERS = ("none", "single", "multi")
+OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or not
 
 
 @dataclass
@@ -36,7 +37,9 @@ class EvalOptions:
     candidates: int = 1024  # 0 = every achieved goal of the dataset
     replan: bool = True  # multi: re-plan the remaining goals at each reached intermediate goal
     replan_every: int = 0  # also re-plan every K steps during intermediate legs (0: never)
-    horizon: int = 1000  # ood: total steps of every variant (none | single | multi), = 2 legs of 500
+    horizon: int | None = None  # ood: total steps of every variant (none | single | multi); None: 1000 (2 legs of 500), a family ring's own
+    family: str | None = None  # ood: a goal family of eval/families.py (None: the thesis's OOD set)
+    ring: str | None = None  # ood --family: a 1-based step of the family, or LO:HI (eval/families.py)
     leg_horizon: int = 0  # ood: step budget of an intermediate leg (0: horizon // (intermediate goals + 1))
     waypoint_tol: float = 1.0  # an intermediate goal counts as reached with the tolerances x this
     floor: str = "none"  # none | hover | no-goal: a trivial floor instead of the learned policy (eval/floors.py)
@@ -51,7 +54,21 @@ class EvalOptions:
     out: str | None = None  # default RUN/eval/<name>
     extra: dict = field(default_factory=dict)
 
+    def ring_def(self):
+        """The :class:`~aerohrl.eval.families.Ring` of ``family``/``ring`` (None: the thesis's OOD set)."""
+        if self.family is None:
+            return None
+        from aerohrl.eval.families import parse_ring
+
+        return parse_ring(self.family, self.ring if self.ring is not None else "1")
+
     def name(self) -> str:
+        ring = self.ring_def()
+        if ring is not None:  # ood-<family>-<ring>-<planner>...: a family's ring, planned or not
+            return "ood-" + ring.slug + "-" + self._ood_name()[len("ood-"):]
+        return self._ood_name()
+
+    def _ood_name(self) -> str:
         tol = (f"-goaltol{self.goal_tol:g}" if self.goal_tol != 1.0 else "") + (f"-floor-{self.floor}" if self.floor != "none" else "")
         return self.task + tol if self.task != "ood" else f"ood-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") \
             + (f"-replan{self.replan_every}" if self.replan_every and self.planner != "none" else "") \
@@ -159,7 +176,12 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError(f"--decline-margin must be a finite number, got {opt.decline_margin}")
     if not opt.min_leg >= 0:
         raise UserError(f"--min-leg must be >= 0 m, got {opt.min_leg}")
-    if opt.horizon < 1 or opt.leg_horizon < 0 or opt.beam < 1 or opt.candidates < 0 or opt.replan_every < 0:
+    if (opt.family is not None or opt.ring is not None) and opt.task != "ood":
+        raise UserError("--family / --ring apply to --task ood only")
+    if opt.ring is not None and opt.family is None:
+        raise UserError("--ring needs --family (position | velocity | acceleration | combined)")
+    opt.ring_def()  # one-line errors for unknown families and bad rings
+    if (opt.horizon is not None and opt.horizon < 1) or opt.leg_horizon < 0 or opt.beam < 1 or opt.candidates < 0 or opt.replan_every < 0:
         raise UserError("--horizon and --beam must be >= 1, --leg-horizon, --candidates and --replan-every >= 0")
 
 
@@ -172,14 +194,21 @@ def build_episodes(data, opt: EvalOptions):
                         f"(reach-desired flies each goal once); pass --episodes {goals} or fewer")
 
     kw = {}
+    ring = opt.ring_def()
+    if ring is not None:  # a family's ring: its own horizon (scaled to distance) unless --horizon is given
+        from aerohrl.eval.tasks import ood_family
+
+        return ood_family(data, opt.episodes, opt.seed, ring=ring, horizon=opt.horizon)
     if opt.task == "ood":
         # every OOD variant flies the same goals with the same total time
-        kw = {"leg_horizon": opt.horizon, "legs": 1}
+        kw = {"leg_horizon": opt.horizon or OOD_HORIZON, "legs": 1}
     return make_episodes(opt.task, data, opt.episodes, opt.seed, **kw)
 
 
-def evaluate_run(run_dir, opt: EvalOptions) -> dict:
-    """Evaluate the last ``opt.checkpoints`` checkpoints of ``run_dir``; returns the summary."""
+def evaluate_run(run_dir, opt: EvalOptions, loaded=None) -> dict:
+    """Evaluate the last ``opt.checkpoints`` checkpoints of ``run_dir``; returns the summary.
+    ``loaded``: ``(data, meta)`` of :func:`load_run_dataset` for this run, when a study
+    evaluates one run many times (a large dataset is then loaded once)."""
     from tqdm import tqdm
 
     from aerohrl.eval import results
@@ -193,7 +222,7 @@ def evaluate_run(run_dir, opt: EvalOptions) -> dict:
     if opt.floor == "hover":  # the same constant command at every checkpoint: fly it once
         ckpts = ckpts[-1:]
     device = resolve_device(opt.device)
-    data, meta = load_run_dataset(run_dir, opt.dataset)
+    data, meta = loaded if loaded is not None else load_run_dataset(run_dir, opt.dataset)
     episodes = build_episodes(data, opt)
     out_dir = Path(opt.out) if opt.out else run_dir / "eval" / opt.name()
     atomic.remove_stale_temporaries(out_dir)  # left by an evaluation that was killed while writing

@@ -177,6 +177,26 @@ def ood(data, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, l
                             "seed_stream": OOD_SEED_OFFSET + int(seed)})
 
 
+def ood_family(data, n: int = 250, seed: int = 0, *, ring, horizon: int | None = None) -> EpisodeSet:
+    """OOD goals of a family ring (eval/families.py): origin -> a goal that leaves rho_D
+    along the ring's dimensions, the others from the dataset's ranges; ``horizon`` steps
+    (default: the ring's, scaled to the distance)."""
+    from aerohrl.datagen.goals import goal_vectors
+    from aerohrl.eval.families import sample_ring
+
+    spec = (data.info.get("spec") or {}) if data is not None else {}
+    g = sample_ring(ring, n, seed, pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
+                    vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
+                    acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE))
+    goals = goal_vectors(g)
+    n = len(goals)
+    h = int(horizon or ring.horizon())
+    return EpisodeSet("ood", hover_states(n), goals, np.full(n, h, np.int64), np.full(n, -1, np.int64),
+                      np.full(n, -1, np.int64), np.zeros(n, np.int64), seed,
+                      meta={"leg_horizon": h, "legs": 1, "family": ring.family, "ring": ring.index,
+                            "ranges": {k: list(v) for k, v in ring.ranges.items()}, "goal_acc": g["acc"]})
+
+
 def make_episodes(name: str, data, n: int = 250, seed: int = 0, **kw) -> EpisodeSet:
     """The episode set of task ``name`` (one of :data:`TASKS`)."""
     if name not in TASKS:
@@ -185,5 +205,5 @@ def make_episodes(name: str, data, n: int = 250, seed: int = 0, **kw) -> Episode
     return fn(data, n, seed, **kw)
 
 
-__all__ = ["EpisodeSet", "TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "reach_novel", "ood_goals",
+__all__ = ["EpisodeSet", "TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "ood_family", "reach_novel", "ood_goals",
            "hover_states"]

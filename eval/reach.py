@@ -1,0 +1,564 @@
+"""Reach beyond the data: OOD goal families flown straight and planned, over seeds (eval/README.md "Reach").
+
+    python -m aerohrl.eval.reach --runs runs/recipes/noise-n25000-s{0,1,2}-30k     # evaluate, choose margins, write tables
+    python -m aerohrl.eval.reach --runs ... --report-only                           # tables from what is there
+    python -m aerohrl.eval.reach --runs ... --families velocity --episodes 40 --heldout 20   # a smaller study
+
+For every run (one per training seed) and every ring of every family of
+eval/families.py, ``aerohrl eval --task ood --family F --ring K`` flies the newest
+``--checkpoints`` checkpoints on ``--episodes`` test goals (episode-set seed 0) with
+
+* ``straight``: the policy flies to G (no planner);
+* ``single``: the thesis's planner (Eq. 3.7 over the dataset's achieved goals), which
+  always inserts its waypoint;
+* ``single-decline``: the same planner, but flying straight stays a candidate: it
+  inserts the waypoint only where the critics' composed value beats ``V(s0, G)`` by
+  the margin ``M`` (``--decline-margin``);
+* ``chain`` / ``chain-decline``: Eq. 3.6 with synthetic candidates (any state within
+  rho_D relative to the current waypoint, eval/planner.py), ``n`` waypoints scaled to
+  the distance, re-planned at every reached waypoint (when this code has the synthetic
+  source).
+
+**The margin is chosen on held-out goals** (episode-set seed 1, ``--heldout`` goals per
+ring), never on the test goals: each planner's straight and planned flights of the
+held-out goals give, for any margin ``M``, the success of declining exactly (an episode
+that declines flies what the straight flight flew: the same start, goal and horizon, and
+every flight of the batch is independent). ``M`` maximises the worst ring's paired gain
+over straight (pooled over seeds), then the mean gain, then prefers the larger ``M``
+(declining more). The test rows then fly ``--decline-margin M`` for real.
+
+Feasibility (eval/feasibility.py, when present): which test goals the expert reaches at
+all, directly from rest or through one run-up waypoint; planners are also reported on
+the feasible goals. Results: ``RUN/eval/ood-<ring>-<variant>`` per run, the held-out
+flights under ``RUN/eval/heldout/``, tables and the reach curves in ``--out`` and
+between the ``reach`` markers of eval/README.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from dataclasses import replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from aerohrl.errors import UserError, run_cli
+
+PROG = "aerohrl.eval.reach"
+BEGIN, END = "<!-- reach:begin -->", "<!-- reach:end -->"
+HELDOUT_SEED = 1  # episode-set seed of the goals the margins are chosen on (the test goals: seed 0)
+MARGIN_GRID = (-0.05, -0.02, -0.01, 0.0, 0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, math.inf)
+BASE_VARIANTS = ("straight", "single")
+PLANNED = {"single": "single", "chain": "chain"}  # planner variants that get a declining twin
+
+
+def has_chain() -> bool:
+    """Does this code have the synthetic candidate source (eval/planner.py)?"""
+    from aerohrl.eval.harness import EvalOptions
+
+    return hasattr(EvalOptions(), "candidate_source")
+
+
+def chain_waypoints(ring) -> int:
+    """Waypoints of a chain to a ring's goals: one per ~2 m of |p_i| (rho_D's reach per leg), >= 2."""
+    hi = ring.ranges["pos"][1] if "pos" in ring.ranges else 2.0
+    return max(2, math.ceil(hi / 2.0 - 1e-9))
+
+
+def options(base, ring, variant: str, margin: float | None = None):
+    """EvalOptions of one variant on one ring."""
+    kw = dict(task="ood", family=ring.family, ring=str(ring.index) if ring.index else None, decline_margin=None)
+    if variant == "straight":
+        kw.update(planner="none")
+    elif variant.startswith("single"):
+        kw.update(planner="single")
+    elif variant.startswith("chain"):
+        kw.update(planner="multi", waypoints=chain_waypoints(ring), candidate_source="synthetic")
+    else:
+        raise UserError(f"unknown variant {variant!r}")
+    if variant.endswith("-decline"):
+        kw.update(decline_margin=margin)
+    return replace(base, **kw)
+
+
+def _episodes(summary_dir: Path) -> dict[int, dict]:
+    """Per evaluated checkpoint step: success (E,), and plan_score/direct_score when planned."""
+    out = {}
+    for f in sorted(summary_dir.glob("episodes-step-*.csv")):
+        with open(f, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        rec = {"success": np.array([r["success"] == "1" for r in rows], bool),
+               "near": np.array([r["near_success"] == "1" for r in rows], bool)}
+        if rows and "plan_score" in rows[0]:
+            rec["diff"] = np.array([float(r["plan_score"]) - float(r["direct_score"]) for r in rows])
+        out[int(f.stem.rsplit("-", 1)[1])] = rec
+    return out
+
+
+def _done(out_dir: Path, opt) -> bool:
+    """Is the evaluation there with these options and episodes (resume: skip it)?"""
+    f = out_dir / "summary.json"
+    if not f.exists():
+        return False
+    try:
+        s = json.loads(f.read_text())
+    except (OSError, ValueError):
+        return False
+    return s.get("episodes") == opt.episodes and len(s.get("checkpoints", [])) == opt.checkpoints
+
+
+def _subset(eps, idx: np.ndarray):
+    from aerohrl.eval.tasks import EpisodeSet
+
+    return EpisodeSet(eps.task, eps.start_states[idx], eps.goals[idx], eps.horizons[idx], eps.source_episode[idx],
+                      eps.start_frame[idx], eps.steps_ahead[idx], eps.seed, dict(eps.meta))
+
+
+def _slice(r: dict, idx: np.ndarray, E: int) -> dict:
+    return {k: (v[idx] if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == E else v) for k, v in r.items()}
+
+
+def fly_group(run: Path, opts: list, loaded, heldout: bool) -> list[Path]:
+    """Fly one variant on several rings of equal horizon in one batched closed loop per
+    checkpoint (the rings' episodes side by side: one policy call per step for all of
+    them), and write each ring's evaluation as ``aerohrl eval`` would (episodes CSV,
+    trajectories, summary.json). Rings already evaluated with these options are skipped."""
+    from aerohrl.eval import results
+    from aerohrl.eval.harness import (build_episodes, check_checkpoint_dataset, check_options, load_policy, make_planner,
+                                      run_checkpoints, sim_kwargs)
+    from aerohrl.eval.rollout import rollout
+
+    outs = [run / "eval" / ("heldout" if heldout else "") / o.name() for o in opts]
+    todo = [(o, d) for o, d in zip(opts, outs) if not _done(d, o)]
+    if not todo:
+        return outs
+    for o, _ in todo:
+        check_options(o)
+    data, meta = loaded
+    sets = [build_episodes(data, o) for o, _ in todo]
+    horizons = {int(e.horizons.max()) for e in sets}
+    if len(horizons) != 1:
+        raise UserError(f"fly_group needs rings of one horizon, got {sorted(horizons)}")
+    bounds = np.cumsum([0] + [len(e) for e in sets])
+    from aerohrl.eval.tasks import EpisodeSet
+
+    allset = EpisodeSet("ood", *(np.concatenate([getattr(e, f) for e in sets]) for f in
+                                 ("start_states", "goals", "horizons", "source_episode", "start_frame", "steps_ahead")),
+                        seed=sets[0].seed, meta={"leg_horizon": horizons.pop()})
+    o0 = todo[0][0]
+    per_ckpt = [[] for _ in todo]
+    t_all = time.perf_counter()
+    ckpts = run_checkpoints(run, o0.checkpoints)
+    for i, path in enumerate(ckpts):
+        algo, ck = load_policy(path, o0.device)
+        check_checkpoint_dataset(ck, data, path)
+        planner, nw = make_planner(algo, data, o0)
+        leg_h = o0.leg_horizon or max(1, int(allset.horizons.max()) // (nw + 1))
+        record = o0.record and i == len(ckpts) - 1
+        t0 = time.perf_counter()
+        r = rollout(algo, allset, planner=planner, n_waypoints=nw, leg_horizon=leg_h, replan=o0.replan,
+                    replan_every=o0.replan_every, waypoint_tol=o0.waypoint_tol, goal_tol=o0.goal_tol,
+                    decline_margin=o0.decline_margin, record=record, **sim_kwargs(data))
+        wall = (time.perf_counter() - t0) / len(todo)
+        for j, ((o, d), eps) in enumerate(zip(todo, sets)):
+            idx = np.arange(bounds[j], bounds[j + 1])
+            rj = _slice(r, idx, len(allset))
+            results.write_episodes(d, int(ck["step"]), eps, rj)
+            per_ckpt[j].append({"checkpoint": path.name, "step": int(ck["step"]), "success": float(rj["success"].mean()),
+                                "near_success": float(rj["near_success"].mean()), "seconds": wall,
+                                **({"declined": float(rj["declined"].mean())} if "declined" in rj else {})})
+            if record:
+                results.write_trajectories(d, int(ck["step"]), eps, rj)
+    for j, ((o, d), eps) in enumerate(zip(todo, sets)):
+        s = results.summarize(per_ckpt[j], run_dir=run, meta=meta, options=replace(o, out=str(d)), episodes=eps,
+                              seconds=(time.perf_counter() - t_all) / len(todo))
+        s["batched_with"] = [x.name() for x, _ in todo]  # flown side by side in one closed loop
+        results.write_summary(d, s)
+    return outs
+
+
+def decline_success(straight: np.ndarray, planned: np.ndarray, diff: np.ndarray, margin: float) -> np.ndarray:
+    """Per episode, what the declining planner reaches: planned where ``diff > margin``, else straight."""
+    return np.where(diff > margin, planned, straight)
+
+
+def choose_margin(pairs: dict) -> tuple[float, dict]:
+    """The margin of one planner from its held-out flights.
+
+    ``pairs[ring] = [(straight (E,), planned (E,), diff (E,)) per run/checkpoint]``.
+    Per margin: the paired gain over straight per ring (pooled over runs), its worst ring
+    and mean; the chosen margin maximises (worst, mean, margin)."""
+    table = {}
+    for m in MARGIN_GRID:
+        gains = {ring: float(np.mean([decline_success(s, p, d, m).mean() - s.mean() for s, p, d in v]))
+                 for ring, v in pairs.items()}
+        table[m] = {"worst": min(gains.values()), "mean": float(np.mean(list(gains.values()))), "gains": gains}
+    best = max(MARGIN_GRID, key=lambda m: (round(table[m]["worst"], 9), round(table[m]["mean"], 9), m))
+    return best, table
+
+
+def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, log) -> dict:
+    """Fly everything (resumable); returns {"margins": {planner: M}, "margin_tables": ...}."""
+    from aerohrl.eval.harness import load_run_dataset
+
+    margins, margin_tables = {}, {}
+    loaded = {}
+
+    def data_of(run):
+        if run not in loaded:
+            loaded.clear()  # one large dataset in memory at a time
+            loaded[run] = load_run_dataset(run, base.dataset)
+        return loaded[run]
+
+    planners = [v for v in variants if v in PLANNED]
+    groups: dict[int, list] = {}
+    for ring in rings:  # rings of one horizon fly side by side
+        groups.setdefault(ring.horizon(), []).append(ring)
+
+    def fly(run, variant, heldout, margin=None):
+        for h, rs in groups.items():
+            opts = [options(base, r, variant, margin) for r in rs]
+            if heldout:
+                opts = [replace(o, episodes=heldout_n, seed=HELDOUT_SEED) for o in opts]
+            t0 = time.perf_counter()
+            fly_group(run, opts, data_of(run), heldout)
+            log(f"{run.name} {'held-out' if heldout else 'test'} {variant} horizon {h} "
+                f"({', '.join(r.slug for r in rs)}): {time.perf_counter() - t0:.0f} s")
+
+    # 1. held-out goals: straight and every planner, for the margins
+    for run in runs:
+        for v in ["straight", *planners]:
+            fly(run, v, True)
+    for p in planners:
+        pairs = {}
+        for ring in rings:
+            for run in runs:
+                h = run / "eval" / "heldout"
+                s = _episodes(h / replace(options(base, ring, "straight"), seed=HELDOUT_SEED).name())
+                q = _episodes(h / replace(options(base, ring, p), seed=HELDOUT_SEED).name())
+                pairs.setdefault(ring.slug, []).extend((s[k]["success"], q[k]["success"], q[k]["diff"]) for k in q if k in s)
+        margins[p], margin_tables[p] = choose_margin(pairs)
+        log(f"margin of {p}: {margins[p]} (held-out worst ring {100 * margin_tables[p][margins[p]]['worst']:+.1f}, "
+            f"mean {100 * margin_tables[p][margins[p]]['mean']:+.1f} points)")
+    # 2. test goals: every variant, declining ones with the chosen margins
+    for run in runs:
+        for v in variants:
+            m = margins.get(v.removesuffix("-decline")) if v.endswith("-decline") else None
+            if v.endswith("-decline") and m is not None and math.isinf(m):
+                continue  # always declines: it is the straight flight
+            fly(run, v, False, m)
+    return {"margins": margins, "margin_tables": {p: {str(k): v for k, v in t.items()} for p, t in margin_tables.items()}}
+
+
+def feasibility_of(ring, n: int, spec: dict, cache: Path) -> dict | None:
+    """Expert feasibility of the ring's test goals (eval/feasibility.py), cached as JSON; None without it."""
+    try:
+        from aerohrl.eval import feasibility
+    except ImportError:
+        return None
+    f = cache / f"feasibility-{ring.slug}-n{n}.json"
+    if f.exists():
+        return {k: np.array(v) for k, v in json.loads(f.read_text()).items()}
+    from aerohrl.eval.families import sample_ring
+    from aerohrl.eval.tasks import DEFAULT_ACC_RANGE, DEFAULT_POS_RANGE, DEFAULT_VEL_RANGE
+
+    g = sample_ring(ring, n, 0, pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
+                    vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
+                    acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE))
+    r = feasibility.feasibility(g, ring.horizon(), vehicle=spec.get("vehicle", "hummingbird"), fps=int(spec.get("fps", 100)),
+                                substeps=int(spec.get("substeps", 5)))
+    keep = {k: np.asarray(r[k]).tolist() for k in ("direct", "runup", "feasible")}
+    from aerohrl import atomic
+
+    atomic.write_text(f, json.dumps(keep))
+    return {k: np.array(v) for k, v in keep.items()}
+
+
+def collect(runs: list[Path], rings, variants: list[str], base, margins: dict, feas: dict) -> list[dict]:
+    """Per ring: per variant the success per seed (mean over checkpoints), on all and on
+    feasible goals, and the paired gain over straight pooled over seeds."""
+    from aerohrl.eval.results import seed_stats
+
+    out = []
+    for ring in rings:
+        rec = {"ring": ring, "variants": {}, "feasible": None}
+        fz = feas.get(ring.slug)
+        if fz is not None:
+            rec["feasible"] = {k: 100 * float(np.mean(v)) for k, v in fz.items()}
+        straight = {run: _episodes(run / "eval" / options(base, ring, "straight").name()) for run in runs}
+        for v in variants:
+            m = margins.get(v.removesuffix("-decline")) if v.endswith("-decline") else None
+            if v.endswith("-decline") and m is None:
+                continue
+            per_seed, per_seed_f, near, diffs, only = [], [], [], [], [0, 0]
+            for run in runs:
+                ep = straight[run] if (v.endswith("-decline") and math.isinf(m)) else \
+                    _episodes(run / "eval" / options(base, ring, v, m).name())
+                if not ep:
+                    continue
+                per_seed.append(100 * np.mean([e["success"].mean() for e in ep.values()]))
+                near.append(100 * np.mean([e["near"].mean() for e in ep.values()]))
+                if fz is not None and fz["feasible"].any():
+                    per_seed_f.append(100 * np.mean([e["success"][fz["feasible"]].mean() for e in ep.values()
+                                                     if len(e["success"]) == len(fz["feasible"])]))
+                for k, e in ep.items():
+                    s = straight[run].get(k)
+                    if s is not None and len(s["success"]) == len(e["success"]):
+                        diffs.append(100 * (e["success"].mean() - s["success"].mean()))
+                        only[0] += int((e["success"] & ~s["success"]).sum())
+                        only[1] += int((s["success"] & ~e["success"]).sum())
+            if per_seed:
+                rec["variants"][v] = {"success": seed_stats(per_seed), "near": seed_stats(near),
+                                      "feasible": seed_stats(per_seed_f) if per_seed_f else None,
+                                      "paired": {"diff": float(np.mean(diffs)) if diffs else float("nan"),
+                                                 "only_variant": only[0], "only_straight": only[1]},
+                                      "margin": m}
+        out.append(rec)
+    return out
+
+
+def _paired(p: dict) -> str:
+    from scipy.stats import binomtest
+
+    n = p["only_variant"] + p["only_straight"]
+    pv = binomtest(p["only_variant"], n).pvalue if n else 1.0
+    return f"{p['diff']:+.1f} ({p['only_variant']}:{p['only_straight']}, p={pv:.2f})"
+
+
+VARIANT_LABEL = {"straight": "straight", "single": "single (Eq. 3.7, thesis)", "single-decline": "single, declining",
+                 "chain": "chain (synthetic)", "chain-decline": "chain, declining"}
+
+
+def tables(recs: list[dict], variants: list[str], margins: dict) -> str:
+    from aerohrl.eval.results import seed_cell
+
+    fams: dict[str, list[dict]] = {}
+    for r in recs:
+        fams.setdefault(r["ring"].family, []).append(r)
+    shown = [v for v in variants if any(v in r["variants"] for r in recs)]
+    parts = []
+    for fam, rs in fams.items():
+        head = "| ring | horizon | expert: direct / run-up / feasible | " + " | ".join(VARIANT_LABEL[v] for v in shown) + " |\n"
+        head += "|---" * (3 + len(shown)) + "|\n"
+        lines = []
+        for r in rs:
+            fz = r["feasible"]
+            fcell = f"{fz['direct']:.0f} / {fz['runup']:.0f} / {fz['feasible']:.0f}" if fz else "—"
+            cells = []
+            for v in shown:
+                x = r["variants"].get(v)
+                if not x:
+                    cells.append("—")
+                    continue
+                c = seed_cell(x["success"])
+                if v != "straight":
+                    c += f"; vs straight {_paired(x['paired'])}"
+                if x["feasible"]:
+                    c += f"; feasible goals {x['feasible']['mean']:.1f}"
+                cells.append(c)
+            lines.append(f"| {r['ring'].label} | {r['ring'].horizon()} | {fcell} | " + " | ".join(cells) + " |")
+        parts.append(f"**{fam}**\n\n" + head + "\n".join(lines) + "\n")
+    ms = ", ".join(f"{p}: {m:g}" for p, m in margins.items())
+    return "\n".join(parts) + (f"\nDecline margins chosen on held-out goals: {ms}.\n" if ms else "")
+
+
+def plot_curves(recs: list[dict], variants: list[str], path: Path) -> Path:
+    """Success against each family's step, one panel per family, seed band (min-max) per variant."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fams: dict[str, list[dict]] = {}
+    for r in recs:
+        fams.setdefault(r["ring"].family, []).append(r)
+    fig, axes = plt.subplots(1, len(fams), figsize=(4.2 * len(fams), 3.8), squeeze=False)
+    colours = {"straight": "black", "single": "tab:blue", "single-decline": "tab:cyan", "chain": "tab:red",
+               "chain-decline": "tab:orange"}
+    for ax, (fam, rs) in zip(axes[0], fams.items()):
+        x = np.arange(len(rs))
+        for v in variants:
+            ys = [r["variants"].get(v) for r in rs]
+            if not any(ys):
+                continue
+            mean = [y["success"]["mean"] if y else np.nan for y in ys]
+            lo = [min(y["success"]["values"]) if y else np.nan for y in ys]
+            hi = [max(y["success"]["values"]) if y else np.nan for y in ys]
+            ax.plot(x, mean, "-o", ms=3, color=colours.get(v), label=VARIANT_LABEL[v])
+            ax.fill_between(x, lo, hi, color=colours.get(v), alpha=0.15)
+        fz = [r["feasible"]["feasible"] if r["feasible"] else np.nan for r in rs]
+        if not np.all(np.isnan(fz)):
+            ax.plot(x, fz, ":", color="grey", label="expert feasible")
+        ax.set_xticks(x, [r["ring"].label.split(" in ")[1] for r in rs], rotation=20, fontsize=7)
+        unit = rs[0]["ring"].label.split(" in ")[0] if len(rs[0]["ring"].ranges) == 1 else "rings"
+        ax.set_xlabel(f"{fam}: {unit}")
+        ax.set_ylabel("success % (mean; band: min-max over seeds)")
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+        ax.set_title(f"{fam} family")
+    axes[0][0].legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_paths(run: Path, rings, base, variant: str, path: Path, per_ring: int = 3) -> Path | None:
+    """3-D paths of far goals (the last ring of each family), planned waypoints marked
+    (thesis Fig. 3.6 analogue): flown path per episode, start, goal and its waypoints."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    last = {}
+    for r in rings:
+        last[r.family] = r
+    panels = []
+    for ring in last.values():
+        d = run / "eval" / options(base, ring, variant).name()
+        files = sorted(d.glob("trajectories-step-*.npz"))
+        if files:
+            panels.append((ring, np.load(files[-1])))
+    if not panels:
+        return None
+    fig = plt.figure(figsize=(4.4 * len(panels), 4.4))
+    cmap = plt.get_cmap("tab10")
+    for k, (ring, z) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), k + 1, projection="3d")
+        succ = z["success"]
+        idx = list(np.flatnonzero(succ)[: per_ring - 1]) + list(np.flatnonzero(~succ)[:1])
+        idx = idx or list(range(min(per_ring, len(succ))))
+        for j, i in enumerate(idx):
+            c = cmap(j % 10)
+            p = z["positions"][i, : int(z["steps"][i]) + 1]
+            ax.plot(p[:, 0], p[:, 1], p[:, 2], color=c, lw=1.0, ls="-" if succ[i] else "--")
+            ax.scatter(*z["goals"][i, :3], color=c, marker="*", s=60, depthshade=False)
+            if "waypoints" in z.files:
+                w = z["waypoints"][i, :, :3]
+                ax.scatter(w[:, 0], w[:, 1], w[:, 2], color=c, marker="^", s=18, depthshade=False)
+        ax.scatter(0, 0, 0, color="black", s=15)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_zlabel("z (m)")
+        ax.set_title(f"{ring.label}\n{VARIANT_LABEL[variant]}: ★ goal, ▲ waypoints, -- failed", fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog=PROG, description="OOD goal families flown straight and planned over seeds; decline "
+                                 "margins chosen on held-out goals; reach tables and curves.")
+    ap.add_argument("--runs", nargs="+", type=Path, required=True, help="one run per training seed (same recipe and algorithm)")
+    ap.add_argument("--families", nargs="+", default=None, help="families to fly [all of eval/families.py]")
+    ap.add_argument("--variants", nargs="+", default=None,
+                    help="straight | single | single-decline | chain | chain-decline [all available]")
+    ap.add_argument("--episodes", type=int, default=250, help="test goals per ring [250]")
+    ap.add_argument("--heldout", type=int, default=100, help="held-out goals per ring (margin choice) [100]")
+    ap.add_argument("--checkpoints", type=int, default=1, help="newest checkpoints per run [1]")
+    ap.add_argument("--candidates", type=int, default=1024, help="single: achieved goals scored [1024]")
+    ap.add_argument("--out", type=Path, default=Path("results/reach"), help="tables and plots [results/reach]")
+    ap.add_argument("--readme", type=Path, default=Path("eval/README.md"))
+    ap.add_argument("--report-only", action="store_true", help="tables from existing evaluations; fly nothing")
+    ap.add_argument("--threads", type=int, default=1)
+    a = ap.parse_args(argv)
+
+    def go() -> int:
+        import torch
+
+        from aerohrl.eval.families import FAMILIES, rings as family_rings
+        from aerohrl.eval.harness import EvalOptions
+        from aerohrl.eval.reproduce import update_readme
+
+        torch.set_num_threads(max(1, a.threads))
+        if a.episodes < 1 or a.heldout < 1 or a.checkpoints < 1:
+            raise UserError("--episodes, --heldout and --checkpoints must be >= 1")
+        for r in a.runs:
+            if not (r / "config.json").exists():
+                raise UserError(f"no run at {r} (config.json missing)")
+        fams = a.families or list(FAMILIES)
+        rings = [r for f in fams for r in family_rings(f)]
+        variants = a.variants or (["straight", "single", "single-decline"] + (["chain", "chain-decline"] if has_chain() else []))
+        bad = [v for v in variants if v not in VARIANT_LABEL]
+        if bad:
+            raise UserError(f"unknown variant {bad[0]!r} (choose from {', '.join(VARIANT_LABEL)})")
+        if any(v.startswith("chain") for v in variants) and not has_chain():
+            raise UserError("this code has no synthetic candidate source for chains (eval/planner.py)")
+        base = EvalOptions(task="ood", episodes=a.episodes, checkpoints=a.checkpoints, candidates=a.candidates,
+                           progress=sys.stderr.isatty())
+        a.out.mkdir(parents=True, exist_ok=True)
+        logf = open(a.out / "reach.log", "a")
+
+        def log(msg):
+            line = f"{datetime.now(timezone.utc).strftime('%H:%M:%S')} {msg}"
+            print(line, flush=True)
+            logf.write(line + "\n")
+            logf.flush()
+
+        t0 = time.perf_counter()
+        state_f = a.out / "margins.json"
+        if a.report_only:
+            if not state_f.exists():
+                raise UserError(f"{state_f} missing: run the study once without --report-only")
+            state = json.loads(state_f.read_text())
+        else:
+            state = study(a.runs, rings, variants, base, a.heldout, log)
+            from aerohrl import atomic
+
+            atomic.write_text(state_f, json.dumps(state, indent=1))
+        margins = {k: float(v) for k, v in state["margins"].items()}
+        from aerohrl.algorithms.trainer import read_json
+        from aerohrl.datagen.manifest import read_manifest
+
+        spec = read_manifest(read_json(a.runs[0] / "config.json")["dataset"]["path"]).get("spec", {})
+        feas = {}
+        for ring in rings:
+            t1 = time.perf_counter()
+            f = feasibility_of(ring, a.episodes, spec, a.out)
+            if f is not None:
+                feas[ring.slug] = f
+                log(f"feasibility {ring.slug}: {100 * f['feasible'].mean():.1f} % ({time.perf_counter() - t1:.0f} s)")
+        recs = collect(a.runs, rings, variants, base, margins, feas)
+        curves = plot_curves(recs, variants, a.out / "reach_curves.png")
+        paths = plot_paths(a.runs[0], rings, base, "chain" if "chain" in variants else "single", a.out / "reach_paths.png")
+        md = tables(recs, variants, margins)
+        readme = a.readme
+        figs = []
+        for fig in (curves, paths):
+            if fig is None:
+                continue
+            if readme.exists() and BEGIN in readme.read_text():
+                shown = readme.parent / "figures" / fig.name
+                shown.parent.mkdir(parents=True, exist_ok=True)
+                shown.write_bytes(fig.read_bytes())
+                figs.append(f"![{fig.stem}]({shown.relative_to(readme.parent).as_posix()})")
+            else:
+                figs.append(f"Plot: `{fig}`")
+        stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        runs_s = " ".join(str(r) for r in a.runs)
+        block = (f"Written by `python -m aerohrl.eval.reach --runs {runs_s}` on {stamp}: {len(a.runs)} seeds, newest "
+                 f"{a.checkpoints} checkpoint(s) x {a.episodes} test goals per ring and seed; success %, mean ± std over seeds "
+                 f"[95 % bootstrap interval] (per-seed values); \"vs straight\": paired gain in points pooled over seeds "
+                 f"(episodes only this variant : only straight reaches, sign test).\n\n" + md + "\n" + "\n\n".join(figs) + "\n")
+        from aerohrl import atomic
+
+        atomic.write_text(a.out / "reach.md", block)
+        where = readme if update_readme(readme, block, BEGIN, END) else a.out / "reach.md"
+        log(f"reach tables written to {where} ({(time.perf_counter() - t0) / 60:.1f} min)")
+        return 0
+
+    return run_cli(PROG, go)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
