@@ -20,6 +20,15 @@ Two ways to a goal ``G = (p, v, a, R)``:
   directly feasible. Note that a minimum-jerk quintic from rest to a fast goal close by
   already swings away and comes back: given the time, "direct" includes run-ups of
   that shape.
+
+  Besides the minimum-time reference (``direct_min_time``), the same quintic is flown
+  slower, its duration ``T`` times each factor of :data:`STRETCH` (if it keeps the bound
+  and fits the horizon); ``direct`` is any of them. Why: a minimum-time reference that
+  must *end* at a large acceleration ramps it up at the last moment, and the vehicle's
+  attitude (the goal's ``R`` follows from its acceleration) lags behind: on the
+  ``acceleration`` family's ring 2 (|a_i| in [7, 10] m/s^2) the minimum-time flights
+  reach 65 % of the goals, mostly missing the 0.15 rad attitude tolerance, the same
+  quintics over 2 T reach 98 %. The expert is the same, only its plan is slower.
 * **run-up**: one waypoint ``w`` at rest (``v = a = 0``), two references concatenated —
   rest at the origin -> rest at ``w``, then rest at ``w`` -> G (the second planned from
   w's nominal state, not from the flown one) — flown as one closed-loop flight.
@@ -30,7 +39,8 @@ Two ways to a goal ``G = (p, v, a, R)``:
   it: ``p(-s) ~ p - v s + a s^2 / 2``). ``d0 = |v| max_i |v_i| / (2 a_max)`` is the
   shortest straight run-up that reaches ``v`` at constant acceleration within the
   per-axis bound (axis i covers ``d |v_i| / |v|`` and needs ``|v_i| |v| / (2 d)``);
-  a minimum-jerk leg needs more, hence the factors. A goal at rest (``|v| < 1e-6``)
+  a minimum-jerk leg needs more, hence the factors. The second leg is also flown
+  slower (durations x :data:`RUNUP_STRETCH`, as for the direct flight). A goal at rest (``|v| < 1e-6``)
   takes ``v_hat`` along ``p`` (the approach direction). An option counts only if both
   legs exist within the horizon together (``T1 + T2 <= horizon``). A goal is run-up
   feasible if any option reaches it; the reported waypoint is the option that reaches
