@@ -22,6 +22,8 @@ from dataclasses import dataclass, field, fields
 from aerohrl.errors import UserError
 
 ALGORITHMS = ("gcsl", "td3bc", "td3awbc", "cql")
+ALPHA_SCHEDULES = ("constant", "linear")
+AWR_NORMALIZE = ("std", "none")
 LR_SCHEDULES = ("constant", "cosine")
 AMP_MODES = ("none", "bf16")
 AUGMENTATIONS = ("none", "mirror")  # = augment.AUGMENTATIONS
@@ -71,11 +73,20 @@ class TrainConfig:
     policy_noise: float = 0.2  # in normalised action units ([-1, 1])
     noise_clip: float = 0.5
     policy_delay: int = 2
+    # TD3-BC / TD3-AWBC: "linear" anneals alpha to 0 over the run (the Q-term fades, BC stays)
+    alpha_schedule: str = "constant"
     awr_temperature: float = 1.0  # TD3-AWBC: weight exp(A / temperature)
     awr_max_weight: float = 100.0
+    # TD3-AWBC: "std" divides the advantage by its batch standard deviation before the
+    # temperature (with Q in [0, 1] the raw advantages are ~1e-3 and exp(A) ~ 1: the weighting
+    # does nothing); "none" is the thesis's exp(A / temperature)
+    awr_normalize: str = "std"
     # CQL
     cql_min_q_weight: float = 5.0
     cql_num_random: int = 4  # sampled actions per state in CQL's logsumexp (thesis preset: 10)
+    # CQL's Lagrange variant (Kumar et al. 2020, "CQL(H) with Lagrange"): the penalty weight is
+    # tuned so that the gap logsumexp Q - Q_data stays near this threshold (0: off, fixed weight)
+    cql_lagrange_thresh: float = 0.0
     # bookkeeping (steps)
     log_every: int = 200
     checkpoint_every: int = 1_000  # steps / 30: the last 10 checkpoints are the final third (Table 3.1 protocol)
@@ -95,6 +106,7 @@ PRESETS: dict[str, dict] = {
         "lr_actor": 3e-4,
         "lr_schedule": "constant",
         "alpha": 2.5,
+        "awr_normalize": "none",  # the thesis's weights exp(A / T)
         "amp": "none",
         "ema_decay": 0.0,
         "mc_lower_bound": False,
@@ -170,7 +182,11 @@ def check(cfg: TrainConfig) -> None:
     for name in ("lr_actor", "lr_critic", "awr_temperature", "awr_max_weight"):
         if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) > 0):
             raise UserError(f"{name.replace('_', '-')} must be a positive number, got {getattr(cfg, name)}")
-    for name in ("alpha", "policy_noise", "noise_clip", "cql_min_q_weight"):
+    if cfg.alpha_schedule not in ALPHA_SCHEDULES:
+        raise UserError(f"unknown alpha schedule {cfg.alpha_schedule!r} (choose from {', '.join(ALPHA_SCHEDULES)})")
+    if cfg.awr_normalize not in AWR_NORMALIZE:
+        raise UserError(f"unknown advantage normalisation {cfg.awr_normalize!r} (choose from {', '.join(AWR_NORMALIZE)})")
+    for name in ("alpha", "policy_noise", "noise_clip", "cql_min_q_weight", "cql_lagrange_thresh"):
         if not (math.isfinite(getattr(cfg, name)) and getattr(cfg, name) >= 0):
             raise UserError(f"{name.replace('_', '-')} must be a number >= 0, got {getattr(cfg, name)}")
 
@@ -190,7 +206,8 @@ def from_dict(d: dict) -> TrainConfig:
         d.setdefault("relabel_window", 0)
     if "steps" in d:  # a run saved before these options existed trained without them
         for k, v in (("ema_decay", 0.0), ("mc_lower_bound", False), ("amp", "none"), ("augment", "none"),
-                     ("critic_random_goal_prob", 0.0)):
+                     ("critic_random_goal_prob", 0.0), ("alpha_schedule", "constant"), ("awr_normalize", "none"),
+                     ("cql_lagrange_thresh", 0.0)):
             d.setdefault(k, v)
     for k in ("hidden", "critic_hidden"):
         if k in d:

@@ -59,7 +59,8 @@ class CQL(Algorithm):
         self.cql_loss = CQLLoss(
             self.actor, [make_critic(critic_sizes(cfg)) for _ in range(2)], loss_function="l2",
             action_spec=spec, min_q_weight=cfg.cql_min_q_weight, num_random=cfg.cql_num_random,
-            deterministic_backup=False,
+            deterministic_backup=False, with_lagrange=cfg.cql_lagrange_thresh > 0,
+            lagrange_thresh=cfg.cql_lagrange_thresh,
         )
         use_clipped_td0(self.cql_loss, cfg.gamma, self.cql_loss.tensor_keys.value)
         self.critic_loss = make_critic_loss(
@@ -71,6 +72,9 @@ class CQL(Algorithm):
         self.actor_opt = torch.optim.Adam(self.cql_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)
         self.cql_critic_opt = torch.optim.Adam(self.cql_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         self.alpha_opt = torch.optim.Adam([self.cql_loss.log_alpha], lr=cfg.lr_actor)
+        # the Lagrange variant's multiplier (its own optimiser: gradient ascent on the gap)
+        self.alpha_prime_opt = (torch.optim.Adam([self.cql_loss.log_alpha_prime], lr=cfg.lr_critic)
+                                if cfg.cql_lagrange_thresh > 0 else None)
         self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         # tanh(loc) as a module sharing the actor's weights; kept out of the module tree
         # (its weights are the actor's, already in the state dict)
@@ -78,7 +82,10 @@ class CQL(Algorithm):
         self.setup_ema()
 
     def optimizers(self):
-        return {"actor": self.actor_opt, "cql_critic": self.cql_critic_opt, "alpha": self.alpha_opt, "critic": self.critic_opt}
+        opts = {"actor": self.actor_opt, "cql_critic": self.cql_critic_opt, "alpha": self.alpha_opt, "critic": self.critic_opt}
+        if self.alpha_prime_opt is not None:
+            opts["alpha_prime"] = self.alpha_prime_opt
+        return opts
 
     def policy_net(self):
         return self._det_net
@@ -87,10 +94,14 @@ class CQL(Algorithm):
         # 1. CQL: actor, conservative critics, entropy temperature (disjoint gradients)
         out = self.cql_loss(batch.clone(False))
         loss = out["loss_actor"] + out["loss_qvalue"] + out["loss_cql"] + out["loss_alpha"]
-        for opt in (self.actor_opt, self.cql_critic_opt, self.alpha_opt):
+        opts = [self.actor_opt, self.cql_critic_opt, self.alpha_opt]
+        if self.alpha_prime_opt is not None:  # the Lagrange multiplier's loss (gradient to log_alpha_prime only)
+            loss = loss + out["loss_alpha_prime"]
+            opts.append(self.alpha_prime_opt)
+        for opt in opts:
             opt.zero_grad(set_to_none=True)
         loss.backward()
-        for opt in (self.actor_opt, self.cql_critic_opt, self.alpha_opt):
+        for opt in opts:
             opt.step()
         self.ema_step()
         # 2. the planner's 5-critic ensemble, Eq. 3.2, next action from the CQL policy
@@ -106,6 +117,7 @@ class CQL(Algorithm):
             "loss_cql_qvalue": out["loss_qvalue"].detach(),
             "loss_cql": out["loss_cql"].detach(),
             "alpha": out["alpha"].detach(),
+            **({"loss_alpha_prime": out["loss_alpha_prime"].detach()} if self.alpha_prime_opt is not None else {}),
             "loss_critic": loss_q.detach(),
             "q_mean": meta["pred_value"].mean(),
             "target_mean": meta["target_value"].mean(),

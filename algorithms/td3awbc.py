@@ -5,6 +5,12 @@ regression term (thesis §3.5.1, "inspired from" Yang et al. 2022, WGCSL):
     w = min(exp(A / temperature), awr_max_weight),
     A = mean_j Q_j(s, a, g) - mean_j Q_j(s, pi(s), g)      (no gradient through A or w)
 
+With ``awr_normalize = "std"`` (the cpu preset) A is divided by its batch standard
+deviation first, as AWAC/IQL-style implementations scale advantages: the critics' values
+lie in [0, 1], so raw advantages are ~1e-3 and exp(A / 1) is 1 +- 0.003 (issue 11: the
+weighting then does nothing). The logged ``awr_weight_std`` and ``awr_clipped`` (share of
+weights at the clip) show whether it does something.
+
 Critics, targets and the update schedule are TD3-BC's (see td3bc.py).
 
 ``TD3BCLoss`` has no hook for a weighted BC term, so :class:`TD3AWBCLoss` extends it and
@@ -25,6 +31,7 @@ from aerohrl.algorithms.td3bc import TD3BC
 class TD3AWBCLoss(TD3BCLoss):
     awr_temperature: float = 1.0
     awr_max_weight: float = 100.0
+    awr_normalize: str = "none"
 
     def actor_loss(self, tensordict):
         td = tensordict.select(*self.actor_network.in_keys, strict=False)
@@ -42,13 +49,17 @@ class TD3AWBCLoss(TD3BCLoss):
                 tensordict.select(*self.qvalue_network.in_keys, strict=False).expand(n, *batch), params
             ).get(self.tensor_keys.state_action_value).squeeze(-1)
             adv = q_data.mean(0) - q_pi.detach().mean(0)
-            w = (adv / self.awr_temperature).exp().clamp_max(self.awr_max_weight)
+            if self.awr_normalize == "std":
+                adv = adv / (adv.std() + 1e-6)
+            raw = (adv / self.awr_temperature).exp()
+            w = raw.clamp_max(self.awr_max_weight)
         sq = (pi - a).pow(2).mean(-1)  # (B,)
         bc_loss = sq.mean()
         awr_loss = (w * sq).mean()
         lmbd = self.alpha / q_pi[0].abs().mean().detach()
         loss = -lmbd * q_pi[0].mean() + bc_loss + awr_loss
-        meta = {"bc_loss": bc_loss.detach(), "awr_loss": awr_loss.detach(), "lmbd": lmbd, "awr_weight": w.mean()}
+        meta = {"bc_loss": bc_loss.detach(), "awr_loss": awr_loss.detach(), "lmbd": lmbd, "awr_weight": w.mean(),
+                "awr_weight_std": w.std(), "awr_clipped": (raw >= self.awr_max_weight).float().mean()}
         return loss, meta
 
 
@@ -62,7 +73,9 @@ class TD3AWBC(TD3BC):
         )
         loss.awr_temperature = cfg.awr_temperature
         loss.awr_max_weight = cfg.awr_max_weight
+        loss.awr_normalize = cfg.awr_normalize
         return loss
 
     def _actor_extras(self, meta):
-        return {"lambda": meta["lmbd"].detach(), "awr_loss": meta["awr_loss"], "awr_weight": meta["awr_weight"]}
+        return {"lambda": meta["lmbd"].detach(), "awr_loss": meta["awr_loss"], "awr_weight": meta["awr_weight"],
+                "awr_weight_std": meta["awr_weight_std"], "awr_clipped": meta["awr_clipped"]}

@@ -6,7 +6,8 @@
   is thesis Eq. 3.2 as written; the [0, 1] clip comes from
   :class:`~aerohrl.algorithms.networks.ClippedTD0Estimator` plugged into the loss.
 * actor (every ``policy_delay`` steps): ``-lambda Q_0(s, pi(s)) + (pi(s) - a)^2``,
-  ``lambda = alpha / mean|Q_0|``. ``TD3BCLoss``'s actor reads only the first critic, as
+  ``lambda = alpha / mean|Q_0|``; ``alpha_schedule = "linear"`` anneals alpha to 0 over
+  the run (an option of issue 11's sweep: the Q-term shapes the start, BC the end). ``TD3BCLoss``'s actor reads only the first critic, as
   the original TD3-BC reads Q1; kept as is (the 5 critics share targets, so Q_0 is one
   member of the same ensemble).
 * targets (actor and critics): ``SoftUpdate`` on the delayed steps, as in TD3.
@@ -53,6 +54,8 @@ class TD3BC(Algorithm):
         self.critic_opt.step()
         self.num_updates += 1
         if self.num_updates % self.cfg.policy_delay == 0:
+            if self.cfg.alpha_schedule == "linear":  # the Q-term fades to 0 at the last step; BC stays
+                self.critic_loss.alpha = self.cfg.alpha * max(0.0, 1.0 - (self.num_updates - 1) / self.cfg.steps)
             loss_pi, ameta = self.critic_loss.actor_loss(self.actor_batch(batch))
             self.actor_opt.zero_grad(set_to_none=True)
             loss_pi.backward()
