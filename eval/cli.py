@@ -41,6 +41,8 @@ def _eval_parser() -> ArgumentParser:
     ap.add_argument("--alpha", type=T.nonneg_float, default=d.alpha, help=f"variance penalty of Eq. 3.6/3.7 [{d.alpha}]")
     ap.add_argument("--candidates", type=T.nonneg_int, default=d.candidates,
                     help=f"achieved goals scored by the planner (seeded subset; 0 = all) [{d.candidates}]")
+    ap.add_argument("--candidate-source", default=d.candidate_source, choices=("dataset", "synthetic"),
+                    help="planner: dataset achieved goals | synthetic offsets chained from the start (far goals) [dataset]")
     ap.add_argument("--replan-every", type=T.nonneg_int, default=d.replan_every,
                     help="re-plan from the current state every K steps during intermediate legs (0: never) [0]")
     ap.add_argument("--no-replan", action="store_true", help="multi: keep the take-off plan (no re-planning at reached goals)")
@@ -81,7 +83,9 @@ def cmd_eval(a) -> int:
     torch.set_num_threads(max(1, a.threads))
     opt = EvalOptions(task=a.task, episodes=a.episodes, checkpoints=a.checkpoints, planner=a.planner, waypoints=a.waypoints,
                       beam=a.beam, alpha=a.alpha, candidates=a.candidates, replan=not a.no_replan, replan_every=a.replan_every,
-                      horizon=a.horizon, family=a.family, ring=a.ring, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol, goal_tol=a.goal_tol, floor=a.floor, decline_margin=a.decline_margin, min_leg=a.min_leg, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
+                      horizon=a.horizon, family=a.family, ring=a.ring, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol,
+                      goal_tol=a.goal_tol, floor=a.floor, decline_margin=a.decline_margin, min_leg=a.min_leg,
+                      candidate_source=a.candidate_source, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
                       progress=not a.no_progress and sys.stderr.isatty())
     s = evaluate_run(a.run, opt)
     print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "

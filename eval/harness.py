@@ -46,6 +46,7 @@ class EvalOptions:
     goal_tol: float = 1.0  # the task goal's tolerances x this (0.5: the precision variant; 1: the thesis's test)
     decline_margin: float | None = None  # planner: fly straight where plan score <= direct score + this (None: never)
     min_leg: float = 0.0  # planner: candidates closer than this (m) to the start are not chosen first (0: all)
+    candidate_source: str = "dataset"  # planner: dataset (achieved goals) | synthetic (chains of offsets, ChainPlanner)
     seed: int = 0
     device: str = "cpu"
     record: bool = True  # keep trajectories of the newest checkpoint (for plots)
@@ -75,7 +76,8 @@ class EvalOptions:
             + (f"-tol{self.waypoint_tol:g}" if self.waypoint_tol != 1.0 and self.planner != "none" else "") \
             + (f"-a{self.alpha:g}" if self.alpha != 1.0 and self.planner != "none" else "") \
             + (f"-minleg{self.min_leg:g}" if self.min_leg > 0 and self.planner != "none" else "") \
-            + (f"-decline{self.decline_margin:g}" if self.decline_margin is not None and self.planner != "none" else "") + tol
+            + (f"-decline{self.decline_margin:g}" if self.decline_margin is not None and self.planner != "none" else "") \
+            + ("-synth" if self.candidate_source == "synthetic" and self.planner != "none" else "") + tol
 
 
 def load_policy(ckpt_path, device="cpu"):
@@ -146,6 +148,12 @@ def make_planner(algo, data, opt: EvalOptions):
 
     if opt.planner == "none":
         return None, 0
+    if opt.candidate_source == "synthetic":  # C = --candidates offsets (0: 256) from the dataset spec's ranges
+        from aerohrl.eval.planner import ChainPlanner, offsets_from_spec
+
+        n = 1 if opt.planner == "single" else opt.waypoints
+        off = offsets_from_spec(data.info.get("spec"), opt.candidates or 256, seed=opt.seed)
+        return ChainPlanner(algo, off, n=n, alpha=opt.alpha, beam=opt.beam), n
     cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
     n = 1 if opt.planner == "single" else opt.waypoints
     return Planner(algo, cand, n=n, alpha=opt.alpha, beam=opt.beam, min_leg=opt.min_leg), n
@@ -158,6 +166,8 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError(f"unknown task {opt.task!r} (choose from {', '.join(TASKS)})")
     if opt.planner not in PLANNERS:
         raise UserError(f"unknown planner {opt.planner!r} (choose from {', '.join(PLANNERS)})")
+    if opt.candidate_source not in ("dataset", "synthetic"):
+        raise UserError(f"unknown candidate source {opt.candidate_source!r} (choose from dataset, synthetic)")
     if opt.planner != "none" and opt.task != "ood":
         raise UserError(f"--planner {opt.planner} applies to --task ood only")
     if opt.episodes < 1:
