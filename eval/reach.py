@@ -29,9 +29,10 @@ over straight (pooled over seeds), then the mean gain, then prefers the larger `
 
 Feasibility (eval/feasibility.py, when present): which test goals the expert reaches at
 all, directly from rest or through one run-up waypoint; planners are also reported on
-the feasible goals. Results: ``RUN/eval/ood-<ring>-<variant>`` per run, the held-out
-flights under ``RUN/eval/heldout/``, tables and the reach curves in ``--out`` and
-between the ``reach`` markers of eval/README.md.
+the feasible goals. Tables and the reach curves go to ``--out`` and
+between the ``reach`` markers of eval/README.md. Per run the evaluations sit in
+``RUN/eval/reach/`` (``reach-nN/`` for other test sizes; the held-out ones in ``heldout/``
+below it).
 """
 
 from __future__ import annotations
@@ -65,10 +66,19 @@ def has_chain() -> bool:
     return hasattr(EvalOptions(), "candidate_source")
 
 
+CHAIN_CANDIDATES, CHAIN_BEAM = 64, 4  # synthetic offsets per extension and beam width (planning cost ~ E k C n^2)
+
+
 def chain_waypoints(ring) -> int:
-    """Waypoints of a chain to a ring's goals: one per ~2 m of |p_i| (rho_D's reach per leg), >= 2."""
+    """At most this many waypoints in a chain to a ring's goals: one per 2 m of the ring's
+    largest |p_i| less one (eval/planner.py chain_length), >= 2; the beam search may stop earlier."""
     hi = ring.ranges["pos"][1] if "pos" in ring.ranges else 2.0
-    return max(2, math.ceil(hi / 2.0 - 1e-9))
+    return max(2, math.ceil(hi / 2.0 - 1e-9) - 1)
+
+
+def eval_root(run: Path, episodes: int) -> Path:
+    """Where a study's evaluations go: RUN/eval/reach (250 goals per ring), RUN/eval/reach-nN otherwise."""
+    return run / "eval" / ("reach" if episodes == 250 else f"reach-n{episodes}")
 
 
 def options(base, ring, variant: str, margin: float | None = None):
@@ -79,7 +89,8 @@ def options(base, ring, variant: str, margin: float | None = None):
     elif variant.startswith("single"):
         kw.update(planner="single")
     elif variant.startswith("chain"):
-        kw.update(planner="multi", waypoints=chain_waypoints(ring), candidate_source="synthetic")
+        kw.update(planner="multi", waypoints=chain_waypoints(ring), candidate_source="synthetic",
+                  candidates=CHAIN_CANDIDATES, beam=CHAIN_BEAM)
     else:
         raise UserError(f"unknown variant {variant!r}")
     if variant.endswith("-decline"):
@@ -124,7 +135,7 @@ def _slice(r: dict, idx: np.ndarray, E: int) -> dict:
     return {k: (v[idx] if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == E else v) for k, v in r.items()}
 
 
-def fly_group(run: Path, opts: list, loaded, heldout: bool) -> list[Path]:
+def fly_group(run: Path, opts: list, loaded, heldout: bool, base_episodes: int) -> list[Path]:
     """Fly one variant on several rings of equal horizon in one batched closed loop per
     checkpoint (the rings' episodes side by side: one policy call per step for all of
     them), and write each ring's evaluation as ``aerohrl eval`` would (episodes CSV,
@@ -134,7 +145,8 @@ def fly_group(run: Path, opts: list, loaded, heldout: bool) -> list[Path]:
                                       run_checkpoints, sim_kwargs)
     from aerohrl.eval.rollout import rollout
 
-    outs = [run / "eval" / ("heldout" if heldout else "") / o.name() for o in opts]
+    outs = [eval_root(run, opts[0].episodes if not heldout else base_episodes) / ("heldout" if heldout else "") / o.name()
+            for o in opts]
     todo = [(o, d) for o, d in zip(opts, outs) if not _done(d, o)]
     if not todo:
         return outs
@@ -227,7 +239,7 @@ def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, lo
             if heldout:
                 opts = [replace(o, episodes=heldout_n, seed=HELDOUT_SEED) for o in opts]
             t0 = time.perf_counter()
-            fly_group(run, opts, data_of(run), heldout)
+            fly_group(run, opts, data_of(run), heldout, base.episodes)
             log(f"{run.name} {'held-out' if heldout else 'test'} {variant} horizon {h} "
                 f"({', '.join(r.slug for r in rs)}): {time.perf_counter() - t0:.0f} s")
 
@@ -239,7 +251,7 @@ def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, lo
         pairs = {}
         for ring in rings:
             for run in runs:
-                h = run / "eval" / "heldout"
+                h = eval_root(run, base.episodes) / "heldout"
                 s = _episodes(h / replace(options(base, ring, "straight"), seed=HELDOUT_SEED).name())
                 q = _episodes(h / replace(options(base, ring, p), seed=HELDOUT_SEED).name())
                 pairs.setdefault(ring.slug, []).extend((s[k]["success"], q[k]["success"], q[k]["diff"]) for k in q if k in s)
@@ -293,7 +305,7 @@ def collect(runs: list[Path], rings, variants: list[str], base, margins: dict, f
         fz = feas.get(ring.slug)
         if fz is not None:
             rec["feasible"] = {k: 100 * float(np.mean(v)) for k, v in fz.items()}
-        straight = {run: _episodes(run / "eval" / options(base, ring, "straight").name()) for run in runs}
+        straight = {run: _episodes(eval_root(run, base.episodes) / options(base, ring, "straight").name()) for run in runs}
         for v in variants:
             m = margins.get(v.removesuffix("-decline")) if v.endswith("-decline") else None
             if v.endswith("-decline") and m is None:
@@ -301,7 +313,7 @@ def collect(runs: list[Path], rings, variants: list[str], base, margins: dict, f
             per_seed, per_seed_f, near, diffs, only = [], [], [], [], [0, 0]
             for run in runs:
                 ep = straight[run] if (v.endswith("-decline") and math.isinf(m)) else \
-                    _episodes(run / "eval" / options(base, ring, v, m).name())
+                    _episodes(eval_root(run, base.episodes) / options(base, ring, v, m).name())
                 if not ep:
                     continue
                 per_seed.append(100 * np.mean([e["success"].mean() for e in ep.values()]))
@@ -425,7 +437,7 @@ def plot_paths(run: Path, rings, base, variant: str, path: Path, per_ring: int =
         last[r.family] = r
     panels = []
     for ring in last.values():
-        d = run / "eval" / options(base, ring, variant).name()
+        d = eval_root(run, base.episodes) / options(base, ring, variant).name()
         files = sorted(d.glob("trajectories-step-*.npz"))
         if files:
             panels.append((ring, np.load(files[-1])))

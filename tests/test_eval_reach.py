@@ -116,27 +116,29 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
     readme = tmp_path / "README.md"
     readme.write_text(f"# x\n{reach.BEGIN}\nold\n{reach.END}\ntail\n")
     argv = ["--runs", str(run), "--families", "velocity", "--episodes", "5", "--heldout", "4", "--variants", "straight",
-            "single", "single-decline", "--candidates", "64", "--out", str(tmp_path / "out"), "--readme", str(readme)]
+            "single", "single-decline", "chain", "--candidates", "64", "--out", str(tmp_path / "out"), "--readme", str(readme)]
     assert reach.main(argv) == 0
     text = readme.read_text()
     assert "old" not in text and "|v_i| in [3.5, 5] m/s" in text and text.endswith(f"{reach.END}\ntail\n")
     margins = json.loads((tmp_path / "out" / "margins.json").read_text())["margins"]
-    assert "single" in margins
+    assert "single" in margins and "chain" in margins
+    chain = json.loads((reach.eval_root(run, 5) / "ood-velocity-3.5-5-multi2-synth" / "summary.json").read_text())
+    assert chain["options"]["candidate_source"] == "synthetic" and chain["options"]["candidates"] == reach.CHAIN_CANDIDATES
     # the batched rings equal one `aerohrl eval` per ring
-    ring_dir = run / "eval" / "ood-velocity-3.5-5-none"
+    ring_dir = reach.eval_root(run, 5) / "ood-velocity-3.5-5-none"
     assert json.loads((ring_dir / "summary.json").read_text())["episodes"] == 5
     solo = tmp_path / "solo"
     assert main(["eval", "--task", "ood", "--family", "velocity", "--ring", "2", "--run", str(run), "--episodes", "5",
                  "--checkpoints", "1", "--out", str(solo), "--no-progress"]) == 0
     assert _success(solo) == _success(ring_dir)
     # held-out goals are other goals
-    held = run / "eval" / "heldout" / "ood-velocity-3.5-5-none"
+    held = reach.eval_root(run, 5) / "heldout" / "ood-velocity-3.5-5-none"
     assert _success(held)[1][:4] != _success(ring_dir)[1][:4]
     # the declining planner flies exactly the composition of its two flights
     m = margins["single"]
     if not math.isinf(m):
-        single = run / "eval" / "ood-velocity-3.5-5-single"
-        dec = run / "eval" / f"ood-velocity-3.5-5-single-decline{m:g}"
+        single = reach.eval_root(run, 5) / "ood-velocity-3.5-5-single"
+        dec = reach.eval_root(run, 5) / f"ood-velocity-3.5-5-single-decline{m:g}"
         e_s, e_p, e_d = (reach._episodes(x) for x in (ring_dir, single, dec))
         for k in e_d:
             assert np.array_equal(e_d[k]["success"], reach.decline_success(e_s[k]["success"], e_p[k]["success"],
