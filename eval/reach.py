@@ -13,7 +13,10 @@ eval/families.py, ``aerohrl eval --task ood --family F --ring K`` flies the newe
   always inserts its waypoint;
 * ``single-decline``: the same planner, but flying straight stays a candidate: it
   inserts the waypoint only where the critics' composed value beats ``V(s0, G)`` by
-  the margin ``M`` (``--decline-margin``);
+  the margin ``M`` (``--decline-margin``). Its test rows are composed from the straight
+  and planned flights of the same goals (exact: a declining episode flies what the
+  straight flight flew, and the flights of a batch are independent; a test checks it
+  against flying ``--decline-margin M``); ``--fly-declines`` flies them instead;
 * ``chain`` / ``chain-decline``: Eq. 3.6 with synthetic candidates (any state within
   rho_D relative to the current waypoint, eval/planner.py), ``n`` waypoints scaled to
   the distance, re-planned at every reached waypoint (when this code has the synthetic
@@ -25,7 +28,7 @@ held-out goals give, for any margin ``M``, the success of declining exactly (an 
 that declines flies what the straight flight flew: the same start, goal and horizon, and
 every flight of the batch is independent). ``M`` maximises the worst ring's paired gain
 over straight (pooled over seeds), then the mean gain, then prefers the larger ``M``
-(declining more). The test rows then fly ``--decline-margin M`` for real.
+(declining more).
 
 Feasibility (eval/feasibility.py, when present): which test goals the expert reaches at
 all, directly from rest or through one run-up waypoint; planners are also reported on
@@ -215,7 +218,7 @@ def choose_margin(pairs: dict) -> tuple[float, dict]:
     return best, table
 
 
-def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, log) -> dict:
+def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, log, fly_declines: bool = False) -> dict:
     """Fly everything (resumable); returns {"margins": {planner: M}, "margin_tables": ...}."""
     from aerohrl.eval.harness import load_run_dataset
 
@@ -258,12 +261,13 @@ def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, lo
         margins[p], margin_tables[p] = choose_margin(pairs)
         log(f"margin of {p}: {margins[p]} (held-out worst ring {100 * margin_tables[p][margins[p]]['worst']:+.1f}, "
             f"mean {100 * margin_tables[p][margins[p]]['mean']:+.1f} points)")
-    # 2. test goals: every variant, declining ones with the chosen margins
+    # 2. test goals: every variant; a declining one is flown for real only with fly_declines
+    #    (otherwise composed exactly from its straight and planned flights: collect())
     for run in runs:
         for v in variants:
             m = margins.get(v.removesuffix("-decline")) if v.endswith("-decline") else None
-            if v.endswith("-decline") and m is not None and math.isinf(m):
-                continue  # always declines: it is the straight flight
+            if v.endswith("-decline") and (not fly_declines or (m is not None and math.isinf(m))):
+                continue
             fly(run, v, False, m)
     return {"margins": margins, "margin_tables": {p: {str(k): v for k, v in t.items()} for p, t in margin_tables.items()}}
 
@@ -312,8 +316,20 @@ def collect(runs: list[Path], rings, variants: list[str], base, margins: dict, f
                 continue
             per_seed, per_seed_f, near, diffs, only = [], [], [], [], [0, 0]
             for run in runs:
-                ep = straight[run] if (v.endswith("-decline") and math.isinf(m)) else \
-                    _episodes(eval_root(run, base.episodes) / options(base, ring, v, m).name())
+                root = eval_root(run, base.episodes)
+                if v.endswith("-decline"):
+                    flown = root / options(base, ring, v, m).name()
+                    if math.isinf(m):  # declines everywhere: the straight flight
+                        ep = straight[run]
+                    elif (flown / "summary.json").exists():
+                        ep = _episodes(flown)
+                    else:  # composed exactly: declining episodes fly what the straight flight flew
+                        planned = _episodes(root / options(base, ring, v.removesuffix("-decline")).name())
+                        ep = {k: {"success": decline_success(straight[run][k]["success"], q["success"], q["diff"], m),
+                                  "near": decline_success(straight[run][k]["near"], q["near"], q["diff"], m)}
+                              for k, q in planned.items() if k in straight[run]}
+                else:
+                    ep = _episodes(root / options(base, ring, v, m).name())
                 if not ep:
                     continue
                 per_seed.append(100 * np.mean([e["success"].mean() for e in ep.values()]))
@@ -483,7 +499,12 @@ def main(argv=None) -> int:
     ap.add_argument("--candidates", type=int, default=1024, help="single: achieved goals scored [1024]")
     ap.add_argument("--out", type=Path, default=Path("results/reach"), help="tables and plots [results/reach]")
     ap.add_argument("--readme", type=Path, default=Path("eval/README.md"))
+    ap.add_argument("--section", default="reach", help="README markers <!-- SECTION:begin/end --> and file names in --out "
+                    "(a second study with other variants or sizes gets its own) [reach]")
     ap.add_argument("--report-only", action="store_true", help="tables from existing evaluations; fly nothing")
+    ap.add_argument("--fly-declines", action="store_true",
+                    help="fly the declining variants on the test goals too (default: composed exactly from the straight "
+                         "and planned flights, which they equal episode by episode; tests/test_eval_reach.py)")
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args(argv)
 
@@ -520,13 +541,16 @@ def main(argv=None) -> int:
             logf.flush()
 
         t0 = time.perf_counter()
-        state_f = a.out / "margins.json"
+        if not a.section.replace("-", "").isalnum():
+            raise UserError(f"--section must be letters, digits and '-', got {a.section!r}")
+        begin, end = f"<!-- {a.section}:begin -->", f"<!-- {a.section}:end -->"
+        state_f = a.out / f"{a.section}-margins.json"
         if a.report_only:
             if not state_f.exists():
                 raise UserError(f"{state_f} missing: run the study once without --report-only")
             state = json.loads(state_f.read_text())
         else:
-            state = study(a.runs, rings, variants, base, a.heldout, log)
+            state = study(a.runs, rings, variants, base, a.heldout, log, a.fly_declines)
             from aerohrl import atomic
 
             atomic.write_text(state_f, json.dumps(state, indent=1))
@@ -543,15 +567,15 @@ def main(argv=None) -> int:
                 feas[ring.slug] = f
                 log(f"feasibility {ring.slug}: {100 * f['feasible'].mean():.1f} % ({time.perf_counter() - t1:.0f} s)")
         recs = collect(a.runs, rings, variants, base, margins, feas)
-        curves = plot_curves(recs, variants, a.out / "reach_curves.png")
-        paths = plot_paths(a.runs[0], rings, base, "chain" if "chain" in variants else "single", a.out / "reach_paths.png")
+        curves = plot_curves(recs, variants, a.out / f"{a.section}_curves.png")
+        paths = plot_paths(a.runs[0], rings, base, "chain" if "chain" in variants else "single", a.out / f"{a.section}_paths.png")
         md = tables(recs, variants, margins)
         readme = a.readme
         figs = []
         for fig in (curves, paths):
             if fig is None:
                 continue
-            if readme.exists() and BEGIN in readme.read_text():
+            if readme.exists() and begin in readme.read_text():
                 shown = readme.parent / "figures" / fig.name
                 shown.parent.mkdir(parents=True, exist_ok=True)
                 shown.write_bytes(fig.read_bytes())
@@ -560,14 +584,16 @@ def main(argv=None) -> int:
                 figs.append(f"Plot: `{fig}`")
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         runs_s = " ".join(str(r) for r in a.runs)
-        block = (f"Written by `python -m aerohrl.eval.reach --runs {runs_s}` on {stamp}: {len(a.runs)} seeds, newest "
+        args = "" if a.episodes == 250 else f" --episodes {a.episodes} --heldout {a.heldout}"
+        args += f" --variants {' '.join(variants)}" + (f" --section {a.section}" if a.section != "reach" else "")
+        block = (f"Written by `python -m aerohrl.eval.reach --runs {runs_s}{args}` on {stamp}: {len(a.runs)} seeds, newest "
                  f"{a.checkpoints} checkpoint(s) x {a.episodes} test goals per ring and seed; success %, mean ± std over seeds "
                  f"[95 % bootstrap interval] (per-seed values); \"vs straight\": paired gain in points pooled over seeds "
                  f"(episodes only this variant : only straight reaches, sign test).\n\n" + md + "\n" + "\n\n".join(figs) + "\n")
         from aerohrl import atomic
 
-        atomic.write_text(a.out / "reach.md", block)
-        where = readme if update_readme(readme, block, BEGIN, END) else a.out / "reach.md"
+        atomic.write_text(a.out / f"{a.section}.md", block)
+        where = readme if update_readme(readme, block, begin, end) else a.out / f"{a.section}.md"
         log(f"reach tables written to {where} ({(time.perf_counter() - t0) / 60:.1f} min)")
         return 0
 

@@ -116,11 +116,11 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
     readme = tmp_path / "README.md"
     readme.write_text(f"# x\n{reach.BEGIN}\nold\n{reach.END}\ntail\n")
     argv = ["--runs", str(run), "--families", "velocity", "--episodes", "5", "--heldout", "4", "--variants", "straight",
-            "single", "single-decline", "chain", "--candidates", "64", "--out", str(tmp_path / "out"), "--readme", str(readme)]
+            "single", "single-decline", "chain", "--candidates", "64", "--out", str(tmp_path / "out"), "--readme", str(readme), "--fly-declines"]
     assert reach.main(argv) == 0
     text = readme.read_text()
     assert "old" not in text and "|v_i| in [3.5, 5] m/s" in text and text.endswith(f"{reach.END}\ntail\n")
-    margins = json.loads((tmp_path / "out" / "margins.json").read_text())["margins"]
+    margins = json.loads((tmp_path / "out" / "reach-margins.json").read_text())["margins"]
     assert "single" in margins and "chain" in margins
     chain = json.loads((reach.eval_root(run, 5) / "ood-velocity-3.5-5-multi2-synth" / "summary.json").read_text())
     assert chain["options"]["candidate_source"] == "synthetic" and chain["options"]["candidates"] == reach.CHAIN_CANDIDATES
