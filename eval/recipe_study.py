@@ -101,6 +101,9 @@ PLANS: dict[str, list[Row]] = {
                                                                             Row("noise", 100000, 0, 15000)],
     # seeds for the leading table rows
     "seeds": [Row(r, 2500, s, 15000) for r in ("noise", "replan + noise") for s in (1, 2)],
+    # the table's recipes at a second size (10,000 flights): does the ranking hold with more data?
+    "sizes": [Row(r, 10000, 0, 15000) for r in ("noise x2", "replan + noise", "noise + perturbed starts",
+                                                "noise + 4 flights per goal", "noise x0.5", "replan")],
 }
 CHECKPOINTS = {"best": 10}  # last K checkpoints evaluated (others: 3)
 
@@ -305,7 +308,7 @@ def _figure_line(fig: Path, readme: Path) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog=PROG, description="Build recipe datasets, train GCSL on each, evaluate, write the recipe table.")
-    ap.add_argument("--plan", nargs="+", default=["best", "table", "size", "seeds"], choices=list(PLANS),
+    ap.add_argument("--plan", nargs="+", default=["best", "table", "size", "seeds", "sizes"], choices=list(PLANS),
                     help="which rows to train and report [all]")
     ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
     ap.add_argument("--runs", default="runs/recipes", help="runs root [runs/recipes]")
