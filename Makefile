@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml constraints.txt
 	@test -n "$(PYTHON312)" || { echo "make: error: Python 3.12 not found (install it, or set PYTHON312=/path/to/python3.12)" >&2; exit 2; }
 	@test -x $(BIN)/python || $(PYTHON312) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[all,test]"
 	@touch $(STAMP)
 
 demo: venv
