@@ -68,7 +68,17 @@ def main(argv: list[str] | None = None) -> int:
     if cmd is None:
         print(f"aerohrl: error: unknown command {argv[0]!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
-    return cmd(argv[1:])
+    try:
+        return cmd(argv[1:])
+    except ModuleNotFoundError as e:  # a stage whose extra is not installed (argument parsing imports it too)
+        from aerohrl.errors import EXTRAS
+
+        extra = EXTRAS.get((e.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"aerohrl {argv[0]}: error: this needs {e.name}, which is not installed: pip install 'aerohrl[{extra}]'",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
