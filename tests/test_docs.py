@@ -74,3 +74,11 @@ def test_licence_and_citation():
     assert cff["cff-version"] == "1.2.0" and cff["license"] == "MIT" and cff["authors"]
     (thesis,) = [r for r in cff["references"] if r["type"] == "thesis"]
     assert thesis["title"] == "Hierarchical Reinforcement Learning for Aerial Vehicles" and thesis["authors"]
+
+
+def test_public_modules_are_mypy_clean():
+    pytest.importorskip("mypy")
+    files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py"]
+    p = subprocess.run([sys.executable, "-m", "mypy", *files, "--follow-imports=silent", "--ignore-missing-imports",
+                        "--no-incremental"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0 and "Success" in p.stdout, p.stdout + p.stderr
