@@ -76,6 +76,7 @@ def test_licence_and_citation():
     assert thesis["title"] == "Hierarchical Reinforcement Learning for Aerial Vehicles" and thesis["authors"]
 
 
+@pytest.mark.slow  # ~50 s without a cache
 def test_public_modules_are_mypy_clean():
     pytest.importorskip("mypy")
     files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py"]
