@@ -66,15 +66,19 @@ def _register_env() -> None:
 
 
 class _AfterGymnasiumImport:  # a MetaPathFinder and Loader (duck-typed: importlib.abc costs 35 ms)
-    """A post-import hook: once ``gymnasium`` has been imported (by anyone), register the env."""
+    """A post-import hook: once ``gymnasium`` has been imported (by anyone), register the env.
+
+    It stays in ``sys.meta_path`` until that import has run: a mere
+    ``importlib.util.find_spec("gymnasium")`` (torchrl makes one) also asks it."""
 
     def find_spec(self, fullname, path=None, target=None):
         if fullname != "gymnasium":
             return None
-        sys.meta_path.remove(self)  # find the real spec, once
-        spec = importlib.util.find_spec(fullname)
+        from importlib.machinery import PathFinder
+
+        spec = PathFinder.find_spec(fullname, path)
         if spec is None or spec.loader is None:
-            return spec
+            return None  # let the other finders try (and fail) as usual
         self._loader = spec.loader
         spec.loader = self
         return spec
@@ -85,6 +89,8 @@ class _AfterGymnasiumImport:  # a MetaPathFinder and Loader (duck-typed: importl
     def exec_module(self, module):
         module.__loader__ = module.__spec__.loader = self._loader  # gymnasium sees its own loader
         self._loader.exec_module(module)
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
         try:
             _register_env()
         except Exception:  # pragma: no cover - never break the user's `import gymnasium`

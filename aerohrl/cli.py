@@ -12,7 +12,7 @@ import sys
 USAGE = """usage: aerohrl COMMAND [ARGS...]
 
 commands:
-  datagen   expert quadrotor datasets (build, info, validate, export-mcap, plot)
+  datagen   expert quadrotor datasets (build, info, validate, export, push, plot)
   train     offline goal-conditioned RL on a dataset (gcsl, td3bc, td3awbc, cql)
   runs      inspect training runs (runs show RUN)
   ipp       informative path planning on motion primitives (lattice, bench, ...)

@@ -74,7 +74,9 @@ def test_import_aerohrl_is_light():
     "import gymnasium as gym\nimport aerohrl\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
     "import gymnasium as gym\nenv = gym.make('aerohrl:aerohrl/QuadrotorReach-v0')",
     "import gymnasium as gym\nenv = gym.make_vec('aerohrl:aerohrl/QuadrotorReach-v0', num_envs=3, vectorization_mode='vector_entry_point')",
-], ids=["aerohrl-first", "gymnasium-first", "module-prefix", "vector"])
+    # torchrl asks importlib.util.find_spec("gymnasium") before anyone imports it
+    "import aerohrl, importlib.util\nimportlib.util.find_spec('gymnasium')\nimport torchrl\nimport gymnasium as gym\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
+], ids=["aerohrl-first", "gymnasium-first", "module-prefix", "vector", "find-spec-first"])
 def test_gymnasium_make_without_importing_eval(code):
     p = _run(code + "\nimport sys\nobs, _ = env.reset(seed=0)\nprint(obs['desired_goal'].shape, 'aerohrl.eval' in sys.modules)", ROOT)
     assert p.returncode == 0, p.stderr[-2000:]
