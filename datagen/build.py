@@ -178,7 +178,7 @@ def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.nda
     else:
         t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
-    for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=not progress, leave=False):
+    for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
         if record_rotors:
             out.rotors[k] = sim.rotor_speeds
         t = np.minimum(k * dt, T)
@@ -242,7 +242,7 @@ def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progr
     # ceil(n / ROLLOUT_BLOCK) blocks of equal size (+-1): no tiny remainder block (NumPy's
     # kernels for a batch of 1 round differently in the last bits)
     bounds = np.linspace(0, n, -(-n // ROLLOUT_BLOCK) + 1).round().astype(np.int64)
-    for b in tqdm(range(len(bounds) - 1), desc="expert blocks", unit="block", disable=not progress or len(bounds) < 3,
+    for b in tqdm(range(len(bounds) - 1), desc="expert blocks", unit="block", disable=None if progress and len(bounds) >= 3 else True,
                   leave=False):
         lo, hi = int(bounds[b]), int(bounds[b + 1])
         sl = slice(lo, hi)

@@ -168,3 +168,21 @@ def test_evaluate_and_make_env(run, ds):
     assert obs["observation"][0, 5] < -1.0  # falling after 0.3 s without thrust
     one = aerohrl.make_env(normalize_actions=True)
     assert one.action_space.shape == (4,) and np.all(one.action_space.low == -1)
+
+
+def test_torchrl_info_lines_do_not_reach_the_terminal(capfd, monkeypatch):
+    import torch
+    from tensordict import TensorDict
+
+    import aerohrl.algorithms.networks  # noqa: F401  (every algorithm imports it; it quietens torchrl)
+    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+
+    if "RL_LOGGING_LEVEL" in os.environ:
+        pytest.skip("the user chose torchrl's logging level")
+    rb = TensorDictReplayBuffer(storage=LazyTensorStorage(10))
+    rb.extend(TensorDict({"a": torch.zeros(3)}, [3]))  # torchrl logs "Initialized LazyTensorStorage ..." at INFO
+    out = capfd.readouterr()
+    assert "Initialized" not in out.out + out.err
+    import logging
+
+    assert logging.getLogger("torchrl").getEffectiveLevel() == logging.WARNING
