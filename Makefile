@@ -14,14 +14,14 @@ PYTHON312 ?= $(shell for p in python3.12 $$(ls -d $${PYENV_ROOT:-$$HOME/.pyenv}/
   $$p -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' >/dev/null 2>&1 && { command -v $$p; break; }; done)
 STAMP := $(VENV)/.installed
 
-.PHONY: venv demo test test-fast bench results lock clean
+.PHONY: venv demo test test-fast bench results lock clean docs
 
 venv: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt
 	@test -n "$(PYTHON312)" || { echo "make: error: Python 3.12 not found (install it, or set PYTHON312=/path/to/python3.12)" >&2; exit 2; }
 	@test -x $(BIN)/python || $(PYTHON312) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -c constraints.txt -e ".[test]"
+	$(BIN)/python -m pip install -q -c constraints.txt -e ".[all,test]"
 	@touch $(STAMP)
 
 demo: venv
@@ -51,6 +51,10 @@ test-fast: venv
 # The whole chapter-3 reproduction (dataset -> 4 algorithms x 3 seeds -> Tables 3.1/3.2 in README.md); about 2 h on 2 cores per seed
 results: venv
 	$(BIN)/python -m aerohrl.eval.reproduce
+
+# API reference from the docstrings (pdoc) -> docs/api/index.html
+docs: venv
+	$(BIN)/python docs/build_api.py docs/api
 
 bench: venv
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -12,7 +12,7 @@ import sys
 USAGE = """usage: aerohrl COMMAND [ARGS...]
 
 commands:
-  datagen   expert quadrotor datasets (build, info, validate, export-mcap, plot)
+  datagen   expert quadrotor datasets (build, info, validate, export, push, plot)
   train     offline goal-conditioned RL on a dataset (gcsl, td3bc, td3awbc, cql)
   runs      inspect training runs (runs show RUN)
   ipp       informative path planning on motion primitives (lattice, bench, ...)
@@ -68,7 +68,17 @@ def main(argv: list[str] | None = None) -> int:
     if cmd is None:
         print(f"aerohrl: error: unknown command {argv[0]!r} (choose from {', '.join(COMMANDS)})", file=sys.stderr)
         return 2
-    return cmd(argv[1:])
+    try:
+        return cmd(argv[1:])
+    except ModuleNotFoundError as e:  # a stage whose extra is not installed (argument parsing imports it too)
+        from aerohrl.errors import EXTRAS
+
+        extra = EXTRAS.get((e.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"aerohrl {argv[0]}: error: this needs {e.name}, which is not installed: pip install 'aerohrl[{extra}]'",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -22,6 +22,10 @@ class UserError(Exception):
 
 _prog = "aerohrl"  # the running command, for warnings (set by run_cli)
 
+# top-level modules of the optional extras (pyproject.toml) -> the extra that installs them
+EXTRAS = {"torch": "train", "torchrl": "train", "tensordict": "train", "cmaes": "train", "lerobot": "lerobot",
+          "datasets": "lerobot", "minari": "exchange", "ogbench": "exchange"}
+
 
 def warn(message: str) -> None:
     """One line ``<prog>: warning: <message>`` on stderr: something is off, the command goes on."""
@@ -37,6 +41,12 @@ def run_cli(prog: str, fn: Callable[[], int | None]) -> int:
     except UserError as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return e.exit_code
+    except ModuleNotFoundError as e:  # an optional dependency of a core-only install (pyproject extras)
+        extra = EXTRAS.get((e.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"{prog}: error: this needs {e.name}, which is not installed: pip install 'aerohrl[{extra}]'", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"{prog}: interrupted; nothing partial was kept", file=sys.stderr)
         return 130

@@ -136,12 +136,7 @@ def run(a) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import logging
-
     args = parser().parse_args(argv)
-    import torchrl  # noqa: F401  (its import sets its logger's level; quieten it afterwards)
-
-    logging.getLogger("torchrl").setLevel(logging.WARNING)  # no "Initialized LazyTensorStorage" chatter
     return run_cli(PROG, lambda: run(args))
 
 

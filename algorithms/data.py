@@ -193,6 +193,9 @@ def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator, devi
     own tensors (no copy: one copy of a multi-GB dataset in memory, not two)."""
     from torchrl.data import RandomSampler, TensorDictReplayBuffer, TensorStorage
 
+    from aerohrl.algorithms import quiet_torchrl
+
+    quiet_torchrl()
     td = data.as_tensordict().to(device)
     return TensorDictReplayBuffer(
         storage=TensorStorage(td, device=device),

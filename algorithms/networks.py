@@ -20,6 +20,9 @@ from torchrl.objectives import SoftUpdate, TD3BCLoss
 from torchrl.objectives.value import TD0Estimator
 
 from aerohrl import task
+from aerohrl.algorithms import quiet_torchrl
+
+quiet_torchrl()  # every algorithm imports this module, right after torchrl
 
 IN_DIM = task.OBS_DIM + task.GOAL_DIM  # 30
 ACT_DIM = task.ACTION_DIM  # 4

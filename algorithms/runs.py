@@ -129,7 +129,68 @@ def plot_learning_curve(run_dir, out=None) -> Path:
     return out
 
 
+def eval_results(run_dir) -> list[dict]:
+    """The ``aerohrl eval`` summaries of a run (``RUN/eval/*/summary.json``), by name."""
+    import json
+
+    out = []
+    for f in sorted(Path(run_dir).glob("eval/*/summary.json")):
+        try:
+            d = json.loads(f.read_text())
+            steps = [int(c["step"]) for c in d.get("checkpoints", [])]
+            out.append({"name": f.parent.name, "success": 100 * float(d["success_mean"]), "std": 100 * float(d["success_std"]),
+                        "near": 100 * float(d["near_success_mean"]), "checkpoints": len(steps), "episodes": int(d["episodes"]),
+                        "steps": (min(steps), max(steps)) if steps else (0, 0)})
+        except (OSError, ValueError, KeyError, TypeError):
+            out.append({"name": f.parent.name, "damaged": True})
+    return out
+
+
+def _print_eval_results(run_dir) -> None:
+    for e in eval_results(run_dir):
+        if e.get("damaged"):
+            print(f"eval:      {e['name']}: summary.json unreadable (run `aerohrl eval` again)")
+        else:
+            print(f"eval:      {e['name']}: success {e['success']:.1f} ± {e['std']:.1f} %, near {e['near']:.1f} % "
+                  f"({e['checkpoints']} checkpoints x {e['episodes']} episodes, steps {e['steps'][0]:,}..{e['steps'][1]:,}; aerohrl eval)")
+
+
+def is_ipp_run(run_dir) -> bool:
+    """An ``aerohrl ipp train`` run (its config.json holds ``train`` and ``lattice``)."""
+    import json
+
+    try:
+        meta = json.loads((Path(run_dir) / "config.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and "lattice" in meta and "train" in meta and "config" not in meta
+
+
+def cmd_show_ipp(a) -> int:
+    """``runs show`` of an IPP run: its config, progress in iterations, the last metrics and the curve."""
+    from aerohrl.ipp.train import load_run_config, plot_learning_curve as ipp_curve, read_metrics as ipp_metrics
+
+    cfg = load_run_config(a.run)
+    rows = ipp_metrics(a.run)
+    total = cfg.total_iterations
+    done = rows[-1]["iteration"] if rows else 0
+    print(f"run:       {a.run}  (informative path planning, aerohrl ipp train)")
+    print(f"world:     {cfg.env.kind}; seed {cfg.seed}; {cfg.n_envs} environments per iteration")
+    print(f"progress:  iteration {done:,} / {total:,} ({100 * done / max(total, 1):.1f}%)"
+          + (f"; {rows[-1].get('time_s', 0) / 60:.1f} min" if rows else ""))
+    if rows:
+        last = rows[-1]
+        print("last:      " + ", ".join(f"{k} {v:.4g}" for k, v in last.items() if isinstance(v, (int, float)) and k != "iteration"))
+    kept = [n for n in ("model.pt", "best.pt", "checkpoint.pt") if (a.run / n).exists()]
+    print(f"files:     {', '.join(kept) or 'no weights yet'}")
+    if not a.no_plot and rows:
+        print(f"plot:      {ipp_curve(a.run, a.output)}")
+    return 0
+
+
 def cmd_show(a) -> int:
+    if is_ipp_run(a.run):
+        return cmd_show_ipp(a)
     s = summary(a.run)
     cfg, ds = s["config"], s["dataset"]
     print(f"run:       {s['run']}")
@@ -149,6 +210,7 @@ def cmd_show(a) -> int:
     if s["last_eval"]:
         e = s["last_eval"]
         print(f"eval @ {e['step']:,}: " + ", ".join(f"{k[5:]} {v:.3g}" for k, v in e.items() if k != "step"))
+    _print_eval_results(a.run)
     print("config:    " + " ".join(f"{k}={v}" for k, v in sorted(cfg.items()) if k not in ("algo", "preset", "seed", "device")))
     if not a.no_plot:
         print(f"plot:      {plot_learning_curve(a.run, a.output)}")

@@ -37,7 +37,7 @@ from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
 from aerohrl.datagen import recipes, reference
 from aerohrl.datagen.expert import GeometricController
-from aerohrl.datagen.lerobot_format import write_dataset
+from aerohrl.datagen.lerobot_format import read_info, write_dataset
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
 from aerohrl.datagen.spec import GENERATOR_VERSION, TASK, DatasetSpec, spec_hash, version_name
 from aerohrl.sim import BatchedQuadrotor, get_preset
@@ -178,7 +178,7 @@ def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.nda
     else:
         t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
-    for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=not progress, leave=False):
+    for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
         if record_rotors:
             out.rotors[k] = sim.rotor_speeds
         t = np.minimum(k * dt, T)
@@ -242,7 +242,7 @@ def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progr
     # ceil(n / ROLLOUT_BLOCK) blocks of equal size (+-1): no tiny remainder block (NumPy's
     # kernels for a batch of 1 round differently in the last bits)
     bounds = np.linspace(0, n, -(-n // ROLLOUT_BLOCK) + 1).round().astype(np.int64)
-    for b in tqdm(range(len(bounds) - 1), desc="expert blocks", unit="block", disable=not progress or len(bounds) < 3,
+    for b in tqdm(range(len(bounds) - 1), desc="expert blocks", unit="block", disable=None if progress and len(bounds) >= 3 else True,
                   leave=False):
         lo, hi = int(bounds[b]), int(bounds[b + 1])
         sl = slice(lo, hi)
@@ -513,7 +513,20 @@ def _recipe_note(meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def dataset_card(meta: dict) -> str:
+def _feature_rows(meta: dict, features: dict | None) -> str:
+    """The card's feature table: dtype and shape from ``meta/info.json``'s features."""
+    features = features or {}
+    rows = []
+    for k, v in meta["layouts"].items():
+        ft = features.get(k) or {}
+        shape = "(" + ", ".join(str(int(n)) for n in ft["shape"]) + ",)" if ft.get("shape") else ""
+        rows.append(f"| `{k}` | {ft.get('dtype', '')} | {shape} | {v} |\n")
+    return "".join(rows)
+
+
+def dataset_card(meta: dict, features: dict | None = None) -> str:
+    """The dataset's README.md (a Hugging Face dataset card); ``features`` (info.json's)
+    fill the dtype and shape columns of the feature table."""
     s = meta["spec"]
     return f"""---
 license: mit
@@ -538,14 +551,17 @@ tracked by a Lee/Mellinger geometric controller that outputs CTBR actions, recor
 ## Load
 ```python
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
-ds = LeRobotDataset("{meta['repo_id']}", root="<this folder>")
+ds = LeRobotDataset("{meta['repo_id']}", root="<this folder>", video_backend="pyav")
 ```
-or, without torch: `aerohrl.datagen.lerobot_format.read_columns("<this folder>")`.
+(`video_backend="pyav"`: the data hold no video, and naming a backend keeps lerobot from
+probing torchcodec, which logs a long traceback on machines without FFmpeg.) Or
+`aerohrl.load_dataset("<this folder>", as_="numpy" | "torch" | "lerobot")`; without torch:
+`aerohrl.datagen.lerobot_format.read_columns("<this folder>")`.
 
 ## Features
-| key | shape | meaning |
-|---|---|---|
-""" + "".join(f"| `{k}` | | {v} |\n" for k, v in meta["layouts"].items()) + f"""
+| key | dtype | shape | meaning |
+|---|---|---|---|
+""" + _feature_rows(meta, features) + f"""
 `meta/aerohrl.json` holds the full spec, vehicle and controller parameters and the
 SHA-256 of every file; `meta/aerohrl_episodes.parquet` holds per-episode goals,
 durations and expert outcomes. `datagen validate <this folder>` checks integrity.
@@ -603,7 +619,7 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
                       robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
         pq.write_table(episode_table(data), tmp / EPISODES_FILE)
         meta = metadata(spec, data, version)
-        (tmp / "README.md").write_text(dataset_card(meta))
+        (tmp / "README.md").write_text(dataset_card(meta, read_info(tmp)["features"]))
         write_manifest(tmp, meta)
         os.rename(tmp, final)
     except OSError as e:

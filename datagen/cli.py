@@ -82,6 +82,23 @@ def parser() -> argparse.ArgumentParser:
     m.add_argument("--episode", type=T.nonneg_int, required=True)
     m.add_argument("-o", "--output", type=Path, required=True)
 
+    x = sub.add_parser("export", help="convert a dataset: minari (Minari dataset), ogbench (OGBench .npz), mcap (one episode)")
+    x.add_argument("path", type=Path)
+    x.add_argument("--format", required=True, choices=("minari", "ogbench", "mcap"), help="target format")
+    x.add_argument("-o", "--out", "--output", dest="out", type=Path, default=None,
+                   help="minari: datasets root [$MINARI_DATASETS_PATH or ~/.minari/datasets]; ogbench: the .npz file "
+                        "[<name>-<version>.npz]; mcap: the .mcap file (required)")
+    x.add_argument("--dataset-id", default=None, help="minari: dataset id [aerohrl/<name>/<version>-v0]")
+    x.add_argument("--episode", type=T.nonneg_int, default=None, help="mcap: the episode to export")
+
+    ps = sub.add_parser("push", help="upload a dataset to the Hugging Face Hub keeping its card, licence and metadata")
+    ps.add_argument("path", type=Path)
+    ps.add_argument("--repo-id", required=True, help="Hub dataset repo, OWNER/NAME")
+    ps.add_argument("--staging", type=Path, default=None, help="stage the upload in this (new or empty) folder and keep it "
+                    "[a temporary folder]")
+    ps.add_argument("--dry-run", action="store_true", help="stage only (with --staging: inspect what would be uploaded)")
+    ps.add_argument("--private", action="store_true", help="create the repo private")
+
     pl = sub.add_parser("plot", help="3-D expert trajectories and goals (thesis Fig. 3.2 analogue)")
     pl.add_argument("path", type=Path)
     pl.add_argument("-o", "--output", type=Path, required=True)
@@ -174,6 +191,58 @@ def cmd_export_mcap(a) -> int:
     return 0
 
 
+def cmd_export(a) -> int:
+    from aerohrl.datagen import exchange
+
+    warn_if_damaged(a.path)
+    if a.format == "mcap":
+        if a.episode is None or a.out is None:
+            raise UserError("--format mcap needs --episode N and -o FILE.mcap")
+        from aerohrl.datagen.mcap_export import export_mcap
+
+        counts = export_mcap(a.path, a.episode, a.out)
+        print(f"wrote {a.out}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+        return 0
+    if a.episode is not None:
+        raise UserError(f"--episode applies to --format mcap only (--format {a.format} exports every episode)")
+    if a.format == "minari":
+        out = exchange.export_minari(a.path, a.dataset_id, a.out)
+    else:
+        if a.dataset_id is not None:
+            raise UserError("--dataset-id applies to --format minari only")
+        from aerohrl.datagen.manifest import read_manifest
+
+        meta = read_manifest(a.path)
+        out = exchange.export_ogbench(a.path, a.out or Path(f"{meta.get('name', 'dataset')}-{meta['version']}.npz"))
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_push(a) -> int:
+    import tempfile
+
+    from aerohrl.datagen import exchange
+
+    if a.repo_id.count("/") != 1 or not all(a.repo_id.split("/")):
+        raise UserError(f"--repo-id must be OWNER/NAME, got {a.repo_id!r}")
+    if a.dry_run and a.staging is None:
+        raise UserError("--dry-run needs --staging DIR (where to leave the staged files)")
+    with tempfile.TemporaryDirectory(prefix="aerohrl-push-") as tmp:
+        staging = exchange.stage_push(a.path, a.staging or Path(tmp) / "dataset")
+        n = sum(1 for p in staging.rglob("*") if p.is_file())
+        print(f"staged {staging}: {n} files (the dataset as built, its card and metadata, LICENSE)")
+        if a.dry_run:
+            return 0
+        try:
+            url = exchange.push(staging, a.repo_id, private=a.private)
+        except UserError:
+            raise
+        except Exception as e:  # the Hub: no network, no token, no rights
+            raise UserError(f"upload to {a.repo_id} failed: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+    print(f"pushed {url}")
+    return 0
+
+
 def cmd_plot(a) -> int:
     from aerohrl.datagen.plots import plot_dataset
 
@@ -183,7 +252,8 @@ def cmd_plot(a) -> int:
     return 0
 
 
-COMMANDS = {"build": cmd_build, "info": cmd_info, "validate": cmd_validate, "export-mcap": cmd_export_mcap, "plot": cmd_plot}
+COMMANDS = {"build": cmd_build, "info": cmd_info, "validate": cmd_validate, "export-mcap": cmd_export_mcap, "export": cmd_export,
+            "push": cmd_push, "plot": cmd_plot}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,11 +1,5 @@
 """Evaluation harness and goal planner (thesis §3.4.3-3.5).
 
-Importing the package registers the Gymnasium environment ``aerohrl/QuadrotorReach-v0``
-(:mod:`aerohrl.eval.gym_env`)."""
-
-try:  # gymnasium is a dependency; registration must never break `import aerohrl.eval`
-    from aerohrl.eval.gym_env import register as _register
-
-    _register()
-except ImportError:  # pragma: no cover
-    pass
+The Gymnasium environment ``aerohrl/QuadrotorReach-v0`` (:mod:`aerohrl.eval.gym_env`) is
+registered by ``import aerohrl`` itself (by name: this package is imported only when
+the env is made), so ``import aerohrl.eval`` stays quick for the command line."""

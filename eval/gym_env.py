@@ -60,12 +60,27 @@ def compute_reward(achieved_goal, desired_goal, info=None):
 
 
 def _goal_pool_from_dataset(path):
-    from aerohrl.algorithms.data import load_dataset
+    """The desired goals the expert flew from hover at the origin (where this env's
+    episodes start: one per goal of rho_D, never a continuation; as
+    ``Dataset.rest_start_episodes``), and the dataset's spec. Torch-free."""
+    from pathlib import Path
 
-    data = load_dataset(path)
-    spec = data.info.get("spec") or {}
-    # the goals the expert flew from hover at the origin, where this env's episodes start
-    return data.desired_goals()[data.rest_start_episodes()].numpy().astype(np.float64), spec
+    from aerohrl.datagen import manifest
+    from aerohrl.datagen.lerobot_format import read_columns
+
+    root = Path(path)
+    if not root.is_dir():
+        raise UserError(f"no dataset at {root}")
+    problems = manifest.validate(root)
+    if problems:
+        raise UserError(f"dataset {root} is damaged: {problems[0]}; rebuild it with `datagen build`")
+    spec = manifest.read_manifest(root).get("spec") or {}
+    cols = read_columns(root)
+    ep = np.asarray(cols["episode_index"])
+    first = np.flatnonzero(np.r_[True, ep[1:] != ep[:-1]])  # first frame of each episode, in episode order
+    m, k = int(spec.get("continuations", 0)), int(spec.get("rollouts_per_goal", 1))
+    rest = np.arange(0, len(first) - m, k)
+    return np.asarray(cols["observation.desired_goal"][first[rest]], np.float64), spec
 
 
 class QuadrotorReachVectorEnv(VectorEnv):
@@ -235,6 +250,17 @@ class QuadrotorReachEnv(gym.Env):
         return self._one(obs), float(r[0]), bool(te[0]), bool(tr[0]), {k: v[0] for k, v in info.items()}
 
 
+def normalize_actions(env):
+    """``env`` with actions in [-1, 1]^4, mapped affinely onto the CTBR box (-1: zero
+    thrust and -20 rad/s, +1: full thrust and +20 rad/s): Gymnasium's ``RescaleAction``
+    (``gymnasium.wrappers.vector.RescaleAction`` for a vector env)."""
+    if isinstance(env, VectorEnv):
+        from gymnasium.wrappers.vector import RescaleAction as VecRescale
+
+        return VecRescale(env, -1.0, 1.0)
+    return gym.wrappers.RescaleAction(env, -1.0, 1.0)
+
+
 def register() -> None:
     """Register ``aerohrl/QuadrotorReach-v0`` (single env and vector entry point)."""
     if ENV_ID in gym.registry:
@@ -243,4 +269,4 @@ def register() -> None:
                  vector_entry_point="aerohrl.eval.gym_env:QuadrotorReachVectorEnv", max_episode_steps=None)
 
 
-__all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "NonFiniteAction", "compute_reward", "register", "ENV_ID"]
+__all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "NonFiniteAction", "compute_reward", "normalize_actions", "register", "ENV_ID"]

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from aerohrl import atomic
 from aerohrl.errors import UserError
@@ -238,7 +237,7 @@ def evaluate_run(run_dir, opt: EvalOptions, loaded=None) -> dict:
     atomic.remove_stale_temporaries(out_dir)  # left by an evaluation that was killed while writing
     per_ckpt = []
     t_start = time.perf_counter()
-    bar = tqdm(ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=not opt.progress, dynamic_ncols=True)
+    bar = tqdm(ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=None if opt.progress else True, dynamic_ncols=True)  # None: only on a terminal
     for i, path in enumerate(bar):
         algo, ck = load_policy(path, device)
         check_checkpoint_dataset(ck, data, path)

@@ -72,7 +72,7 @@ def oracle_single(algo, data, goals: np.ndarray, *, candidates: int = 150, seed:
     pairs_g = np.repeat(G[:, None], C, 1).reshape(E * C, -1)
     succ = np.zeros(E * C, bool)
     near = np.zeros(E * C, bool)
-    for i in tqdm(range(0, E * C, chunk), desc="second legs", disable=not progress, leave=False):
+    for i in tqdm(range(0, E * C, chunk), desc="second legs", disable=None if progress else True, leave=False):
         r = rollout(algo, _flights(pairs_s[i:i + chunk], pairs_g[i:i + chunk], leg_horizon), **sim)
         succ[i:i + chunk], near[i:i + chunk] = r["success"], r["near_success"]
     succ, near = succ.reshape(E, C), near.reshape(E, C)

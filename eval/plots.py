@@ -2,12 +2,15 @@
 
 * :func:`plot_trajectories` — thesis Fig. 3.5 / 3.6 analogues: 3D flight paths of the
   newest evaluated checkpoint (``trajectories-step-N.npz``), successes and failures in
-  two panels, start (orange), task goal (red) and planned intermediate goals (green)
-  marked, each path drawn up to the episode's last step.
+  two panels, each path drawn up to the episode's last step in its own colour, with its
+  end point, its task goal (star) and its planned intermediate goals (triangles) in the
+  same colour; starts in orange.
 * :func:`plot_learning_curves` — thesis Fig. 3.3 / 3.4 analogues: closed-loop success
   against training steps from the runs' ``metrics.jsonl`` (the trainer's periodic
   evaluations) and, dashed, the per-checkpoint results of ``aerohrl eval`` for
-  Reach-Desired and Reach-Intermediate when present.
+  Reach-Desired and Reach-Intermediate when present. Runs that differ only in their seed
+  (:func:`aerohrl.eval.results.group_runs`) are one curve: the mean over seeds at each
+  step the seeds share, in a band from the lowest to the highest seed (n seeds in the label).
 """
 
 from __future__ import annotations
@@ -77,21 +80,30 @@ def plot_trajectories(run, task: str, out, planner: str | None = None, max_per_p
         if len(idx) > max_per_panel:
             idx = np.sort(rng.choice(idx, max_per_panel, replace=False))
         left = 0
-        for i in idx:
+        colours = plt.get_cmap("tab10" if len(idx) <= 10 else "tab20")
+        for j, i in enumerate(idx):
+            c = colours(j % colours.N)  # each flight, its end, its goal and its planned goals in one colour
             p = pos[i, : steps[i] + 1].astype(np.float64)
             outside = ((p < lo) | (p > hi)).any(1)
             left += bool(outside.any())
             p[outside] = np.nan
-            (line,) = ax.plot(p[:, 0], p[:, 1], p[:, 2], lw=1.0, alpha=0.8)
-            if np.isfinite(p[-1]).all():  # where the episode ended, in the path's colour
-                ax.scatter(*p[-1], color=line.get_color(), s=10, depthshade=False)
-        if len(idx):
-            ax.scatter(*starts[idx, :3].T, c="orange", s=18, label="start", depthshade=False)
-            ax.scatter(*goals[idx, :3].T, c="red", s=24, marker="*", label="goal", depthshade=False)
+            ax.plot(p[:, 0], p[:, 1], p[:, 2], lw=1.0, alpha=0.8, color=c)
+            if np.isfinite(p[-1]).all():  # where the episode ended
+                ax.scatter(*p[-1], color=c, s=10, depthshade=False)
+            ax.scatter(*goals[i, :3], color=c, s=70, marker="*", edgecolors="black", linewidths=0.4, depthshade=False)
             if wps is not None:
-                w = wps[idx, :, :3].reshape(-1, 3)
-                ax.scatter(*w.T, c="green", s=20, marker="^", label="intermediate goal", depthshade=False)
-            ax.legend(loc="upper left", fontsize=7)
+                ax.scatter(*wps[i, :, :3].T, color=c, s=30, marker="^", edgecolors="black", linewidths=0.4, depthshade=False)
+        if len(idx):
+            ax.scatter(*starts[idx, :3].T, c="orange", s=18, depthshade=False)
+            from matplotlib.lines import Line2D
+
+            key = [Line2D([], [], color="orange", marker="o", ls="", ms=4, label="start"),
+                   Line2D([], [], color="grey", lw=1, label="flight (one colour per episode)"),
+                   Line2D([], [], color="grey", marker=".", ls="", ms=5, label="where it ended"),
+                   Line2D([], [], color="grey", marker="*", ls="", ms=9, mec="black", mew=0.4, label="its goal")]
+            if wps is not None:
+                key.append(Line2D([], [], color="grey", marker="^", ls="", ms=6, mec="black", mew=0.4, label="its planned goals"))
+            ax.legend(handles=key, loc="upper left", fontsize=7)
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_zlim(lo[2], hi[2])
@@ -107,30 +119,49 @@ def plot_trajectories(run, task: str, out, planner: str | None = None, max_per_p
     return out
 
 
+def _seed_band(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(steps, mean, low, high) over the seeds' curves, at the steps every seed logged."""
+    common = sorted(set.intersection(*(set(st for st, _ in c) for c in curves)))
+    vals = np.array([[dict(c)[st] for st in common] for c in curves])  # (seeds, steps)
+    return np.array(common), vals.mean(0), vals.min(0), vals.max(0)
+
+
 def plot_learning_curves(runs, out) -> Path:
+    """Closed-loop success against training steps for ``runs``; seeds of one experiment as
+    a mean line with a min-max band. Written to ``out``; returns it."""
     from aerohrl.algorithms.trainer import read_metrics
-    from aerohrl.eval.results import ALGO_NAMES, _algo_of, read_summary
+    from aerohrl.eval.results import ALGO_NAMES, _algo_of, group_runs, read_summary
 
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
     drawn = 0
-    for rd in runs:
-        if not Path(rd).is_dir():
-            raise UserError(f"no run at {rd}")
-        metrics = read_metrics(rd)
-        keys = sorted({k for r in metrics for k in r if k.startswith("eval/") and k.endswith("/success")})
-        algo = ALGO_NAMES.get(_algo_of(rd), _algo_of(rd))
-        for k in keys:
-            pts = [(r["step"], 100 * r[k]) for r in metrics if k in r]
-            ax.plot(*zip(*pts), marker="o", ms=3, label=f"{algo} ({Path(rd).name}): {k.split('/')[1].replace('_', '-')} (training log)")
+    for group in group_runs(runs):
+        algo = ALGO_NAMES.get(_algo_of(group[0]), _algo_of(group[0]))
+        name = group[0].name if len(group) == 1 else f"{group[0].name} +{len(group) - 1}"
+        series: dict[tuple[str, str], list[list[tuple[int, float]]]] = {}
+        for rd in group:
+            metrics = read_metrics(rd)
+            for k in sorted({k for r in metrics for k in r if k.startswith("eval/") and k.endswith("/success")}):
+                pts = [(int(r["step"]), 100 * r[k]) for r in metrics if k in r]
+                series.setdefault((k.split("/")[1].replace("_", "-"), "training log"), []).append(pts)
+            for task_name in ("reach-desired", "reach-intermediate"):  # the harness's per-checkpoint results
+                sm = read_summary(rd, task_name)
+                if sm:
+                    pts = [(int(c["step"]), 100 * c["success"]) for c in sm["checkpoints"]]
+                    series.setdefault((task_name, f"aerohrl eval, {sm['episodes']} ep."), []).append(pts)
+        for (task_name, source), curves in series.items():
+            harness = source.startswith("aerohrl")
+            if len(curves) == 1:
+                (line,) = ax.plot(*zip(*curves[0]), marker="s" if harness else "o", ms=3, ls="--" if harness else "-",
+                                  label=f"{algo} ({name}): {task_name} ({source})")
+            else:
+                st, mean, lo, hi = _seed_band(curves)
+                if not len(st):
+                    continue  # the seeds share no step (yet)
+                (line,) = ax.plot(st, mean, marker="s" if harness else "o", ms=3, ls="--" if harness else "-",
+                                  label=f"{algo} ({name}): {task_name} ({source}), mean of {len(curves)} seeds, band min-max")
+                ax.fill_between(st, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
             drawn += 1
-        for task_name in ("reach-desired", "reach-intermediate"):  # the harness's per-checkpoint results
-            s = read_summary(rd, task_name)
-            if s:
-                pts = [(c["step"], 100 * c["success"]) for c in s["checkpoints"]]
-                ax.plot(*zip(*pts), marker="s", ms=3, ls="--",
-                        label=f"{algo} ({Path(rd).name}): {task_name} (aerohrl eval, {s['episodes']} ep.)")
-                drawn += 1
     if not drawn:
         raise UserError("none of the runs logged a closed-loop evaluation (train with --eval-every > 0 or run `aerohrl eval`)")
     ax.set_xlabel("training step")

@@ -116,7 +116,7 @@ def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, l
     pos = np.zeros((E, T + 1, 3), np.float32) if record else None
     if record:
         pos[:, 0] = obs["observation"][:, :3]
-    bar = tqdm(total=T, desc=desc, unit="step", disable=not progress, leave=False, dynamic_ncols=True)
+    bar = tqdm(total=T, desc=desc, unit="step", disable=None if progress else True, leave=False, dynamic_ncols=True)
     try:
         for t in range(T):
             active = ~finished

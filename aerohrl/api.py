@@ -1,0 +1,390 @@
+"""The public API: the whole pipeline from Python, one call per step.
+
+Each function is also reachable from the top-level package (``aerohrl.train`` is
+:func:`aerohrl.api.train`); ``import aerohrl`` stays light (numpy-free) and imports the
+heavy parts (torch, torchrl, lerobot) only when a function that needs them is called.
+
+```python
+import aerohrl
+
+ds = aerohrl.build_dataset(goals=250)                        # -> datasets/quadrotor-reach/n250-s0-<hash>
+run = aerohrl.train({"algo": "gcsl", "dataset": ds, "steps": 3000})
+policy = aerohrl.load_policy(run)
+summary = aerohrl.evaluate(run, "reach-desired", checkpoints=1)
+env = aerohrl.make_env(dataset=ds)                           # the Gymnasium goal env
+```
+
+Errors the caller can fix (a missing dataset, a bad config value, a damaged checkpoint)
+raise :class:`aerohrl.errors.UserError` with a one-line message.
+
+Which extra each function needs: :func:`build_dataset`, ``load_dataset(as_="numpy")`` and
+:func:`make_env` run on the core install; :func:`train`, :func:`load_policy`,
+:func:`evaluate` and ``load_dataset(as_="torch")`` need ``aerohrl[train]``;
+``load_dataset(as_="lerobot")`` needs ``aerohrl[lerobot]``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, Mapping
+
+from aerohrl.errors import UserError
+
+if TYPE_CHECKING:  # pragma: no cover - names for the annotations only
+    import numpy as np
+    import torch
+
+    from aerohrl.algorithms.config import TrainConfig
+    from aerohrl.algorithms.data import Dataset
+    from aerohrl.datagen.spec import DatasetSpec
+
+log = logging.getLogger("aerohrl")
+
+PathLike = str | Path
+
+
+# ----------------------------------------------------------------------------- datasets
+
+
+def build_dataset(spec: "DatasetSpec | PathLike | None" = None, *, out: PathLike = "datasets", progress: bool = False,
+                  force: bool = False, **overrides: Any) -> Path:
+    """Build the expert dataset of ``spec`` (or verify it, when that version exists) and return its folder.
+
+    Args:
+        spec: a :class:`~aerohrl.datagen.spec.DatasetSpec`, the path of a spec TOML file
+            (``datasets/quadrotor-reach-dart.toml``), or None for the defaults (the
+            thesis's 250 goals).
+        out: root folder; the dataset goes to ``out/<name>/<version>/``.
+        progress: show a progress bar while flying the expert.
+        force: build even when the size estimate exceeds the free memory or disk.
+        **overrides: spec fields that replace the spec's (``goals=1000``,
+            ``action_noise=(1.0, 0.5)``, ``seed=3``); the same names as ``datagen build``'s flags.
+
+    Returns:
+        The dataset folder, ``out/<name>/n<goals>-s<seed>-<hash8>``. The same spec and
+        seed always give the same version name and byte-identical files.
+    """
+    from dataclasses import asdict
+
+    from aerohrl.datagen.build import build
+    from aerohrl.datagen.spec import DatasetSpec, load_spec
+
+    if isinstance(spec, DatasetSpec):
+        try:
+            spec = DatasetSpec(**{**asdict(spec), **{k: v for k, v in overrides.items() if v is not None}})
+        except (TypeError, ValueError) as e:
+            raise UserError(f"invalid spec: {e}") from None
+    else:
+        spec = load_spec(spec, **overrides)
+    return build(spec, out, progress=progress, log=log.info, force=force).path
+
+
+def load_dataset(path: PathLike, as_: Literal["numpy", "torch", "lerobot"] = "numpy", *, validate: bool = True) -> Any:
+    """Open a dataset folder written by :func:`build_dataset` (or ``datagen build``).
+
+    Args:
+        path: the dataset folder (``datasets/quadrotor-reach/n250-s0-<hash>``).
+        as_: what to return:
+
+            * ``"numpy"``: a dict of every column as NumPy arrays
+              (``observation.state`` (F, 18), ``action`` (F, 4), ``observation.desired_goal``
+              (F, 15), ``next.observation.state`` (F, 18), ``episode_index`` (F,), ...);
+              no torch needed.
+            * ``"torch"``: an :class:`aerohrl.algorithms.data.Dataset` (float32 tensors
+              ``state``, ``action``, ``goal``, ``next_state``, episode bookkeeping): what
+              the trainer learns from.
+            * ``"lerobot"``: a ``lerobot.datasets.lerobot_dataset.LeRobotDataset`` (items
+              are dicts of tensors), opened without probing a video decoder (our datasets
+              hold no video).
+        validate: check every file's SHA-256 against the manifest first (about a second
+            per 2 M frames); a damaged dataset raises :class:`~aerohrl.errors.UserError`.
+            ``as_="torch"`` always validates.
+
+    Returns:
+        The dataset in the requested form.
+    """
+    from aerohrl.datagen import manifest
+
+    root = Path(path)
+    if as_ not in ("numpy", "torch", "lerobot"):
+        raise UserError(f"unknown as_={as_!r} (choose from numpy, torch, lerobot)")
+    if not root.is_dir():
+        raise UserError(f"no dataset at {root}")
+    if as_ == "torch":
+        from aerohrl.algorithms.data import load_dataset as load_torch
+
+        return load_torch(root)
+    if validate:
+        problems = manifest.validate(root)
+        if problems:
+            more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
+            raise UserError(f"dataset {root} is damaged: {problems[0]}{more}; `datagen validate {root}` lists them")
+    if as_ == "numpy":
+        from aerohrl.datagen.lerobot_format import read_columns
+
+        return read_columns(root)
+    return open_lerobot(root)
+
+
+def open_lerobot(root: PathLike) -> Any:
+    """``LeRobotDataset`` over a local dataset folder, with the repo id of its card.
+
+    ``video_backend="pyav"`` is passed so that lerobot does not probe torchcodec (it
+    does so in every ``LeRobotDataset(...)`` whose backend is not given, video or not;
+    without FFmpeg that probe logs a long traceback). Nothing is decoded with it: the
+    datasets hold no video features."""
+    try:
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    except ImportError as e:
+        raise UserError(f"load_dataset(as_='lerobot') needs lerobot: pip install 'aerohrl[lerobot]' ({e})") from None
+    from aerohrl.datagen import manifest
+
+    root = Path(root)
+    repo_id = manifest.read_manifest(root).get("repo_id") or f"aerohrl/{root.parent.name}"
+    return LeRobotDataset(repo_id, root=root, video_backend="pyav")
+
+
+# ----------------------------------------------------------------------------- training
+
+
+@dataclass
+class Run:
+    """A training run folder (``runs/<name>/``): its config, progress and checkpoints.
+
+    Attributes:
+        path: the run folder.
+        config: the resolved training configuration.
+        step: the last step trained (that of the newest checkpoint).
+    """
+
+    path: Path
+    config: "TrainConfig"
+    step: int = 0
+    _meta: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def open(cls, path: PathLike) -> "Run":
+        """The run in ``path`` (UserError when there is none)."""
+        from aerohrl.algorithms import config as C
+        from aerohrl.algorithms.trainer import checkpoint_paths, checkpoint_step, read_json
+
+        path = Path(path)
+        if not (path / "config.json").is_file():
+            raise UserError(f"no run at {path} (no config.json)")
+        meta = read_json(path / "config.json")
+        try:
+            cfg = C.from_dict(meta["config"])
+        except (KeyError, TypeError) as e:
+            raise UserError(f"{path / 'config.json'} is damaged: {e}") from None
+        ck = checkpoint_paths(path)
+        step = checkpoint_step(ck[-1]) if ck else 0
+        return cls(path, cfg, step, meta)
+
+    @property
+    def dataset(self) -> Path | None:
+        """The dataset folder the run trained on (as recorded; it may have moved since)."""
+        p = (self._meta.get("dataset") or {}).get("path") or self.config.dataset
+        return Path(p) if p else None
+
+    def checkpoints(self) -> list[Path]:
+        """The run's checkpoint files, oldest first."""
+        from aerohrl.algorithms.trainer import checkpoint_paths
+
+        return checkpoint_paths(self.path)
+
+    def metrics(self) -> list[dict]:
+        """Every line of ``metrics.jsonl`` (training losses every ``log_every`` steps,
+        closed-loop evaluations every ``eval_every``)."""
+        from aerohrl.algorithms.trainer import read_metrics
+
+        return read_metrics(self.path)
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+
+def train(config: "TrainConfig | Mapping[str, Any] | None" = None, *, out: PathLike = "runs", name: str | None = None,
+          resume: "PathLike | Run | None" = None, progress: bool = False, **overrides: Any) -> Run:
+    """Train a goal-conditioned policy to the end of its steps and return the run.
+
+    Args:
+        config: a :class:`~aerohrl.algorithms.config.TrainConfig`, or a mapping of its
+            fields (``{"algo": "gcsl", "dataset": path, "steps": 3000}``; ``"preset"``
+            picks ``cpu`` (default) or ``thesis`` first). ``dataset`` is required.
+        out: the folder runs go to (``out/<name>``).
+        name: the run's folder name (default ``<algo>-<preset>-s<seed>-<time>-<random>``).
+            A taken name raises :class:`~aerohrl.errors.UserError`.
+        resume: continue this existing run instead (from its newest intact checkpoint;
+            ``overrides`` may raise ``steps``); ``config`` must then be None.
+        progress: show a progress bar.
+        **overrides: config fields that replace ``config``'s.
+
+    Returns:
+        The :class:`Run`, trained to ``config.steps``, with its checkpoints written.
+    """
+    from aerohrl.algorithms import config as C
+    from aerohrl.algorithms.trainer import new_run_dir, resume_run, start_run
+
+    if resume is not None:
+        if config is not None:
+            raise UserError("train(resume=RUN) continues RUN with its own config; pass no config")
+        tr = resume_run(Path(resume), progress=progress, overrides=overrides or None)
+    else:
+        if isinstance(config, C.TrainConfig):
+            values = C.to_dict(config)
+        else:
+            values = dict(config or {})
+        values.update(overrides)
+        preset = values.pop("preset", None) or "cpu"
+        if isinstance(values.get("dataset"), Path):
+            values["dataset"] = str(values["dataset"])
+        cfg = C.make_config(preset, **values)
+        if not cfg.dataset:
+            raise UserError("train() needs a dataset: train({'dataset': path, ...})")
+        tr = start_run(cfg, new_run_dir(cfg, out, name), progress=progress)
+    tr.train()
+    return Run.open(tr.run_dir)
+
+
+# ----------------------------------------------------------------------------- policies
+
+
+class Policy:
+    """A trained goal-conditioned policy: ``act(state, goal) -> action``.
+
+    ``state`` is the vehicle state ``[p(3), v(3), R(9) row-major, w(3)]`` (18, world
+    frame, absolute), ``goal`` the goal ``[p, v, R]`` (15, absolute); the action is CTBR
+    ``[c, wx, wy, wz]`` (mass-normalised collective thrust in m/s², body rates in rad/s).
+    Both take a leading batch dimension or none, as NumPy arrays (returns NumPy) or
+    torch tensors (returns a tensor).
+
+    Attributes:
+        algo: the underlying :class:`aerohrl.algorithms.base.Algorithm` (critics, networks).
+        step: the training step of the checkpoint.
+        checkpoint: the checkpoint file it was loaded from.
+    """
+
+    def __init__(self, algo: Any, step: int, checkpoint: Path, device: str = "cpu") -> None:
+        self.algo = algo
+        self.step = step
+        self.checkpoint = checkpoint
+        self.device = device
+
+    def act(self, state: "np.ndarray | torch.Tensor", goal: "np.ndarray | torch.Tensor") -> "np.ndarray | torch.Tensor":
+        """The action for ``state`` (..., 18) towards ``goal`` (..., 15): (..., 4)."""
+        import numpy as np
+        import torch
+
+        is_torch = isinstance(state, torch.Tensor)
+        s = torch.as_tensor(np.asarray(state, np.float32) if not is_torch else state, dtype=torch.float32, device=self.device)
+        g = torch.as_tensor(np.asarray(goal, np.float32) if not isinstance(goal, torch.Tensor) else goal,
+                            dtype=torch.float32, device=self.device)
+        if s.shape[-1] != 18 or g.shape[-1] != 15:
+            raise UserError(f"act(state, goal) takes states (..., 18) and goals (..., 15), got {tuple(s.shape)} and {tuple(g.shape)}")
+        one = s.ndim == 1
+        a = self.algo.act(s.reshape(-1, 18), g.reshape(-1, 15))
+        a = a[0] if one else a.reshape(*s.shape[:-1], 4)
+        return a if is_torch else a.double().cpu().numpy()
+
+    __call__ = act
+
+    def __repr__(self) -> str:
+        return f"Policy({self.algo.__class__.__name__}, step {self.step}, {self.checkpoint})"
+
+
+def load_policy(source: "Run | PathLike", *, step: int | None = None, device: str = "cpu") -> Policy:
+    """Load a trained policy from a run (its newest checkpoint, or that of ``step``) or a checkpoint file.
+
+    Args:
+        source: a :class:`Run`, a run folder, or a ``checkpoints/step-N.pt`` file.
+        step: with a run, the checkpoint of this step instead of the newest.
+        device: ``cpu`` or ``cuda``.
+
+    Returns:
+        A :class:`Policy` in eval mode; the checkpoint's checksum has been verified.
+    """
+    from aerohrl.algorithms.trainer import checkpoint_paths
+    from aerohrl.eval.harness import load_policy as load_algo
+
+    p = Path(source.path if isinstance(source, Run) else source)
+    if p.is_dir():
+        ckpts = checkpoint_paths(p)
+        if not ckpts:
+            raise UserError(f"run {p} has no checkpoints (checkpoints/step-*.pt)")
+        if step is not None:
+            match = [c for c in ckpts if c.name == f"step-{step:09d}.pt"]
+            if not match:
+                raise UserError(f"run {p} has no checkpoint of step {step} (it keeps {', '.join(c.name for c in ckpts)})")
+            p = match[0]
+        else:
+            p = ckpts[-1]
+    elif not p.is_file():
+        raise UserError(f"no run or checkpoint at {p}")
+    algo, ck = load_algo(p, device)
+    return Policy(algo, int(ck["step"]), p, device)
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+
+def evaluate(run: "Run | PathLike", task: str = "reach-desired", **opts: Any) -> dict:
+    """Fly a run's last checkpoints on one task in the simulator (``aerohrl eval``) and return the summary.
+
+    Args:
+        run: a :class:`Run` or a run folder.
+        task: ``reach-desired``, ``reach-intermediate``, ``ood`` or ``reach-novel``.
+        **opts: fields of :class:`aerohrl.eval.harness.EvalOptions`: ``checkpoints``
+            (last K, default 10), ``episodes`` (default 250), ``planner`` (ood: ``none``,
+            ``single`` = thesis Eq. 3.7, ``multi`` = Eq. 3.6), ``seed``, ``device``,
+            ``progress`` (default False), ``out``, ...
+
+    Returns:
+        The summary written to ``RUN/eval/<task>[...]/summary.json``: ``success_mean``,
+        ``success_std``, ``near_success_mean``, ``near_success_std`` (fractions, over the
+        checkpoints), one entry per checkpoint under ``checkpoints`` (step, success,
+        near_success, seconds), ``episodes``, ``horizon`` and the ``options`` used.
+    """
+    from dataclasses import fields
+
+    from aerohrl.eval.harness import EvalOptions, evaluate_run
+
+    names = {f.name for f in fields(EvalOptions)}
+    unknown = sorted(set(opts) - names)
+    if unknown:
+        raise UserError(f"unknown evaluation option(s): {', '.join(unknown)} (see aerohrl.eval.harness.EvalOptions)")
+    opts.setdefault("progress", False)
+    return evaluate_run(Path(run.path if isinstance(run, Run) else run), EvalOptions(task=task, **opts))
+
+
+def make_env(num_envs: int | None = None, *, dataset: PathLike | None = None, normalize_actions: bool = False,
+             **kwargs: Any) -> Any:
+    """The reach task as a Gymnasium goal env (``aerohrl/QuadrotorReach-v0``).
+
+    Args:
+        num_envs: None for one vehicle (a ``gymnasium.Env``); N for a native
+            ``gymnasium.vector.VectorEnv`` of N vehicles stepped in one batched call.
+        dataset: draw goals from this dataset's desired goals (default: fresh goals from
+            the spec's distribution rho_D).
+        normalize_actions: rescale the action space to [-1, 1]^4 (Gymnasium's
+            ``RescaleAction`` wrapper, its vector twin for ``num_envs``), what most RL
+            libraries expect; -1 is zero thrust, +1 full thrust and +20 rad/s.
+        **kwargs: passed to the env (``vehicle``, ``horizon``, ``tolerance_scale``, ...).
+
+    Returns:
+        The environment; observations are dicts ``observation`` (18), ``achieved_goal``
+        (15), ``desired_goal`` (15); reward 1 when the goal is reached.
+    """
+    from aerohrl.eval import gym_env
+
+    if dataset is not None:
+        kwargs["dataset"] = str(dataset)
+    if num_envs is None:
+        env = gym_env.QuadrotorReachEnv(**kwargs)
+    else:
+        env = gym_env.QuadrotorReachVectorEnv(num_envs, **kwargs)
+    return gym_env.normalize_actions(env) if normalize_actions else env
+
+
+__all__ = ["build_dataset", "load_dataset", "open_lerobot", "train", "Run", "load_policy", "Policy", "evaluate", "make_env"]

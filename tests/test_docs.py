@@ -1,0 +1,85 @@
+"""The docs (issue 16): the API reference builds from the docstrings with pdoc, every public
+function of aerohrl.api is in it with its docstring, and the READMEs cite docs/spec.md."""
+
+from __future__ import annotations
+
+import inspect
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "docs"))
+
+
+def test_api_reference_builds(tmp_path):
+    pytest.importorskip("pdoc")
+    from build_api import MODULES
+
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    p = subprocess.run([sys.executable, str(ROOT / "docs" / "build_api.py"), str(tmp_path)], capture_output=True, text=True,
+                       env=env, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert "Warn" not in p.stderr, p.stderr  # pdoc warns about unresolvable references and bad docstrings
+    import aerohrl.api as api
+
+    html = (tmp_path / "aerohrl" / "api.html").read_text()
+    for name in api.__all__:
+        obj = getattr(api, name)
+        assert f'id="{name}"' in html, name
+        first = inspect.getdoc(obj).splitlines()[0]
+        assert first.split("``")[0].strip()[:40] in html, (name, first)
+    for mod in MODULES:
+        assert (tmp_path / (mod.replace(".", "/") + ".html")).is_file(), mod
+
+
+def test_public_api_is_annotated_and_documented():
+    import aerohrl.api as api
+
+    for name in api.__all__:
+        obj = getattr(api, name)
+        assert inspect.getdoc(obj), name
+        fns = [obj] if inspect.isfunction(obj) else [m for k, m in vars(obj).items()
+                                                      if inspect.isfunction(m) and not k.startswith("_")]
+        for fn in fns:
+            sig = inspect.signature(fn)
+            assert inspect.getdoc(fn), fn.__qualname__
+            assert sig.return_annotation is not inspect.Signature.empty, fn.__qualname__
+            for p in sig.parameters.values():
+                if p.name not in ("self", "cls"):
+                    assert p.annotation is not inspect.Parameter.empty, (fn.__qualname__, p.name)
+
+
+def test_readmes_cite_the_spec_in_the_repo():
+    spec = ROOT / "docs" / "spec.md"
+    text = spec.read_text()
+    for needle in ("0.15 m", "0.35 m/s", "0.15 rad", "[1, 2] m", "[2, 3.5] m", "500 (5 s)", "Table 2.1", "log-odds"):
+        assert needle in text, needle
+    for readme in [ROOT / "README.md", *ROOT.glob("*/README.md")]:
+        body = readme.read_text()
+        bare = re.findall(r"(?<![\w/.])SPEC\.md", body)
+        assert not bare, f"{readme} cites SPEC.md, which is not in the repository: cite docs/spec.md"
+    for link in re.findall(r"\]\(([^)#]+\.md)\)", (ROOT / "docs" / "README.md").read_text()):
+        assert (ROOT / "docs" / link).resolve().is_file(), link
+
+
+def test_licence_and_citation():
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+    yaml = pytest.importorskip("yaml")
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert cff["cff-version"] == "1.2.0" and cff["license"] == "MIT" and cff["authors"]
+    (thesis,) = [r for r in cff["references"] if r["type"] == "thesis"]
+    assert thesis["title"] == "Hierarchical Reinforcement Learning for Aerial Vehicles" and thesis["authors"]
+
+
+@pytest.mark.slow  # ~50 s without a cache
+def test_public_modules_are_mypy_clean():
+    pytest.importorskip("mypy")
+    files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py"]
+    p = subprocess.run([sys.executable, "-m", "mypy", *files, "--follow-imports=silent", "--ignore-missing-imports",
+                        "--no-incremental"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0 and "Success" in p.stdout, p.stdout + p.stderr
