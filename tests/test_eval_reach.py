@@ -92,6 +92,13 @@ def test_decline_and_margin_choice():
              "B": [(np.array([1, 1], bool), np.array([0, 0], bool), np.array([0.01, 0.02]))]}
     m, table = reach.choose_margin(pairs)
     assert 0.02 <= m < 0.3 and table[m]["worst"] == 0.0 and table[m]["mean"] == 0.5
+    # a margin that loses under a point on one ring but gains a lot on another is taken
+    pairs_c = {"A": [(np.zeros(2, bool), np.ones(2, bool), np.array([0.004, 0.004]))],
+               "C": [(np.ones(200, bool), np.r_[np.zeros(1, bool), np.ones(199, bool)], np.full(200, 0.002))]}
+    m, table = reach.choose_margin(pairs_c)
+    assert m == 0.0 and table[m]["worst"] == pytest.approx(-0.005) and table[m]["mean"] == pytest.approx(0.4975)
+    m, _ = reach.choose_margin(pairs_c, max_loss=0.0)  # no loss allowed: decline where it would cost
+    assert m >= 0.005 and math.isinf(m)
     # nothing ever helps: decline always
     m, _ = reach.choose_margin({"B": pairs["B"]})
     assert m == max(reach.MARGIN_GRID)
