@@ -22,8 +22,8 @@ depend on the two loops happening to run at equally loaded moments.
 
 ``--compile`` also times ``torch.compile(algo.update)`` on the same batches (``compiled
 ms``; its compile time, spent in the 10 warm-up steps, is printed beside it).
-``--flops`` counts the floating-point operations of one update (torch's
-FlopCounterMode: matrix products, forward and backward) and the aten operators it runs
+``--flops`` counts the floating-point operations of one update (torch.profiler's
+``with_flops``: matrix products, forward and backward) and the aten operators it runs
 (each about one kernel launch on a GPU), the inputs of the README's GPU estimate.
 """
 
@@ -139,7 +139,6 @@ def _time_updates(update, batches, amp, sync) -> tuple[float, float]:
 def flops(a, device) -> int:
     """FLOPs and aten operators of one update per algorithm (after 3 warm-up updates)."""
     from torch.profiler import ProfilerActivity, profile
-    from torch.utils.flop_counter import FlopCounterMode
 
     from aerohrl.algorithms.base import build_algorithm
     from aerohrl.algorithms.config import make_config
@@ -159,16 +158,14 @@ def flops(a, device) -> int:
             for _ in range(3):
                 alg.update(s.sample())
             b = s.sample()
-            fc = FlopCounterMode(display=False)
-            with fc:
+            with profile(activities=[ProfilerActivity.CPU], with_flops=True) as prof:
                 alg.update(b)
-            b = s.sample()
-            with profile(activities=[ProfilerActivity.CPU]) as prof:
-                alg.update(b)
+        total = sum(e.flops or 0 for e in prof.events() if e.name.startswith("aten::")
+                    and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::")))
         # top-level aten operators (not those called inside another): about one kernel launch each on a GPU
         ops = sum(1 for e in prof.events() if e.name.startswith("aten::")
                   and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::")))
-        print(f"{algo:8s} {fc.get_total_flops() / 1e9:10.2f} {ops:13d}")
+        print(f"{algo:8s} {total / 1e9:10.2f} {ops:13d}")
     return 0
 
 
