@@ -695,7 +695,7 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
 
     runner = BlockRunner(workers, ray_address) if workers > 1 or ray_address else None
     try:
-        data = generate(spec, progress=progress, runner=runner)
+        data = generate(spec, progress=progress, **({"runner": runner} if runner is not None else {}))
     finally:
         if runner is not None:
             runner.close()
