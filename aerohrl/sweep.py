@@ -1,7 +1,7 @@
 """``aerohrl sweep``: a grid of training runs as Ray tasks, evaluated and tabulated.
 
     aerohrl sweep --algos gcsl td3bc --seeds 0 1 2 --datasets datasets/quadrotor-reach/<version> --out sweeps/s1
-    aerohrl sweep --config sweep.toml --out sweeps/s1              # the same grid from a file
+    aerohrl sweep --config sweep.toml --out sweeps/s1              # the same grid from a file (or sweep.yaml)
     aerohrl sweep --config sweep.toml --out sweeps/s1 --address HEAD:6379   # on a Ray cluster
 
 The grid is algorithms x seeds x datasets x the product of the ``[grid]`` overrides
@@ -188,11 +188,21 @@ def load_spec(path: Path | None, a) -> SweepSpec:
     d: dict = {}
     if path is not None:
         try:
-            d = tomllib.loads(Path(path).read_text())
+            text = Path(path).read_text()
+            if Path(path).suffix in (".yaml", ".yml"):  # the same keys as YAML (pyyaml comes with lerobot)
+                import yaml
+
+                d = yaml.safe_load(text) or {}
+                if not isinstance(d, dict):
+                    raise UserError(f"{path} is not a mapping of sweep keys")
+            else:
+                d = tomllib.loads(text)
         except FileNotFoundError:
             raise UserError(f"no sweep file at {path}") from None
-        except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-            raise UserError(f"cannot read {path}: {e}") from None
+        except UserError:
+            raise
+        except Exception as e:  # a TOML/YAML syntax error, an unreadable file
+            raise UserError(f"cannot read {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
         unknown = set(d) - {f.name for f in fields(SweepSpec)} - {"eval"}
         if unknown:
             raise UserError(f"unknown key(s) in {path}: {', '.join(sorted(unknown))} (a run override goes under [set] or [grid])")
@@ -441,8 +451,8 @@ def _one_line(e: BaseException) -> str:
 def parser() -> ArgumentParser:
     ap = ArgumentParser(prog=PROG, description="Train a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, "
                         "evaluate them and write seed-aggregated tables.")
-    ap.add_argument("--config", type=Path, default=None, help="sweep grid TOML (keys: algos, seeds, datasets, preset, "
-                    "[set], [grid], [eval] tasks/episodes/checkpoints); flags add to it")
+    ap.add_argument("--config", type=Path, default=None, help="sweep grid, TOML or .yaml (keys: algos, seeds, datasets, "
+                    "preset, [set], [grid], [eval] tasks/episodes/checkpoints); flags add to it; saved as OUT/sweep.toml")
     ap.add_argument("--out", type=Path, required=True, help="sweep folder: sweep.toml, runs/, tables.md")
     ap.add_argument("--algos", nargs="+", default=None, metavar="ALGO")
     ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=None, metavar="SEED", help="[0]")

@@ -45,6 +45,18 @@ def test_grid_points_and_names(dataset_dir):
         f.unlink(missing_ok=True)
 
 
+def test_yaml_grid_equals_toml(dataset_dir, tmp_path):
+    y = tmp_path / "g.yaml"
+    y.write_text(f"algos: [gcsl]\nseeds: [0, 1]\ndatasets: ['{dataset_dir}']\nset: {{steps: 100}}\ngrid: {{batch_size: [32, 64]}}\n"
+                 "eval: {episodes: 5}\n")
+    t = tmp_path / "g.toml"
+    t.write_text(f"algos = ['gcsl']\nseeds = [0, 1]\ndatasets = ['{dataset_dir}']\n[set]\nsteps = 100\n[grid]\n"
+                 "batch_size = [32, 64]\n[eval]\nepisodes = 5\n")
+    a = sweep.parser().parse_args(["--out", "x"])
+    assert sweep.load_spec(y, a) == sweep.load_spec(t, a)
+    assert sweep.load_spec(y, a).episodes == 5 and len(sweep.points(sweep.load_spec(y, a))) == 4
+
+
 def test_bad_inputs_are_one_line_errors(dataset_dir, tmp_path, capsys):
     base = ["--out", str(tmp_path / "s"), "--algos", "gcsl", "--datasets", str(dataset_dir)]
     cases = [
@@ -69,6 +81,10 @@ def test_bad_inputs_are_one_line_errors(dataset_dir, tmp_path, capsys):
     bad.write_text('algos = ["gcsl"]\nlearning_rate = 3\n')
     code, err = _main(["--out", str(tmp_path / "s"), "--config", str(bad)], capsys)
     assert code == 2 and "unknown key(s)" in err and "learning_rate" in err
+    for name, text in (("broken.toml", "algos = [gcsl\n"), ("broken.yaml", "algos: [gcsl\n"), ("list.yaml", "- gcsl\n")):
+        (tmp_path / name).write_text(text)
+        code, err = _main(["--out", str(tmp_path / "s"), "--config", str(tmp_path / name)], capsys)
+        assert code == 2 and err.count("\n") == 0 and str(tmp_path / name) in err, err
     assert not (tmp_path / "s").exists()  # nothing was created
 
 
