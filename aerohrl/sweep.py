@@ -74,13 +74,29 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
             except (OSError, ValueError) as e:
                 raise UserError(f"cannot reach a Ray cluster at {address}: {getattr(e, 'strerror', None) or e}") from None
         try:
-            ray.init(address=address, log_to_driver=True, logging_level="ERROR")
+            with _quiet_stderr():  # Ray's C++ client logs each failed attempt to fd 2: one error line instead
+                ray.init(address=address, log_to_driver=True, logging_level="ERROR")
         except (ConnectionError, RuntimeError, ValueError) as e:
             raise UserError(f"cannot join the Ray cluster at {address}: {str(e).splitlines()[0]}") from None
     else:
         ray.init(num_cpus=num_cpus, num_gpus=num_gpus, include_dashboard=False, object_store_memory=500 * 2**20,
                  logging_level="ERROR", log_to_driver=True)
     return ray
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """File descriptor 2 to /dev/null for the duration (also what C++ code writes)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 # ----------------------------------------------------------------------------- the grid
