@@ -57,10 +57,7 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
     """``ray`` initialised: joined to the cluster at ``address`` (``host:port`` or
     ``auto``; unreachable -> UserError), or a local Ray of ``num_cpus`` cores, no
     dashboard, a 500 MB object store."""
-    try:
-        import ray
-    except ImportError:  # a dependency; only a broken install gets here
-        raise UserError("ray is not installed (pip install 'ray>=2.50')") from None
+    import ray  # [train]; missing: run_cli's one line "this needs ray ... pip install 'aerohrl[train]'"
     if ray.is_initialized():
         return ray
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
