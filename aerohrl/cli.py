@@ -17,6 +17,7 @@ commands:
   runs      inspect training runs (runs show RUN)
   ipp       informative path planning on motion primitives (lattice, bench, ...)
   eval      evaluate runs in the simulator (reach-desired, reach-intermediate, ood + planner; table, plot)
+  sweep     a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, evaluated, seed-aggregated tables
 
 `aerohrl COMMAND --help` for each command's options."""
 
@@ -51,7 +52,13 @@ def _eval(argv):
     return main(argv)
 
 
-COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp, "eval": _eval}
+def _sweep(argv):
+    from aerohrl.sweep import main
+
+    return main(argv)
+
+
+COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp, "eval": _eval, "sweep": _sweep}
 
 
 def main(argv: list[str] | None = None) -> int:

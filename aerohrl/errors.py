@@ -23,7 +23,8 @@ class UserError(Exception):
 _prog = "aerohrl"  # the running command, for warnings (set by run_cli)
 
 # top-level modules of the optional extras (pyproject.toml) -> the extra that installs them
-EXTRAS = {"torch": "train", "torchrl": "train", "tensordict": "train", "cmaes": "train", "lerobot": "lerobot",
+EXTRAS = {"torch": "train", "torchrl": "train", "tensordict": "train", "cmaes": "train", "ray": "train", "tensorboard": "train",
+          "lerobot": "lerobot",
           "datasets": "lerobot", "minari": "exchange", "ogbench": "exchange"}
 
 

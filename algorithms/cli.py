@@ -83,6 +83,13 @@ def parser() -> ArgumentParser:
     ap.add_argument("--out", type=Path, default=Path("runs"), help="folder of runs [runs]")
     ap.add_argument("--name", default=None, help="run folder name, must be new [ALGO-PRESET-sSEED-TIMESTAMP-RANDOM]")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--logger", default=None, metavar="NAME",
+                    help="where scalars go besides metrics.jsonl: tensorboard (RUN/tb) | wandb (offline, RUN/wandb; needs "
+                         "`pip install wandb`) | none [tensorboard; on --resume: the run's]")
+    ap.add_argument("--progress-every", type=T.nonneg_float, default=60.0, metavar="SECONDS",
+                    help="without a progress bar (no terminal, --no-progress): a progress line every SECONDS (0: none) [60]")
+    ap.add_argument("--progress-steps", type=T.nonneg_int, default=0, metavar="N",
+                    help="... and every N steps (0: only by time) [0]")
     for f in fields(C.TrainConfig):
         if f.name in C.INTERNAL:
             continue
@@ -110,13 +117,14 @@ def run(a) -> int:
 
     ov = _overrides(a)
     progress = not a.no_progress and sys.stderr.isatty()
+    kw = {"progress_every_s": a.progress_every, "progress_every_steps": a.progress_steps}
     if a.resume is not None:
         if a.preset is not None:
             raise UserError("--preset cannot be changed on --resume")
         fixed = sorted(set(ov) - RESUMABLE - {"dataset"})
         if fixed:
             raise UserError(f"--resume cannot change {', '.join('--' + k.replace('_', '-') for k in fixed)} (they define the run)")
-        tr = resume_run(a.resume, progress=progress, overrides=ov)
+        tr = resume_run(a.resume, progress=progress, overrides=ov, logger=a.logger, **kw)
         for aside, why in tr.set_aside:
             warn(f"{why}; set aside as {aside.name}")
         fallback = " (the newest intact checkpoint)" if tr.set_aside else ""
@@ -128,7 +136,7 @@ def run(a) -> int:
             raise UserError("--dataset is required (or --resume RUN)")
         resolve_device(cfg.device)  # before anything is created
         run_dir = new_run_dir(cfg, a.out, a.name)
-        tr = start_run(cfg, run_dir, progress=progress)
+        tr = start_run(cfg, run_dir, progress=progress, logger=a.logger or "tensorboard", **kw)
         print(f"run {run_dir}: {cfg.algo}, preset {cfg.preset}, dataset {tr.dataset['version']}", file=sys.stderr)
     step = tr.train()
     print(f"done: {tr.run_dir} at step {step}")

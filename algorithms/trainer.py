@@ -268,10 +268,29 @@ def resolve_device(name: str) -> torch.device:
 # ----------------------------------------------------------------------------- logging
 
 
-class MetricsLog:
-    """metrics.jsonl (+ TensorBoard when installed)."""
+LOGGERS = ("tensorboard", "wandb", "none")
 
-    def __init__(self, run_dir: Path, keep_until_step: int | None):
+
+def check_logger(name: str) -> None:
+    """One-line errors for an unknown ``--logger`` or a missing wandb (not a dependency)."""
+    import importlib.util
+
+    if name not in LOGGERS:
+        raise UserError(f"unknown logger {name!r} (choose from {', '.join(LOGGERS)})")
+    if name == "wandb" and importlib.util.find_spec("wandb") is None:
+        raise UserError("--logger wandb needs the wandb package: pip install wandb (runs log offline; `wandb sync` uploads)")
+
+
+class MetricsLog:
+    """metrics.jsonl, plus TensorBoard events in ``RUN/tb`` (default) or a wandb run in
+    offline mode in ``RUN/wandb`` (``logger="wandb"``, torchrl's WandbLogger; upload it
+    later with ``wandb sync RUN/wandb/offline-run-*``).
+
+    TensorBoard is written with torch's SummaryWriter directly rather than torchrl's
+    TensorboardLogger (a thin wrapper of it) for ``purge_step``: on resume, the events
+    logged after the checkpoint are dropped, as metrics.jsonl's lines are."""
+
+    def __init__(self, run_dir: Path, keep_until_step: int | None, logger: str = "tensorboard"):
         self.path = run_dir / "metrics.jsonl"
         try:
             if keep_until_step is not None and self.path.exists():  # resume: drop what came after the checkpoint
@@ -283,14 +302,21 @@ class MetricsLog:
         except OSError as e:
             raise atomic.write_error(self.path, e) from None
         self.tb = None
-        try:
-            from torch.utils.tensorboard import SummaryWriter
-        except Exception:  # tensorboard is optional
-            SummaryWriter = None
-        if SummaryWriter is not None:
+        self.wandb = None
+        check_logger(logger)
+        if logger == "tensorboard":
+            from torch.utils.tensorboard import SummaryWriter  # tensorboard is a dependency
+
             # on resume, TensorBoard drops the events logged after the checkpoint (purge_step)
             purge = None if keep_until_step is None else keep_until_step + 1
             self.tb = SummaryWriter(str(run_dir / "tb"), purge_step=purge)
+        elif logger == "wandb":
+            from torchrl.record.loggers.wandb import WandbLogger
+
+            os.environ.setdefault("WANDB_MODE", "offline")
+            os.environ.setdefault("WANDB_SILENT", "true")
+            self.wandb = WandbLogger(exp_name=run_dir.name, offline=True, save_dir=str(run_dir), project="aerohrl",
+                                     id=run_dir.name, resume="allow")
 
     def write(self, record: dict) -> None:
         try:
@@ -298,11 +324,14 @@ class MetricsLog:
             self._f.flush()
         except OSError as e:
             raise atomic.write_error(self.path, e) from None
+        step = record.get("step", 0)
+        scalars = {k: v for k, v in record.items() if k != "step" and isinstance(v, (int, float)) and not isinstance(v, bool)}
         if self.tb is not None:
-            step = record.get("step", 0)
-            for k, v in record.items():
-                if k != "step" and isinstance(v, (int, float)):
-                    self.tb.add_scalar(k, v, step)
+            for k, v in scalars.items():
+                self.tb.add_scalar(k, v, step)
+        if self.wandb is not None:
+            for k, v in scalars.items():
+                self.wandb.log_scalar(k, v, step=step)
 
     def close(self) -> None:
         try:
@@ -311,6 +340,53 @@ class MetricsLog:
             pass  # a full disk: the error that stopped the run has been raised already
         if self.tb is not None:
             self.tb.close()
+        if self.wandb is not None:
+            self.wandb.experiment.finish()
+
+
+class ProgressLines:
+    """The progress of a run without a terminal (a cluster job's log): one line on stderr
+    every ``every_s`` seconds and, when ``every_steps`` > 0, every that many steps:
+    step, steps/s (since the previous line), the mean losses since it, and the ETA."""
+
+    def __init__(self, name: str, step: int, total: int, every_s: float = 60.0, every_steps: int = 0, out=None):
+        import sys
+
+        self.name, self.total, self.every_s, self.every_steps = name, total, every_s, every_steps
+        self.out = out or sys.stderr
+        self._reset(step)
+
+    def _reset(self, step: int) -> None:
+        self.last_step, self.last_t, self.sums, self.count = step, time.monotonic(), {}, 0
+
+    def update(self, step: int, metrics: dict[str, float]) -> None:
+        for k, v in metrics.items():
+            self.sums[k] = self.sums.get(k, 0.0) + v
+        self.count += 1
+        now = time.monotonic()
+        due = (self.every_s > 0 and now - self.last_t >= self.every_s) or (self.every_steps > 0 and step % self.every_steps == 0)
+        if due or step == self.total:
+            self.line(step, now)
+
+    def line(self, step: int, now: float | None = None) -> str:
+        now = time.monotonic() if now is None else now
+        rate = (step - self.last_step) / max(now - self.last_t, 1e-9)
+        eta = (self.total - step) / rate if rate > 0 else float("inf")
+        losses = "  ".join(f"{k} {v / self.count:.4g}" for k, v in self.sums.items()) if self.count else ""
+        text = (f"{self.name}: step {step:,}/{self.total:,} ({100 * step / max(self.total, 1):.1f}%)  {rate:.1f} steps/s"
+                + (f"  {losses}" if losses else "") + f"  ETA {_duration(eta)}")
+        print(text, file=self.out, flush=True)
+        self._reset(step)
+        return text
+
+
+def _duration(s: float) -> str:
+    if not math.isfinite(s):
+        return "?"
+    s = int(round(s))
+    h, m = divmod(s, 3600)
+    m, sec = divmod(m, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{sec:02d}s"
 
 
 # ----------------------------------------------------------------------------- trainer
@@ -323,11 +399,15 @@ class Trainer:
     """Owns a run: the algorithm, the batch sampler, the checkpoints and the logs."""
 
     def __init__(self, run_dir, cfg: C.TrainConfig, data: Dataset, *, progress: bool = True,
-                 evaluators: dict[str, Evaluator] | None = None, lock: "RunLock | None" = None):
+                 evaluators: dict[str, Evaluator] | None = None, lock: "RunLock | None" = None,
+                 logger: str = "tensorboard", progress_every_s: float = 0.0, progress_every_steps: int = 0):
         self.run_dir = Path(run_dir)
         self.cfg = cfg
         self.data = data
         self.progress = progress
+        self.logger = logger
+        # without the bar: a progress line every progress_every_s seconds / progress_every_steps steps (0: never)
+        self.progress_every = (progress_every_s, progress_every_steps)
         self.device = resolve_device(cfg.device)
         self._lock = lock or RunLock(self.run_dir)  # held until train() returns
         self.evaluators = evaluators
@@ -358,8 +438,11 @@ class Trainer:
         norm = fit_normalizer(self.data, cfg.relabel_prob, seed=cfg.seed, future=C.relabel_future(cfg), bc_target=cfg.bc_target)
         self.algo = build_algorithm(cfg, norm).to(self.device)
         self.dataset = dataset_identity(self.data)
+        from aerohrl.algorithms.provenance import provenance
+
         atomic.write_json(self.run_dir / "config.json", {"config": C.to_dict(cfg), "dataset": self.dataset,
-                                                         "created": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+                                                         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                                                         "logger": self.logger, "provenance": provenance(cfg.device)})
         self.resumed_from = None
 
     def _newest_intact(self, ckpts: list[Path]) -> tuple[Path, dict]:
@@ -461,13 +544,15 @@ class Trainer:
         if self._lock is None:  # a second train() call of this Trainer
             self._lock = RunLock(self.run_dir)
         try:
-            log = MetricsLog(self.run_dir, keep_until_step=self.step if self.resumed_from else None)
+            log = MetricsLog(self.run_dir, keep_until_step=self.step if self.resumed_from else None, logger=self.logger)
         except BaseException:
             self.release()
             raise
         if self.evaluators is None:
             self.evaluators = self._default_evaluators()
         bar = tqdm(total=cfg.steps, initial=self.step, disable=not self.progress, desc=f"{cfg.algo}", unit="step", dynamic_ncols=True)
+        lines = (ProgressLines(f"train {cfg.algo} {self.run_dir.name}", self.step, cfg.steps, *self.progress_every)
+                 if not self.progress and any(self.progress_every) else None)
         self._t0 = time.perf_counter()
         try:
             self.algo.train()
@@ -496,6 +581,8 @@ class Trainer:
                     sums[k] = sums.get(k, 0.0) + v
                 self._acc["count"] += 1
                 bar.update(1)
+                if lines is not None:
+                    lines.update(self.step, dict(zip(metrics, vals.tolist())))
                 # the lines fall where an uninterrupted run's do (a stop at `until` leaves the sums to the checkpoint)
                 if self.step % cfg.log_every == 0 or self.step == cfg.steps:
                     rec = self._metrics_line()
@@ -526,13 +613,14 @@ class Trainer:
 
 
 def start_run(cfg: C.TrainConfig, run_dir, *, data: Dataset | None = None, progress: bool = True,
-              evaluators=None) -> Trainer:
+              evaluators=None, **trainer_kw) -> Trainer:
     """A new run in ``run_dir`` (config.json written, no step taken yet). Everything that
     can be refused (config values, the device, the dataset) is checked before the folder
     is created, exclusively; a failure after that removes it again."""
     run_dir = Path(run_dir)
     C.check(cfg)
     resolve_device(cfg.device)
+    check_logger(trainer_kw.get("logger", "tensorboard"))
     if data is None:
         if not cfg.dataset:
             raise UserError("no dataset given (--dataset PATH)")
@@ -542,7 +630,7 @@ def start_run(cfg: C.TrainConfig, run_dir, *, data: Dataset | None = None, progr
     claim_run_dir(run_dir)
     lock = RunLock(run_dir)
     try:
-        return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock)
+        return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock, **trainer_kw)
     except BaseException:
         lock.release()
         shutil.rmtree(run_dir, ignore_errors=True)  # ours alone (claimed above), and nothing trained yet
@@ -550,7 +638,7 @@ def start_run(cfg: C.TrainConfig, run_dir, *, data: Dataset | None = None, progr
 
 
 def resume_run(run_dir, *, data: Dataset | None = None, progress: bool = True, evaluators=None,
-               overrides: dict | None = None) -> Trainer:
+               overrides: dict | None = None, logger: str | None = None, **trainer_kw) -> Trainer:
     """Continue ``run_dir`` from its newest intact checkpoint (or from scratch when it has none)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -560,25 +648,33 @@ def resume_run(run_dir, *, data: Dataset | None = None, progress: bool = True, e
         cfg = C.from_dict(meta["config"])
     except (KeyError, TypeError) as e:
         raise UserError(f"{run_dir / 'config.json'} is damaged: {e}") from None
-    changed = False
     for k, v in (overrides or {}).items():
         if v is not None and k != "dataset" and getattr(cfg, k) != v:
             setattr(cfg, k, v)
-            changed = True
     C.check(cfg)
     resolve_device(cfg.device)
+    logger = logger or meta.get("logger", "tensorboard")  # the run's own, unless asked otherwise
+    check_logger(logger)
     if data is None:  # --dataset on resume: the same data moved elsewhere (identity is checked)
         data = load_dataset(locate_dataset(meta.get("dataset") or {"path": cfg.dataset}, run_dir, (overrides or {}).get("dataset")))
     if not checkpoint_paths(run_dir):
         check_same_dataset(meta["dataset"], data)
     lock = RunLock(run_dir)  # before anything in the run changes
     try:
-        if changed:  # e.g. more --steps: the run's config says so from now on
-            atomic.write_json(run_dir / "config.json", {**meta, "config": C.to_dict(cfg)})
-        return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock)
+        from aerohrl.algorithms.provenance import provenance
+
+        # e.g. more --steps: the run's config says so from now on; each resume records its own code and machine
+        resumes = [*meta.get("resumes", []), {**provenance(cfg.device), "step": _newest_step(run_dir)}]
+        atomic.write_json(run_dir / "config.json", {**meta, "config": C.to_dict(cfg), "logger": logger, "resumes": resumes})
+        return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock, logger=logger, **trainer_kw)
     except BaseException:
         lock.release()
         raise
+
+
+def _newest_step(run_dir) -> int:
+    ckpts = checkpoint_paths(run_dir)
+    return checkpoint_step(ckpts[-1]) if ckpts else 0
 
 
 __all__ = ["Trainer", "TrainingDiverged", "start_run", "resume_run", "new_run_dir", "claim_run_dir", "checkpoint_paths",

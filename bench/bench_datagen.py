@@ -10,6 +10,13 @@ peak resident memory is the child's (``resource.getrusage(RUSAGE_CHILDREN)``, on
 child at a time, so each row's maximum is its own: rows run smallest first).
 
 Targets (issue 2): 250 goals <= 10 s; 10,000 goals <= 3 min, cost linear in goals.
+
+    python bench/bench_datagen.py --goals 20000 --workers 1 2     # sharded builds (issue 14)
+
+``--workers`` runs every size with each worker count (``datagen build --workers N``:
+rollout blocks of 8,192 episodes flown in N processes); the peak RSS is then also the
+process tree's (parent + workers, summed from /proc every 0.1 s), and the speed-up is
+against 1 worker.
 """
 
 import argparse
@@ -21,11 +28,56 @@ import tempfile
 import time
 
 
+def _tree_rss(root: int) -> int:
+    """Resident bytes of ``root`` and all its descendants (from /proc)."""
+    kids: dict[int, list[int]] = {}
+    rss: dict[int, int] = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{d}/statm") as f:
+                rss[int(d)] = int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+        except (OSError, ValueError, IndexError):
+            continue
+        kids.setdefault(ppid, []).append(int(d))
+    total, todo = 0, [root]
+    while todo:
+        p = todo.pop()
+        total += rss.get(p, 0)
+        todo += kids.get(p, [])
+    return total
+
+
+def run_build(args: list[str]) -> tuple[float, float, str, str]:
+    """(wall s, peak tree RSS GB, stdout, stderr) of one build."""
+    t0 = time.perf_counter()
+    p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    peak = 0
+    import threading
+
+    out: dict = {}
+    th = threading.Thread(target=lambda: out.update(zip(("o", "e"), p.communicate())))
+    th.start()
+    while th.is_alive():
+        peak = max(peak, _tree_rss(p.pid))
+        th.join(0.1)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        sys.exit(f"build failed: {out['e'].strip()}")
+    return wall, peak / 1e9, out["o"], out["e"]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--goals", type=int, nargs="+", default=[250, 1000, 2500, 10000])
+    ap.add_argument("--workers", type=int, nargs="+", default=None, help="worker counts to compare (datagen build --workers)")
     ap.add_argument("--recipe", nargs=argparse.REMAINDER, default=[], help="datagen build flags of a recipe (last)")
     a = ap.parse_args()
+    if a.workers:
+        return sharded(a)
     print(f"cores: {os.cpu_count()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}")
     print(f"{'goals':>7} {'wall s':>8} {'ms/goal':>8} {'peak RSS GB':>12}  frames")
     rows = []
@@ -44,6 +96,21 @@ def main():
     if len(rows) >= 2:
         (n0, w0), (n1, w1) = rows[0], rows[-1]
         print(f"marginal cost {1000 * (w1 - w0) / (n1 - n0):.2f} ms/goal between {n0} and {n1} goals")
+
+
+def sharded(a):
+    print(f"cores: {os.cpu_count()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}   "
+          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}   load average at start: {os.getloadavg()[0]:.2f}")
+    print(f"{'goals':>7} {'workers':>7} {'wall s':>8} {'ms/goal':>8} {'speed-up':>8} {'peak RSS GB (tree)':>19}  frames")
+    for n in sorted(a.goals):
+        base = None
+        for w in a.workers:
+            with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_TMP")) as d:
+                wall, rss, out, _ = run_build([sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", str(n), "--out", d,
+                                               "--quiet", "--workers", str(w), *a.recipe])
+            base = base or wall
+            frames = out.split(" frames")[0].rsplit(" ", 1)[-1]
+            print(f"{n:>7} {w:>7} {wall:>8.1f} {1000 * wall / n:>8.2f} {base / wall:>8.2f} {rss:>19.2f}  {frames}", flush=True)
 
 
 if __name__ == "__main__":

@@ -223,12 +223,44 @@ class _Frames:
     success: np.ndarray  # (F,) the goal-reached test at the next state
 
 
+def _fly_block(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, start_state, rotor_speeds,
+               record_rotors: bool, part: int, block: int, progress: bool = False) -> dict:
+    """One block's flights (:func:`rollout_expert`), returned as its recorded frames,
+    episode-major: what a worker process or Ray task sends back. A function of its
+    arguments alone (noise stream ``[spec.seed, 11, part, block]``), so the bytes do not
+    depend on where it runs."""
+    n = len(T)
+    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
+    e = np.repeat(np.arange(n), length)
+    kk = np.arange(int(length.sum())) - np.repeat(np.concatenate([[0], np.cumsum(length)[:-1]]), length)
+    rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, block]) if spec.noisy else None
+    r = rollout_expert(spec, goals, T, coeffs, progress, start_state, rotor_speeds, record_rotors, rng)
+    out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
+    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
+    if r.expert_actions is not None:
+        out["expert_action"] = r.expert_actions[kk, e]
+    if record_rotors:
+        out["rotors"] = r.rotors[kk, e]
+    return out
+
+
+def block_bounds(n: int, block: int | None = None) -> np.ndarray:
+    """ceil(n / ROLLOUT_BLOCK) blocks of equal size (+-1): no tiny remainder block (NumPy's
+    kernels for a batch of 1 round differently in the last bits). The block is the unit of
+    sharding: a block's bytes do not depend on the worker that flies it."""
+    block = ROLLOUT_BLOCK if block is None else block
+    return np.linspace(0, n, -(-n // block) + 1).round().astype(np.int64)
+
+
 def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-        start_state=None, rotor_speeds=None, record_rotors: bool = False) -> _Frames:
+        start_state=None, rotor_speeds=None, record_rotors: bool = False, runner=None) -> _Frames:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes, recorded frames
     written into arrays allocated once (their size is known from T): memory stays bounded
-    by the frames plus one block's buffers. ``part`` separates the noise streams of the
-    goal episodes (0) and the continuations (1)."""
+    by the frames plus the buffers of the blocks in flight. ``part`` separates the noise
+    streams of the goal episodes (0) and the continuations (1). ``runner``
+    (:class:`BlockRunner`) flies the blocks in worker processes or Ray tasks; they come
+    back in block order and fill the same arrays, so the result is byte-identical to
+    flying them here."""
     n = len(T)
     length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
     F = int(length.sum())
@@ -238,30 +270,74 @@ def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progr
     fr = _Frames(ep, k, np.empty((F, task.STATE_DIM)), np.empty((F, task.ACTION_DIM)), np.empty((F, task.STATE_DIM)),
                  np.empty((F, task.ACTION_DIM)) if spec.noisy else None, np.empty((F, 4)) if record_rotors else None,
                  np.empty(F, bool))
-    goal_vec = goals_mod.goal_vectors(goals)
-    # ceil(n / ROLLOUT_BLOCK) blocks of equal size (+-1): no tiny remainder block (NumPy's
-    # kernels for a batch of 1 round differently in the last bits)
-    bounds = np.linspace(0, n, -(-n // ROLLOUT_BLOCK) + 1).round().astype(np.int64)
-    for b in tqdm(range(len(bounds) - 1), desc="expert blocks", unit="block", disable=None if progress and len(bounds) >= 3 else True,
-                  leave=False):
+    bounds = block_bounds(n)
+    nb = len(bounds) - 1
+
+    def args(b):
+        sl = slice(int(bounds[b]), int(bounds[b + 1]))
+        return (spec, {key: v[sl] for key, v in goals.items()}, T[sl], coeffs[sl],
+                None if start_state is None else start_state[sl], None if rotor_speeds is None else rotor_speeds[sl],
+                record_rotors, part, b)
+
+    if runner is None or nb < 2:
+        results = (_fly_block(*args(b), progress=progress) for b in range(nb))
+    else:
+        results = runner.map(_fly_block, (args(b) for b in range(nb)))
+    for b, r in enumerate(tqdm(results, total=nb, desc="expert blocks", unit="block", disable=None if progress and nb >= 3 else True,
+                               leave=False)):
         lo, hi = int(bounds[b]), int(bounds[b + 1])
-        sl = slice(lo, hi)
-        rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, b]) if spec.noisy else None
-        r = rollout_expert(spec, {key: v[sl] for key, v in goals.items()}, T[sl], coeffs[sl], progress,
-                           None if start_state is None else start_state[sl],
-                           None if rotor_speeds is None else rotor_speeds[sl], record_rotors, rng)
         f0, f1 = first[lo], first[hi - 1] + length[hi - 1]
-        e, kk = ep[f0:f1] - lo, k[f0:f1]
-        fr.state[f0:f1] = r.states[kk, e]
-        fr.action[f0:f1] = r.actions[kk, e]
-        fr.next_state[f0:f1] = r.states[kk + 1, e]
-        fr.success[f0:f1] = task.goal_reached(task.achieved_goal(fr.next_state[f0:f1]), goal_vec[lo:hi][e])
+        fr.state[f0:f1] = r["state"]
+        fr.action[f0:f1] = r["action"]
+        fr.next_state[f0:f1] = r["next_state"]
+        fr.success[f0:f1] = r["success"]
         if fr.expert_action is not None:
-            fr.expert_action[f0:f1] = r.expert_actions[kk, e]
+            fr.expert_action[f0:f1] = r["expert_action"]
         if fr.rotors is not None:
-            fr.rotors[f0:f1] = r.rotors[kk, e]
+            fr.rotors[f0:f1] = r["rotors"]
         del r
     return fr
+
+
+class BlockRunner:
+    """Flies blocks in ``workers`` local processes, or in Ray tasks on the cluster at
+    ``ray_address``; :meth:`map` yields the results in submission order with at most
+    ``workers + 1`` blocks in flight (memory: that many blocks' frames)."""
+
+    def __init__(self, workers: int, ray_address: str | None = None):
+        self.workers, self.ray_address = int(workers), ray_address
+        self._pool = None
+        self._ray_fn = None
+        if ray_address:
+            from aerohrl.sweep import ray_connect
+
+            ray = ray_connect(ray_address)
+            self._ray = ray
+            self._ray_fn = ray.remote(num_cpus=1)(_fly_block)
+        else:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            # spawn: a clean interpreter per worker (no forked threads or locks)
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
+
+    def map(self, fn, arg_iter):
+        from collections import deque
+
+        window = deque()
+        submit = ((lambda a: self._ray_fn.remote(*a)) if self._ray_fn is not None else (lambda a: self._pool.submit(fn, *a)))
+        get = (lambda f: self._ray.get(f)) if self._ray_fn is not None else (lambda f: f.result())
+        for a in arg_iter:
+            window.append(submit(a))
+            if len(window) > self.workers:
+                yield get(window.popleft())
+        while window:
+            yield get(window.popleft())
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
 
 
 def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.ndarray, ep: np.ndarray, k: np.ndarray,
@@ -318,15 +394,16 @@ def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.nda
                     "lower --start-vel or raise --t-max")
 
 
-def generate(spec: DatasetSpec, progress: bool = True) -> ExpertData:
-    """Goals, references and expert rollouts for a spec (nothing written)."""
+def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | None" = None) -> ExpertData:
+    """Goals, references and expert rollouts for a spec (nothing written); ``runner`` flies
+    the blocks elsewhere (same bytes)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(spec.seed)
     goals, T, coeffs, resampled, _ = plan_references(spec, rng)
     goals, T, coeffs, start, goal_index = episode_starts(spec, goals, T, coeffs)
     t1 = time.perf_counter()
     cont = spec.continuations > 0
-    fr = fly(spec, goals, T, coeffs, progress, part=0, start_state=start, record_rotors=cont)
+    fr = fly(spec, goals, T, coeffs, progress, part=0, start_state=start, record_rotors=cont, runner=runner)
     ep, k, state, action, next_state, expert_action = fr.ep, fr.k, fr.state, fr.action, fr.next_state, fr.expert_action
     success = fr.success
     length = np.bincount(ep, minlength=len(T))
@@ -338,7 +415,7 @@ def generate(spec: DatasetSpec, progress: bool = True) -> ExpertData:
         g2, T2, c2, r2, f = plan_continuations(spec, crng, coeffs, ep, k, state)
         start2 = state[f].copy()
         start2[:, task.POS] = 0.0
-        fr2 = fly(spec, g2, T2, c2, progress, part=1, start_state=start2, rotor_speeds=fr.rotors[f])
+        fr2 = fly(spec, g2, T2, c2, progress, part=1, start_state=start2, rotor_speeds=fr.rotors[f], runner=runner)
         n = len(T)
         goals = {key: np.concatenate([goals[key], g2[key]]) for key in goals}
         T, resampled = np.concatenate([T, T2]), resampled + r2
@@ -576,8 +653,14 @@ def _continuation_note(meta: dict) -> str:
             "state one of the rest-start flights passes through, moved to the origin)")
 
 
-def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log=print, force: bool = False) -> BuildResult:
+def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log=print, force: bool = False,
+          workers: int = 1, ray_address: str | None = None) -> BuildResult:
     """Build ``<out>/<name>/<version>/`` for ``spec``; verify instead if it exists.
+
+    ``workers`` > 1 flies the blocks of :data:`ROLLOUT_BLOCK` episodes in that many local
+    processes (or Ray tasks on the cluster at ``ray_address``); the dataset is
+    byte-identical to the single-process build (a spec of fewer goals than two blocks
+    has nothing to share out).
 
     Before generating, the expected frames, disk and memory are logged; a build that
     would not fit in the free memory or disk is refused unless ``force``. Two builds of
@@ -610,7 +693,12 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
     if short and not force:
         raise UserError(f"this build needs about {short}; build fewer goals, or pass --force to try anyway")
 
-    data = generate(spec, progress=progress)
+    runner = BlockRunner(workers, ray_address) if workers > 1 or ray_address else None
+    try:
+        data = generate(spec, progress=progress, **({"runner": runner} if runner is not None else {}))
+    finally:
+        if runner is not None:
+            runner.close()
     tmp = atomic.temp_path(final)
     try:
         tmp.mkdir()

@@ -68,6 +68,11 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--out", type=Path, default=Path("datasets"), help="root folder; the dataset goes to OUT/NAME/VERSION [datasets]")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     b.add_argument("--force", action="store_true", help="build even when the estimate exceeds the free memory or disk")
+    b.add_argument("--workers", type=T.positive_int, default=1, metavar="N",
+                   help="fly the blocks of 8,192 episodes in N local processes (or N Ray tasks at a time with "
+                        "--ray-address); byte-identical to 1 [1]")
+    b.add_argument("--ray-address", default=None, metavar="ADDR",
+                   help="fly the blocks as Ray tasks on the cluster at ADDR (host:port, or auto)")
     _spec_flags(b)
 
     i = sub.add_parser("info", help="summary, spec, checksums and expert success of a dataset")
@@ -112,7 +117,8 @@ def cmd_build(a) -> int:
 
     overrides = {f.name: getattr(a, f.name) for f in fields(DatasetSpec)}
     spec = load_spec(a.spec, **overrides)
-    res = build(spec, a.out, progress=not a.quiet and sys.stderr.isatty(), force=a.force)
+    res = build(spec, a.out, progress=not a.quiet and sys.stderr.isatty(), force=a.force, workers=a.workers,
+                ray_address=a.ray_address)
     if res.created:
         print(f"built {res.path}: {res.episodes} episodes, {res.frames} frames, "
               f"{res.resampled} goals resampled, in {res.seconds:.1f} s")

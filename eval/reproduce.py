@@ -7,8 +7,10 @@
 1. ``datagen build --goals 250`` (seed 0; verified, not rebuilt, when it exists);
 2. ``train --algo A --preset cpu --checkpoint-every STEPS/30 --seed S`` for GCSL, TD3-BC,
    TD3-AWBC and CQL and every seed of ``--seeds`` (0 1 2; seed 0's runs keep the names
-   ``ALGO-cpu`` of the one-seed tables, the others are ``ALGO-cpu-sS``), ``--jobs`` (2) at a time with one thread each (an existing run is
-   resumed, a finished one is left as it is); checkpoints every 1/30 of the run so that "the last 10 checkpoints"
+   ``ALGO-cpu`` of the one-seed tables, the others are ``ALGO-cpu-sS``) as Ray tasks of one CPU each
+   (``aerohrl sweep``'s Ray: a local one of ``--jobs`` (2) cores, or the cluster at ``--address``), one
+   thread each (an existing run is resumed, a finished one is left as it is; a task whose worker dies is
+   retried and resumes its run); checkpoints every 1/30 of the run so that "the last 10 checkpoints"
    are the final third of training, as the thesis' last 10 epochs are its end;
 3. ``aerohrl eval`` Reach-Desired, Reach-Intermediate and the Reach-Novel diagnostic for
    every run (last 10 checkpoints x 250 episodes), OOD without planner, with the
@@ -61,27 +63,55 @@ def _run(cmd: list[str], log) -> str:
     return p.stdout
 
 
-def _run_parallel(cmds: list[tuple[str, list[str]]], log, jobs: int) -> dict[str, float]:
-    """Run the named commands, ``jobs`` at a time (each with one thread); wall time of each.
-    The longest (CQL, listed last by default) is started first."""
-    import concurrent.futures as cf
-    import io
+def _die_with_parent() -> None:
+    """In the child, before exec: SIGKILL when the parent (a Ray worker) dies, so that a
+    killed worker leaves no training process holding its run."""
+    import ctypes
+    import signal
 
-    def one(item):
-        name, cmd = item
-        buf = io.StringIO()
-        t0 = time.perf_counter()
-        _run(cmd, buf)
-        return name, time.perf_counter() - t0, buf.getvalue()
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
 
-    out = {}
-    order = list(reversed(cmds)) if jobs > 1 else cmds
-    with cf.ThreadPoolExecutor(max_workers=max(1, jobs)) as ex:
-        for name, dt, text in ex.map(one, order):
+
+def command_task(fresh: list[str], resume: list[str] | None, run_dir: str | None) -> tuple[int, float, str]:
+    """A Ray task: one stage's command line as a subprocess with one thread; ``resume``
+    instead of ``fresh`` when ``run_dir`` has a config.json by the time it starts (a
+    retry after the worker died continues the run from its last checkpoint)."""
+    cmd = resume if run_dir and resume and (Path(run_dir) / "config.json").exists() else fresh
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, preexec_fn=_die_with_parent)
+    return p.returncode, time.perf_counter() - t0, "+ " + " ".join(cmd) + "\n" + p.stdout + "\n"
+
+
+def _run_parallel(cmds: list[tuple[str, list[str], list[str] | None, str | None]], log, jobs: int,
+                  address: str | None = None) -> dict[str, float]:
+    """Run the named commands as Ray tasks of one CPU each (aerohrl.sweep's Ray: a local
+    one of ``jobs`` cores, or the cluster at ``address``); wall time of each. A task
+    whose worker dies is retried (resuming its run). The longest (CQL, listed last by
+    default) is submitted first."""
+    from aerohrl.sweep import ray_connect
+
+    ray = ray_connect(address, num_cpus=jobs)
+    try:
+        task = ray.remote(num_cpus=1, max_retries=3)(command_task)
+        order = list(reversed(cmds)) if jobs > 1 else cmds
+        refs = [(name, fresh, task.remote(fresh, resume, rd)) for name, fresh, resume, rd in order]
+        out = {}
+        for name, fresh, ref in refs:
+            code, dt, text = ray.get(ref)
             log.write(text)
             log.flush()
+            if code != 0:
+                tail = text.strip().splitlines()[-1:] or ["(no output)"]
+                raise UserError(f"`{' '.join(fresh[:4])} ...` failed (exit {code}): {tail[0]}")
             out[name] = dt
-    return {name: out[name] for name, _ in cmds}
+    finally:
+        if not address:
+            ray.shutdown()
+    return {name: out[name] for name, *_ in cmds}
 
 
 def _evaluated(rd: Path, name: str, episodes: int, checkpoints: int) -> bool:
@@ -132,7 +162,9 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoints", type=T.positive_int, default=10)
     ap.add_argument("--oracle-goals", type=T.positive_int, default=40, help="OOD goals of the planner oracle [40]")
     ap.add_argument("--oracle-candidates", type=T.positive_int, default=150, help="candidates of the planner oracle [150]")
-    ap.add_argument("--jobs", type=T.positive_int, default=2, help="training runs at a time, one thread each [2 = the 2 cores]")
+    ap.add_argument("--jobs", type=T.positive_int, default=2,
+                    help="local Ray's core budget: training runs at a time, one thread each [2 = the 2 cores]")
+    ap.add_argument("--address", default=None, help="run the training stage on the Ray cluster at HOST:PORT (aerohrl sweep's)")
     ap.add_argument("--planner-algos", nargs="+", default=["gcsl"], help="runs evaluated on OOD with the planners [gcsl]")
     ap.add_argument("--continuations", type=T.nonneg_int, default=5000,
                     help="planner experiment: goals and continuation episodes of its dataset (0: skip it) [5000]")
@@ -166,12 +198,13 @@ def main(argv=None) -> int:
                 ds_cont = _run(build + ["--goals", n, "--continuations", n], log).strip().splitlines()[-1].strip()
             times["datasets"] = time.perf_counter() - t0
 
-            def train(rd: Path, flags: list[str], steps) -> list[str]:
-                if (rd / "config.json").exists():
-                    return [py, "-m", "aerohrl.algorithms.cli", "--resume", str(rd), "--no-progress"] \
-                        + (["--steps", str(steps)] if steps else [])
-                return [py, "-m", "aerohrl.algorithms.cli", *flags, "--preset", "cpu", "--out", a.runs, "--name", rd.name,
-                        "--no-progress"] + (["--steps", str(steps)] if steps else [])
+            def train(rd: Path, flags: list[str], steps) -> tuple[list[str], list[str], str]:
+                """(new-run command, resume command, run folder): the task picks when it starts."""
+                resume = [py, "-m", "aerohrl.algorithms.cli", "--resume", str(rd), "--no-progress"] \
+                    + (["--steps", str(steps)] if steps else [])
+                fresh = [py, "-m", "aerohrl.algorithms.cli", *flags, "--preset", "cpu", "--out", a.runs, "--name", rd.name,
+                         "--no-progress"] + (["--steps", str(steps)] if steps else [])
+                return fresh, resume, str(rd)
 
             runs, cmds = [], []  # (run dir, algorithm, label, seed); seed 0 keeps the one-seed names (runs reused)
             for seed in a.seeds:
@@ -179,17 +212,17 @@ def main(argv=None) -> int:
                 sflag = ["--seed", str(seed)]
                 for algo in a.algos:
                     rd = Path(a.runs) / f"{algo}-cpu{sfx}"
-                    cmds.append((f"train {algo}{sfx}", train(rd, ["--algo", algo, "--dataset", ds, "--checkpoint-every",
+                    cmds.append((f"train {algo}{sfx}", *train(rd, ["--algo", algo, "--dataset", ds, "--checkpoint-every",
                                                                   str(ckpt_every), *sflag], a.steps)))
                     runs.append((rd, algo, f"{algo}{sfx}", seed))
                 if a.continuations:
                     rd = Path(a.runs) / f"gcsl-cpu-cont{sfx}"
                     c_steps = a.steps or a.continuation_steps
-                    cmds.append((f"train gcsl-cont{sfx}", train(rd, ["--algo", "gcsl", "--dataset", ds_cont, "--checkpoint-every",
+                    cmds.append((f"train gcsl-cont{sfx}", *train(rd, ["--algo", "gcsl", "--dataset", ds_cont, "--checkpoint-every",
                                                                     str(max(1, c_steps // 30)), "--critic-random-goal-prob",
                                                                     str(a.critic_random_goal_prob), *sflag], c_steps)))
                     runs.append((rd, "gcsl", f"gcsl-cont{sfx}", seed))
-            times.update(_run_parallel(cmds, log, a.jobs))
+            times.update(_run_parallel(cmds, log, a.jobs, a.address))
             ev = [py, "-m", "aerohrl.eval.cli"]
             oracles = []
 

@@ -1,0 +1,511 @@
+"""``aerohrl sweep``: a grid of training runs as Ray tasks, evaluated and tabulated.
+
+    aerohrl sweep --algos gcsl td3bc --seeds 0 1 2 --datasets datasets/quadrotor-reach/<version> --out sweeps/s1
+    aerohrl sweep --config sweep.toml --out sweeps/s1              # the same grid from a file (or sweep.yaml)
+    aerohrl sweep --config sweep.toml --out sweeps/s1 --address HEAD:6379   # on a Ray cluster
+
+The grid is algorithms x seeds x datasets x the product of the ``[grid]`` overrides
+(``--grid batch_size=256,512``), every run with the ``[set]`` overrides (``--set
+steps=2000``) on top of ``--preset``. It is saved as ``OUT/sweep.toml``; the runs go
+to ``OUT/runs/<algo>-<dataset version>-s<seed>[-<overrides>]``.
+
+Each run is one Ray task declaring ``num_cpus`` (``--cpus-per-run``) and, with
+``--device cuda``, ``num_gpus`` (``--gpus-per-run``). Without ``--address`` the command
+starts a local Ray limited to ``--num-cpus`` cores (and stops it at the end); with it,
+it joins that cluster. A task trains in-process in its Ray worker: a new run starts, an
+unfinished one resumes from its newest checkpoint (``train --resume``), a finished one
+is left alone. A worker that dies (killed, node lost) is retried by Ray
+(``max_retries``) and resumes from the last checkpoint; because a resumed run ends
+with the weights of an uninterrupted one (algorithms/trainer.py), the sweep's tables
+equal an uninterrupted sweep's. Re-running the command does only what is missing.
+
+Then every run is evaluated (``aerohrl eval --task T`` for each of ``--tasks``, one Ray
+task per run; an evaluation already covering the run's newest checkpoints is kept) and
+the runs that differ only in their seed are aggregated (eval/results.py: mean ± std,
+95 % bootstrap interval, per-seed values) into ``OUT/tables.md`` and
+``OUT/tables-t31.csv`` / ``-t32.csv``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import os
+import re
+import socket
+import sys
+import time
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+from aerohrl import atomic
+from aerohrl import cli_types as T
+from aerohrl.errors import ArgumentParser, UserError, run_cli
+
+PROG = "aerohrl sweep"
+# what a run's identity is made of (top-level keys), never a [set]/[grid] override
+IDENTITY = ("algo", "seed", "dataset", "preset")
+EVAL_TASKS = ("reach-desired", "reach-intermediate")
+
+
+# ----------------------------------------------------------------------------- Ray
+
+
+def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpus: int | None = None):
+    """``ray`` initialised: joined to the cluster at ``address`` (``host:port`` or
+    ``auto``; unreachable -> UserError), or a local Ray of ``num_cpus`` cores, no
+    dashboard, a 500 MB object store."""
+    import ray  # [train]; missing: run_cli's one line "this needs ray ... pip install 'aerohrl[train]'"
+    if ray.is_initialized():
+        return ray
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    os.environ.setdefault("RAY_DEDUP_LOGS", "0")
+    if address:
+        if address != "auto":
+            host, _, port = address.removeprefix("ray://").rpartition(":")
+            try:
+                with socket.create_connection((host or "127.0.0.1", int(port)), timeout=5):
+                    pass
+            except (OSError, ValueError) as e:
+                raise UserError(f"cannot reach a Ray cluster at {address}: {getattr(e, 'strerror', None) or e}") from None
+        try:
+            with _quiet_stderr():  # Ray's C++ client logs each failed attempt to fd 2: one error line instead
+                ray.init(address=address, log_to_driver=True, logging_level="ERROR")
+        except (ConnectionError, RuntimeError, ValueError) as e:
+            raise UserError(f"cannot join the Ray cluster at {address}: {str(e).splitlines()[0]}") from None
+    else:
+        ray.init(num_cpus=num_cpus, num_gpus=num_gpus, include_dashboard=False, object_store_memory=500 * 2**20,
+                 logging_level="ERROR", log_to_driver=True)
+    return ray
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    """File descriptor 2 to /dev/null for the duration (also what C++ code writes)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+# ----------------------------------------------------------------------------- the grid
+
+
+@dataclass
+class SweepSpec:
+    algos: list[str]
+    seeds: list[int]
+    datasets: list[str]
+    preset: str = "cpu"
+    set: dict = field(default_factory=dict)  # overrides of every run
+    grid: dict = field(default_factory=dict)  # overrides swept: key -> list of values
+    tasks: list[str] = field(default_factory=lambda: list(EVAL_TASKS))
+    episodes: int = 250
+    checkpoints: int = 10
+
+    def to_toml(self) -> str:
+        lines = ["# aerohrl sweep grid (written by `aerohrl sweep`; rerun with --config this file)"]
+        for k in ("algos", "seeds", "datasets", "preset", "tasks", "episodes", "checkpoints"):
+            lines.append(f"{k} = {_toml_value(getattr(self, k))}")
+        for table in ("set", "grid"):
+            lines.append(f"\n[{table}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in sorted(getattr(self, table).items())]
+        return "\n".join(lines) + "\n"
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise UserError(f"cannot write {v!r} to a TOML grid")
+
+
+def _parse_value(text: str):
+    """``--set``/``--grid`` values: TOML syntax (512, 1e-3, true, "x", [256, 256]); a
+    bare word is a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def _key_values(items: list[str], flag: str, many: bool) -> dict:
+    out = {}
+    for it in items or []:
+        key, eq, val = it.partition("=")
+        if not eq or not key:
+            raise UserError(f"{flag} {it!r}: expected KEY=VALUE" + ("[,VALUE...]" if many else ""))
+        key = key.strip().replace("-", "_")
+        if many:
+            parts = re.split(r",(?![^\[]*\])", val)  # commas outside brackets
+            out[key] = [_parse_value(p.strip()) for p in parts]
+        else:
+            out[key] = _parse_value(val.strip())
+    return out
+
+
+def check_spec(sp: SweepSpec) -> SweepSpec:
+    """One-line errors for what cannot run: unknown algorithm / preset / grid key, an
+    identity key swept as an override, a missing dataset, an empty axis, a value the
+    config refuses."""
+    from aerohrl.algorithms import config as C
+    from aerohrl.eval.tasks import TASKS
+
+    names = {f.name for f in fields(C.TrainConfig)} - set(C.INTERNAL)
+    for table in ("set", "grid"):
+        for k in getattr(sp, table):
+            if k in IDENTITY:
+                raise UserError(f"[{table}] {k}: the {k} is an axis of the sweep (use --{k}s / the top-level key)")
+            if k not in names:
+                raise UserError(f"unknown grid key {k!r} in [{table}] (a train flag: {', '.join(sorted(names))})")
+    for k, v in sp.grid.items():
+        if not isinstance(v, list) or not v:
+            raise UserError(f"[grid] {k} needs a non-empty list of values")
+    for axis in ("algos", "seeds", "datasets"):
+        if not getattr(sp, axis):
+            raise UserError(f"the sweep has no {axis} (--{axis})")
+    for a in sp.algos:
+        if a not in C.ALGORITHMS:
+            raise UserError(f"unknown algorithm {a!r} (choose from {', '.join(C.ALGORITHMS)})")
+    if sp.preset not in C.PRESETS:
+        raise UserError(f"unknown preset {sp.preset!r} (choose from {', '.join(C.PRESETS)})")
+    for s in sp.seeds:
+        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
+            raise UserError(f"seeds must be integers >= 0, got {s!r}")
+    for t in sp.tasks:
+        if t not in TASKS or t == "ood":
+            raise UserError(f"unknown evaluation task {t!r} (choose from {', '.join(x for x in TASKS if x != 'ood')})")
+    for d in sp.datasets:
+        if not (Path(d) / "meta" / "aerohrl.json").is_file():
+            raise UserError(f"no dataset at {d} (build one with `datagen build`)")
+    for p in points(sp):  # every config the grid makes is one `train` accepts
+        _config(sp, p)
+    return sp
+
+
+def load_spec(path: Path | None, a) -> SweepSpec:
+    """The grid: ``--config`` TOML, with the flags given on top."""
+    d: dict = {}
+    if path is not None:
+        try:
+            text = Path(path).read_text()
+            if Path(path).suffix in (".yaml", ".yml"):  # the same keys as YAML (pyyaml comes with lerobot)
+                import yaml
+
+                d = yaml.safe_load(text) or {}
+                if not isinstance(d, dict):
+                    raise UserError(f"{path} is not a mapping of sweep keys")
+            else:
+                d = tomllib.loads(text)
+        except FileNotFoundError:
+            raise UserError(f"no sweep file at {path}") from None
+        except UserError:
+            raise
+        except Exception as e:  # a TOML/YAML syntax error, an unreadable file
+            raise UserError(f"cannot read {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+        unknown = set(d) - {f.name for f in fields(SweepSpec)} - {"eval"}
+        if unknown:
+            raise UserError(f"unknown key(s) in {path}: {', '.join(sorted(unknown))} (a run override goes under [set] or [grid])")
+        d.update(d.pop("eval", {}))
+    if a.algos:
+        d["algos"] = a.algos
+    if a.seeds:
+        d["seeds"] = a.seeds
+    if a.datasets:
+        d["datasets"] = [str(x) for x in a.datasets]
+    if a.preset:
+        d["preset"] = a.preset
+    if a.tasks:
+        d["tasks"] = a.tasks
+    if a.episodes:
+        d["episodes"] = a.episodes
+    if a.checkpoints:
+        d["checkpoints"] = a.checkpoints
+    d["set"] = {**d.get("set", {}), **_key_values(a.set, "--set", False)}
+    d["grid"] = {**d.get("grid", {}), **_key_values(a.grid, "--grid", True)}
+    if a.device:
+        d["set"]["device"] = a.device
+    d.setdefault("algos", [])
+    d.setdefault("seeds", [0])
+    d.setdefault("datasets", [])
+    d["datasets"] = [str(Path(x).resolve()) for x in d["datasets"]]
+    try:
+        return check_spec(SweepSpec(**d))
+    except TypeError as e:
+        raise UserError(f"bad sweep grid: {e}") from None
+
+
+@dataclass(frozen=True)
+class Point:
+    algo: str
+    seed: int
+    dataset: str
+    overrides: tuple  # ((key, value), ...) of the [grid]
+
+    def name(self) -> str:
+        ov = "".join(f"-{k}{_label(v)}" for k, v in self.overrides)
+        return f"{self.algo}-{Path(self.dataset).name}{ov}-s{self.seed}"
+
+
+def _label(v) -> str:
+    text = "x".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v)
+    return re.sub(r"[^A-Za-z0-9.+_]", "_", text)
+
+
+def points(sp: SweepSpec) -> list[Point]:
+    keys = sorted(sp.grid)
+    combos = list(itertools.product(*(sp.grid[k] for k in keys))) or [()]
+    return [Point(a, s, d, tuple(zip(keys, (tuple(v) if isinstance(v, list) else v for v in combo))))
+            for d in sp.datasets for combo in combos for a in sp.algos for s in sp.seeds]
+
+
+def _config(sp: SweepSpec, p: Point):
+    from aerohrl.algorithms import config as C
+
+    ov = {**sp.set, **dict(p.overrides), "algo": p.algo, "seed": p.seed, "dataset": p.dataset}
+    ov = {k: tuple(v) if isinstance(v, list) else v for k, v in ov.items()}
+    try:
+        cfg = C.make_config(sp.preset, **ov)
+        C.check(cfg)
+    except TypeError as e:
+        raise UserError(f"bad override for {p.name()}: {e}") from None
+    return cfg
+
+
+# ----------------------------------------------------------------------------- tasks (run in Ray workers)
+
+
+def train_task(run_dir: str, cfg_dict: dict, threads: int) -> dict:
+    """Train one run to its end: start it, resume it, or leave it (finished). Runs in a
+    Ray worker; a retry after the worker died resumes from the newest checkpoint."""
+    import torch
+
+    from aerohrl.algorithms import config as C
+    from aerohrl.algorithms.trainer import checkpoint_paths, checkpoint_step, resume_run, start_run
+
+    torch.set_num_threads(max(1, int(threads)))
+    rd = Path(run_dir)
+    cfg = C.from_dict(cfg_dict)
+    t0 = time.perf_counter()
+    kw = {"progress": False, "progress_every_s": 60.0}
+    if (rd / "config.json").exists():
+        ck = checkpoint_paths(rd)
+        if ck and checkpoint_step(ck[-1]) >= cfg.steps:
+            return {"run": run_dir, "step": checkpoint_step(ck[-1]), "status": "finished before", "seconds": 0.0}
+        tr = resume_run(rd, **kw)
+        status = f"resumed at step {tr.step}"
+    else:
+        if rd.is_dir() and not checkpoint_paths(rd):
+            import shutil
+
+            shutil.rmtree(rd, ignore_errors=True)  # claimed by a worker that died before config.json: ours to redo
+        tr = start_run(cfg, rd, **kw)
+        status = "trained"
+    step = tr.train()
+    return {"run": run_dir, "step": step, "status": status, "seconds": time.perf_counter() - t0}
+
+
+def eval_task(run_dir: str, tasks: list[str], episodes: int, checkpoints: int, threads: int) -> dict:
+    """``aerohrl eval --task T --run RUN`` for each task whose results do not already cover
+    the run's newest checkpoints (same episodes)."""
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from aerohrl.eval.cli import main as eval_main
+    from aerohrl.eval.reproduce import _evaluated
+
+    rd = Path(run_dir)
+    done = []
+    for t in tasks:
+        if _evaluated(rd, t, episodes, checkpoints):
+            continue
+        err = io.StringIO()
+        with redirect_stdout(io.StringIO()), redirect_stderr(err):
+            code = eval_main(["--task", t, "--run", str(rd), "--episodes", str(episodes), "--checkpoints", str(checkpoints),
+                              "--threads", str(threads), "--no-progress"])
+        if code != 0:
+            raise RuntimeError(f"aerohrl eval --task {t} --run {rd} failed: {err.getvalue().strip().splitlines()[-1:]}")
+        done.append(t)
+    return {"run": run_dir, "evaluated": done}
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def _check_saved(out: Path, sp: SweepSpec, write: bool = True) -> None:
+    """A sweep folder holds one grid: rerunning it resumes; another grid is refused.
+    ``write``: save the grid as ``OUT/sweep.toml`` when it is new."""
+    saved = out / "sweep.toml"
+    if saved.exists():
+        old = saved.read_text()
+        if old != sp.to_toml():
+            raise UserError(f"{out} holds another sweep (its grid is {saved}); rerun with --config {saved}, or choose "
+                            "another --out")
+    elif write:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic.write_text(saved, sp.to_toml())
+
+
+@contextlib.contextmanager
+def _in_dir(path: Path):
+    old = Path.cwd()
+    os.chdir(path)
+    try:
+        yield
+    finally:
+        os.chdir(old)
+
+
+def write_tables(out: Path, names: list[str]) -> str:
+    """Seed-aggregated Table 3.1/3.2 analogues of the runs (paths relative to OUT, so that
+    two sweeps of one grid write the same tables)."""
+    from aerohrl.eval import results
+
+    with _in_dir(out):
+        t = results.tables([Path("runs") / n for n in names])
+        md = results.tables_markdown(t)
+        results.write_text(Path("tables.md"), md)
+        results.write_text(Path("tables-t31.csv"), results.to_csv(*t["t31"]))
+        results.write_text(Path("tables-t32.csv"), results.to_csv(*t["t32"]))
+    return md
+
+
+def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus: int | None = None, cpus_per_run: int = 1,
+              gpus_per_run: float | None = None, max_retries: int = 3, evaluate: bool = True, log=print) -> dict:
+    out = Path(out)
+    _check_saved(out, sp, write=False)  # before Ray starts; nothing is written until it runs
+    pts = points(sp)
+    cuda = str(sp.set.get("device", "cpu")).startswith("cuda")
+    gpus = (1 if gpus_per_run is None else gpus_per_run) if cuda else 0
+    if not cuda and gpus_per_run:
+        raise UserError("--gpus-per-run needs --device cuda")
+    if not address and gpus:  # a local Ray has this machine's GPUs: say so before starting it
+        import torch
+
+        have = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if gpus > have:
+            raise UserError(f"each run asks for {gpus:g} GPU(s) (--device cuda), this machine has {have}")
+    ray = ray_connect(address, num_cpus=num_cpus)
+    try:
+        have = ray.cluster_resources()
+        if gpus > have.get("GPU", 0):
+            raise UserError(f"each run asks for {gpus:g} GPU(s), the Ray cluster has {have.get('GPU', 0):g}")
+        if cpus_per_run > have.get("CPU", 0):
+            raise UserError(f"each run asks for {cpus_per_run} CPUs (--cpus-per-run), the Ray cluster has {have.get('CPU', 0):g}")
+        _check_saved(out, sp)
+        (out / "runs").mkdir(exist_ok=True)
+        log(f"sweep: {len(pts)} runs on Ray ({have.get('CPU', 0):g} CPUs, {have.get('GPU', 0):g} GPUs; {cpus_per_run} CPU"
+            + (f" + {gpus:g} GPU" if gpus else "") + " per run) -> " + str(out))
+        train = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(train_task)
+        evaluate_r = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(eval_task)
+        refs = {train.remote(str((out / "runs" / p.name()).resolve()), _cfg_dict(sp, p), cpus_per_run): p for p in pts}
+        report = {"runs": {}, "errors": {}}
+        pending = list(refs)
+        evals = {}
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            p = refs[ready[0]]
+            try:
+                r = ray.get(ready[0])
+            except Exception as e:  # a run that failed for good (bad data, divergence): the others go on
+                report["errors"][p.name()] = _one_line(e)
+                log(f"sweep: {p.name()} FAILED: {_one_line(e)}")
+                continue
+            report["runs"][p.name()] = r
+            log(f"sweep: {p.name()} {r['status']}, step {r['step']} ({r['seconds']:.0f} s)")
+            if evaluate:
+                evals[evaluate_r.remote(r["run"], sp.tasks, sp.episodes, sp.checkpoints, cpus_per_run)] = p
+        for ref, p in evals.items():
+            try:
+                ray.get(ref)
+            except Exception as e:
+                report["errors"][p.name()] = _one_line(e)
+                log(f"sweep: evaluating {p.name()} FAILED: {_one_line(e)}")
+    finally:
+        if not address:
+            ray.shutdown()
+    atomic.write_json(out / "sweep-report.json", report)
+    if report["errors"]:
+        raise UserError(f"{len(report['errors'])} of {len(pts)} runs failed ({out / 'sweep-report.json'}); rerun the same "
+                        "command to retry them")
+    if evaluate:
+        report["tables"] = write_tables(out, [p.name() for p in pts])
+    return report
+
+
+def _cfg_dict(sp: SweepSpec, p: Point) -> dict:
+    from aerohrl.algorithms import config as C
+
+    return C.to_dict(_config(sp, p))
+
+
+def _one_line(e: BaseException) -> str:
+    cause = getattr(e, "cause", None) or e  # Ray wraps the task's exception
+    text = str(cause).strip().splitlines()
+    return text[-1] if text else type(cause).__name__
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def parser() -> ArgumentParser:
+    ap = ArgumentParser(prog=PROG, description="Train a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, "
+                        "evaluate them and write seed-aggregated tables.")
+    ap.add_argument("--config", type=Path, default=None, help="sweep grid, TOML or .yaml (keys: algos, seeds, datasets, "
+                    "preset, [set], [grid], [eval] tasks/episodes/checkpoints); flags add to it; saved as OUT/sweep.toml")
+    ap.add_argument("--out", type=Path, required=True, help="sweep folder: sweep.toml, runs/, tables.md")
+    ap.add_argument("--algos", nargs="+", default=None, metavar="ALGO")
+    ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=None, metavar="SEED", help="[0]")
+    ap.add_argument("--datasets", nargs="+", type=Path, default=None, metavar="DATASET")
+    ap.add_argument("--preset", default=None, help="train preset of every run [cpu]")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a train flag for every run (--set steps=2000 --set hidden=[256,256]); repeatable")
+    ap.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2",
+                    help="a train flag swept over values (--grid batch_size=256,512); repeatable: the product")
+    ap.add_argument("--device", default=None, help="cpu | cuda: each run's device; cuda asks Ray for GPUs [cpu]")
+    ap.add_argument("--address", default=None, help="join the Ray cluster at HOST:PORT (or auto) instead of a local one")
+    ap.add_argument("--num-cpus", type=T.positive_int, default=None,
+                    help="local Ray: the core budget [all cores, os.cpu_count()]")
+    ap.add_argument("--cpus-per-run", type=T.positive_int, default=1, help="Ray num_cpus (and torch threads) of a run [1]")
+    ap.add_argument("--gpus-per-run", type=T.positive_float, default=None, help="Ray num_gpus of a run with --device cuda [1]")
+    ap.add_argument("--max-retries", type=T.nonneg_int, default=3, help="retries of a run whose worker died [3]")
+    ap.add_argument("--tasks", nargs="+", default=None, help=f"evaluation tasks [{' '.join(EVAL_TASKS)}]")
+    ap.add_argument("--episodes", type=T.positive_int, default=None, help="evaluation episodes per checkpoint [250]")
+    ap.add_argument("--checkpoints", type=T.positive_int, default=None, help="newest checkpoints evaluated [10]")
+    ap.add_argument("--no-eval", action="store_true", help="train only")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = parser().parse_args(argv)
+
+    def go() -> int:
+        sp = load_spec(a.config, a)
+        if not a.address and a.num_cpus is None:
+            a.num_cpus = os.cpu_count() or 1
+        rep = run_sweep(sp, a.out, address=a.address, num_cpus=a.num_cpus, cpus_per_run=a.cpus_per_run,
+                        gpus_per_run=a.gpus_per_run, max_retries=a.max_retries, evaluate=not a.no_eval,
+                        log=lambda m: print(m, file=sys.stderr, flush=True))
+        if "tables" in rep:
+            print(rep["tables"], end="")
+            print(f"tables: {a.out / 'tables.md'}", file=sys.stderr)
+        return 0
+
+    return run_cli(PROG, go)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
