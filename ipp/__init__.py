@@ -9,7 +9,8 @@ Modules: :mod:`.lattice` (dispersion-minimising primitive lattice, file format),
 """
 
 from .baselines import PLANNERS, PlannerConfig, make_planner
-from .env import TERMS, EnvConfig, SearchEnv, create_env, make_env, semantic_config
+from .env import TERMS, EnvConfig, SearchEnv, semantic_config
+from .factory import create_env, make_env
 from .lattice import (Lattice, LatticeConfig, build_lattice, default_lattice, load_lattice,
                       save_lattice)
 from .semantic import CLASSES, SemanticConfig, load_class_raster

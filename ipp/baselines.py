@@ -47,13 +47,15 @@ from scipy.ndimage import distance_transform_edt
 from aerohrl.errors import UserError
 
 from .env import SearchEnv
-from .sensor import entropy_bits, sigmoid
+from .scoring import info_gain  # noqa: F401  (re-exported: tests, features' docs)
 
 PLANNERS = ("greedy", "dp", "cmaes", "coverage", "prio_coverage")  # thesis Table 2.1
 TEACHERS = ("detect",)  # training-time teachers; `ipp bench --planner detect`, not in --all
 THESIS_NAMES = {"greedy": "Greedy-IPP", "dp": "DP-IPP", "cmaes": "CMAES-IPP",
                 "coverage": "Coverage", "prio_coverage": "Prioritised Coverage",
-                "rl_nolstm": "Ours-noLSTM", "rl": "Ours-LSTM",
+                # learned rows are named by policy.describe_policy (what trained them);
+                # these two are the thesis's own names, for its columns only
+                "rl_nolstm": "Ours-noLSTM (thesis)", "rl": "Ours-LSTM (thesis)",
                 "detect": "Detection tree (teacher)"}
 
 
@@ -71,16 +73,6 @@ class PlannerConfig:
     sigma0: float = 0.3            # CMA-ES initial step size on [0, 1]^horizon
     max_nodes: int = 2_000_000     # memory bound per chunk for dense overlap maps
     budget_aware: bool | None = None  # tree planners: None = planner default (detect only)
-
-
-def info_gain(b: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Expected entropy reduction (bits) of a cell with belief ``b`` sensed with ``lam``."""
-    e = sigmoid(-lam)
-    pz1 = b * (1 - e) + (1 - b) * e
-    pz1 = np.clip(pz1, 1e-12, 1 - 1e-12)
-    post1 = b * (1 - e) / pz1
-    post0 = b * e / (1 - pz1)
-    return entropy_bits(b) - pz1 * entropy_bits(post1) - (1 - pz1) * entropy_bits(post0)
 
 
 class Planner:

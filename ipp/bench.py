@@ -18,7 +18,8 @@ from aerohrl.errors import UserError
 
 from aerohrl.atomic import atomic_path
 from .baselines import PLANNERS, TEACHERS, THESIS_NAMES, PlannerConfig, make_planner
-from .env import EnvConfig, SearchEnv, create_env, sample_for
+from .env import EnvConfig, SearchEnv
+from .factory import create_env, sample_for
 from .lattice import Lattice
 
 TEST_SEED = 1000

@@ -68,8 +68,9 @@ def _parser() -> argparse.ArgumentParser:
                        "procedural campus maps (see aerohrl.ipp.semantic)")
         q.add_argument("--map-size", type=T.positive_int, default=None,
                        help=f"cells per side (default {ec.map_size}; semantic 256)")
-        q.add_argument("--budget", type=T.positive_float, default=None,
-                       help=f"cost budget (default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
+        q.add_argument("--budget", type=_budget, default=None,
+                       help=f"cost budget: a number > 0 or a name ({_budget_names()}; "
+                       f"default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
 
     def env_flags(q):
         q.add_argument("--lattice", help="lattice file (default: the shipped one)")
@@ -135,6 +136,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="test environments (default 100; semantic 30, as the thesis)")
     be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together")
     be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
+    be.add_argument("--budgets", type=_budget_list, default=None,
+                    help="sweep: comma-separated budgets (numbers or names); writes "
+                    "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)")
     be.add_argument("--no-progress", action="store_true")
     env_flags(be)
 
@@ -144,6 +148,32 @@ def _parser() -> argparse.ArgumentParser:
     sh.add_argument("-o", "--output", required=True)
     env_flags(sh)
     return p
+
+
+def _budget_names() -> str:
+    from .env import BUDGETS
+    return ", ".join(f"{k} = {v:g}" for k, v in BUDGETS.items())
+
+
+def _budget(text: str) -> float:
+    """A budget: a name of :data:`aerohrl.ipp.env.BUDGETS` or a finite number > 0."""
+    from .env import BUDGETS
+    if text.strip() in BUDGETS:
+        return BUDGETS[text.strip()]
+    return T.positive_float(text)
+
+
+_budget.__name__ = "budget"
+
+
+def _budget_list(text: str) -> tuple[float, ...]:
+    parts = [t for t in text.split(",") if t.strip()]
+    if not parts:
+        raise argparse.ArgumentTypeError(f"no budgets in {text!r}")
+    return tuple(_budget(t) for t in parts)
+
+
+_budget_list.__name__ = "budget list"
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -227,7 +257,7 @@ def _bench(a) -> int:
 
     from .baselines import PLANNERS, THESIS_NAMES, make_planner
     from .bench import BenchConfig, run_episodes
-    from .env import create_env
+    from .factory import create_env
     from .lattice import get_lattice
     from .metrics import (markdown_table, paired_markdown, per_env_csv, plot_kl, summarise,
                           summary_csv, write_atomic)
@@ -248,6 +278,8 @@ def _bench(a) -> int:
         if name != "rl":
             make_planner(name, probe, pc)
     rows = [(n, None) for n in names if n != "rl"] + list(models.items())
+    if a.budgets:
+        return _bench_budgets(a, cfg, lat, rows, models, pc)
     results = {}
     for name, model in rows:
         bar = tqdm(total=a.envs, desc=name, file=sys.stderr, disable=a.no_progress,
@@ -261,9 +293,9 @@ def _bench(a) -> int:
         for n in names:
             if n not in ("rl", "cmaes") and pc.budget_aware != (n == "detect"):
                 labels[n] = f"{labels[n]} ({'' if pc.budget_aware else 'not '}budget-aware)"
-    for k, m in models.items():
-        if k not in labels:  # second and further runs: label them by their directory
-            labels[k] = f"{THESIS_NAMES['rl' if m.cfg.recurrent else 'rl_nolstm']} ({m.run_label})"
+    from .policy import describe_policy
+    for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
+        labels[k] = f"{describe_policy(m)} ({m.run_label})"
     md = markdown_table(results, labels, env.kind) + paired_markdown(results, labels, PLANNERS)
     print(md, end="")
     out = Path(a.out_dir)
@@ -274,6 +306,48 @@ def _bench(a) -> int:
             xlabel="prior cross-entropy (nats/cell), quantile bins" if env.kind == "semantic"
             else "KL(truth || prior) (nats), quantile bins")
     print(f"wrote {out}/ipp_bench.md, ipp_bench.csv, ipp_bench_envs.csv, ipp_kl.png")
+    return 0
+
+
+def _labels(names, models, pc) -> dict:
+    from .baselines import THESIS_NAMES
+    from .policy import describe_policy
+    labels = dict(THESIS_NAMES)
+    for k, m in models.items():
+        labels[k] = f"{describe_policy(m)} ({m.run_label})"
+    return labels
+
+
+def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
+    """``ipp bench --budgets B1,B2,...``: every row at every budget (same worlds)."""
+    from dataclasses import replace as dc_replace
+
+    from tqdm import tqdm
+
+    from .bench import run_episodes
+    from .factory import create_env
+    from .metrics import budget_csv, budget_markdown, plot_budgets, summarise, write_atomic
+
+    for b in a.budgets:  # every budget must pay for a primitive: fail before running
+        create_env(dc_replace(cfg.env, budget=b), lat)
+    labels = _labels([n for n, _ in rows], models, pc)
+    sweep = {}  # (row, budget) -> result
+    for b in a.budgets:
+        bc = dc_replace(cfg, env=dc_replace(cfg.env, budget=b))
+        for name, model in rows:
+            bar = tqdm(total=a.envs, desc=f"{name} @ {b:g}", file=sys.stderr,
+                       disable=a.no_progress or not sys.stderr.isatty(), leave=False)
+            r = run_episodes(name, lat, bc, progress=bar, model=model)
+            bar.close()
+            r["summary"] = summarise(r["per_env"])
+            sweep[(name, b)] = r
+    md = budget_markdown(sweep, labels, cfg.env.kind)
+    print(md, end="")
+    out = Path(a.out_dir)
+    write_atomic(out / "ipp_budgets.md", md)
+    write_atomic(out / "ipp_budgets.csv", budget_csv(sweep))
+    plot_budgets(sweep, labels, out / "ipp_budgets.png", cfg.env.kind)
+    print(f"wrote {out}/ipp_budgets.md, ipp_budgets.csv, ipp_budgets.png")
     return 0
 
 
@@ -327,7 +401,7 @@ def _train(a) -> int:
     if cfg.teacher_depth is not None and not 1 <= cfg.teacher_depth <= 4:
         raise UserError(f"--teacher-depth must be in 1..4, got {cfg.teacher_depth}")
     cfg.validate()
-    from .env import create_env
+    from .factory import create_env
     create_env(cfg.env, lat)
     if not a.resume and not atomic.new_folder(run):  # exclusive: a second run never writes into the first's
         raise UserError(f"run folder {run} exists; choose another --run-dir, or --resume {run}")
@@ -365,7 +439,9 @@ def _show(a) -> int:
         else (a.planner, None)
     r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model)
     m = r["per_env"]
-    title = (f"{THESIS_NAMES.get(key, key)} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
+    from .policy import describe_policy
+    label = describe_policy(model) if model is not None else THESIS_NAMES.get(key, key)
+    title = (f"{label} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
              f"entropy red. {m['entropy_reduction'][0]:.0f}%, "
              f"search eff. {m['search_efficiency'][0]:.0f}%")
     out = render_episode(r["env"], 0, a.output, title)

@@ -37,12 +37,26 @@ import numpy as np
 from aerohrl.errors import UserError
 
 from .lattice import Lattice
+from .scoring import detect_prob, info_gain
 from .sensor import (SensorConfig, entropy_bits, hashed_uniform, logit,
                      logodds_step, measure, sigmoid)
 from .semantic import SemanticConfig
-from .world import WorldConfig, Worlds, sample_worlds
+from .world import WorldConfig, Worlds
 
 TERMS = ("entropy", "coverage", "target", "cost", "invalid")
+
+PAD_ORIG = 5     # the original code's padding per side: 30 x 30 inner map in a 40 x 40 world
+H_PAD = 0.0      # entropy (bits) of that padding ring there: belief 0 -> 0 bits
+
+# Budgets in primitive-cost units (rho*T + int |jerk|^2 of our lattice). The default buys
+# the original code's *ground track*: its budget (paper-era commit 0d6a531, 10 x 10000 of
+# its own cost units) flies about 72 primitives, 224 cells of path and 267 s; 9250 of ours
+# flies ~224 cells in ~47 primitives and ~88 s (our primitives are faster: ~2.5 vs ~0.8
+# cells/s). Measured by ``ipp bench --budgets`` (ipp/README.md). TIGHT is the earlier
+# default (about 20-26 primitives, ~120 cells, ~48 s).
+BUDGET_DEFAULT = 9250.0
+BUDGET_TIGHT = 5000.0
+BUDGETS = {"default": BUDGET_DEFAULT, "tight": BUDGET_TIGHT}
 
 
 @dataclass(frozen=True)
@@ -50,7 +64,7 @@ class EnvConfig:
     """Environment parameters; ``budget`` is in primitive-cost units."""
 
     map_size: int = 30
-    budget: float = 5000.0
+    budget: float = BUDGET_DEFAULT
     found_threshold: float = 0.95
     start: str = "center"          # "center" or "random" (valid, viable hover start)
     r_entropy: float = 15.0
@@ -162,6 +176,7 @@ class SearchEnv:
         self.L = np.full((N, self.Hp, self.Hp), -cfg.sensor.logodds_clip)
         self.L[sl] = logit(worlds.prior)
         self.cov = np.zeros((N, self.Hp, self.Hp), bool)
+        self.cov_ring = np.zeros((N, self.Hp, self.Hp), bool)  # sensed cells off the map
         self.found = np.zeros((N, self.Hp, self.Hp), bool)
         # observation planes kept up to date incrementally: belief (0 off the map),
         # coverage, boundary; float32 (N, 3, Hp, Hp)
@@ -195,6 +210,10 @@ class SearchEnv:
         self.H = self.H0.copy()
         self.n_cov = np.zeros(N, np.int64)
         self.n_found = np.zeros(N, np.int64)
+        # flight actually bought by the budget (valid primitives only; invalid ones stay)
+        self.n_flown = np.zeros(N, np.int64)
+        self.path_cells = np.zeros(N)
+        self.flight_s = np.zeros(N)
         self.trace = [self.pos.copy()]
         self.trace_prim = []
         self.trace_budget = [self.remaining.copy()]
@@ -226,15 +245,39 @@ class SearchEnv:
         return (idx.reshape(sh) * self.Hp + y) * self.Hp + x
 
     def metrics(self) -> dict[str, np.ndarray]:
-        """Thesis Table 2.1 metrics on the inner map, per environment, in %."""
+        """Thesis Table 2.1 metrics per environment, in %, over both denominators.
+
+        * ``coverage``: covered cells / the inner ``S x S`` map (900 cells at S = 30);
+          ``coverage_padded``: the same cells / the padded ``(S + 2*PAD_ORIG)^2`` map
+          (1,600 cells), as the thesis and the original code (``env/Metrics.py``) divide;
+          its numerator also counts footprint cells in the 5-cell ring around the map
+          (the original's world holds them; the thesis's Coverage row, 62.2 % of 1,600
+          = 995 cells, exceeds the 900 inner cells, so it must). Our sensor never
+          *measures* off the map: the ring counts only for this column.
+        * ``entropy_reduction`` = ``1 - H_T / H_0`` (Eq. 2.4) over the inner map;
+          ``entropy_reduction_padded`` adds the padding ring's entropy to both sums, as
+          the original does. Its padding holds belief 0 (entropy 0), so the two are equal
+          by construction; the column is printed so that the match is visible.
+        * ``search_efficiency`` = targets found / targets.
+        * ``primitives``, ``path_cells`` (arc length, cells = m), ``flight_s``: the flight
+          the budget bought (valid primitives executed).
+        """
         p, S = self.pad, self.S
-        cov = self.cov[:, p:p + S, p:p + S].reshape(self.n, -1).mean(1)
+        ncov = self.cov[:, p:p + S, p:p + S].reshape(self.n, -1).sum(1)
+        nring = self.cov_ring.reshape(self.n, -1).sum(1)
+        Sp = S + 2 * PAD_ORIG
+        er = 100.0 * (1.0 - self.H / self.H0)
         return {
-            "coverage": 100.0 * cov,
-            "entropy_reduction": 100.0 * (1.0 - self.H / self.H0),
+            "coverage": 100.0 * ncov / (S * S),
+            "coverage_padded": 100.0 * (ncov + nring) / (Sp * Sp),
+            "entropy_reduction": er,
+            "entropy_reduction_padded": 100.0 * (1.0 - (self.H + H_PAD) / (self.H0 + H_PAD)),
             "search_efficiency": 100.0 * self.n_found / np.maximum(self.n_targets, 1),
             "kl": self.worlds.kl.copy(),
             "steps": self.steps.copy(),
+            "primitives": self.n_flown.copy(),
+            "path_cells": self.path_cells.copy(),
+            "flight_s": self.flight_s.copy(),
         }
 
     def action_features(self) -> np.ndarray:
@@ -271,6 +314,9 @@ class SearchEnv:
             Hn, ncov, nf, rt = self._apply(idx, pr)
             self.pos[idx] += lat.prim_disp[pr]
             self.vert[idx] = lat.prim_to[pr]
+            self.n_flown[idx] += 1
+            self.path_cells[idx] += lat.prim_length[pr]
+            self.flight_s[idx] += lat.prim_T[pr]
         else:
             Hn, ncov = self.H, self.n_cov
             nf, rt = np.zeros(self.n, np.int64), np.zeros(self.n)
@@ -310,6 +356,12 @@ class SearchEnv:
         x = self.pos[idx, 0, None] + off[..., 0]
         y = self.pos[idx, 1, None] + off[..., 1]
         use = (lev >= 0) & (x >= 0) & (x < self.S) & (y >= 0) & (y < self.S)
+        # the original's 40 x 40 world: footprint cells in its 5-cell ring count as covered
+        # for the padded denominator (never measured here: off the map)
+        ring = (lev >= 0) & ~use & (x >= -PAD_ORIG) & (x < self.S + PAD_ORIG) \
+            & (y >= -PAD_ORIG) & (y < self.S + PAD_ORIG)
+        if ring.any():
+            self.cov_ring.reshape(-1)[flat[ring]] = True
         levc = np.maximum(lev, 0)
         slot = np.arange(lev.shape[1])[None, :]
         u = hashed_uniform(self._seed_key[idx, None], self.steps[idx, None], slot)
@@ -348,7 +400,6 @@ class SearchEnv:
 
     def plan_ig(self, b: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """Expected information gain (bits) of sensing cells ``b`` with total ``lam``."""
-        from .baselines import info_gain
         return info_gain(b, lam)
 
     def plan_prio(self, b: np.ndarray) -> np.ndarray:
@@ -365,10 +416,7 @@ class SearchEnv:
     def plan_detect(self, b: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """P(the cell is a target and is detected) after sensing with ``lam`` (as one
         measurement with error ``sigma(-lam)``)."""
-        L = logit(np.clip(b, 1e-12, 1 - 1e-12))
-        thr = logit(self.cfg.found_threshold)
-        e = sigmoid(-lam)
-        return b * ((1 - e) * (L + lam >= thr) + e * (L - lam >= thr))
+        return detect_prob(b, lam, self.cfg.found_threshold)
 
     def plan_open(self, b: np.ndarray) -> np.ndarray:
         """Cells the agent does not yet believe found (belief below the threshold)."""
@@ -454,26 +502,3 @@ def semantic_config(budget: float | None = None, raster: str | None = None,
                      sensor=SensorConfig(err0=0.1, err_slope=0.05),
                      world=WorldConfig(map_size=map_size),
                      semantic=SemanticConfig(map_size=map_size, raster=raster))
-
-
-def create_env(cfg: EnvConfig, lattice: Lattice) -> SearchEnv:
-    """A :class:`SearchEnv` or (``cfg.kind == "semantic"``) a ``SemanticEnv``."""
-    if cfg.kind == "semantic":
-        from .semantic_env import SemanticEnv
-        return SemanticEnv(cfg, lattice)
-    return SearchEnv(cfg, lattice)
-
-
-def sample_for(cfg: EnvConfig, seed: int, indices):
-    """Worlds ``indices`` of suite ``seed`` of the config's kind."""
-    if cfg.kind == "semantic":
-        from .semantic import sample_semantic_worlds
-        return sample_semantic_worlds(cfg.semantic, seed, indices)
-    return sample_worlds(cfg.world, seed, indices)
-
-
-def make_env(cfg: EnvConfig, lattice: Lattice, seed: int, indices) -> tuple[SearchEnv, dict]:
-    """Convenience: an env reset on worlds ``indices`` of suite ``seed``."""
-    env = create_env(cfg, lattice)
-    obs = env.reset(sample_for(cfg, seed, indices))
-    return env, obs

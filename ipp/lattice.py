@@ -201,6 +201,16 @@ def poly_eval(coef: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
     return out
 
 
+def path_length(coef: np.ndarray, T: np.ndarray, n: int = 200) -> np.ndarray:
+    """Arc length ``int_0^T |p'(t)| dt`` of polynomials ``coef`` (P, 2, 6) of durations
+    ``T`` (P,), batched (trapezoid rule on ``n`` samples each)."""
+    T = np.asarray(T, float)
+    t = np.linspace(0.0, 1.0, n)[None, :] * T[:, None]  # (P, n)
+    v = poly_eval(coef, t[:, None, :], deriv=1)  # (P, 2, n)
+    sp = np.hypot(v[:, 0], v[:, 1])
+    return np.trapezoid(sp, t, axis=1)
+
+
 def jerk_cost(coef: np.ndarray, T: np.ndarray) -> np.ndarray:
     """``int_0^T |jerk|^2 dt`` summed over axes, closed form. coef (..., 2, 6), T (...)."""
     j0, j1, j2 = 6 * coef[..., 3], 24 * coef[..., 4], 60 * coef[..., 5]
@@ -262,6 +272,14 @@ class Lattice:
         t = np.linspace(0.0, self.prim_T[prim], n)
         p = poly_eval(self.prim_coef[prim], t[None, :])  # (2, n)
         return p.T + np.asarray(origin, float)
+
+    @property
+    def prim_length(self) -> np.ndarray:
+        """(P,) arc length of every primitive in cells, ``int_0^T |p'(t)| dt`` (trapezoid
+        on 200 samples; cached on the lattice)."""
+        if "prim_length" not in self._extra:
+            self._extra["prim_length"] = path_length(self.prim_coef, self.prim_T)
+        return self._extra["prim_length"]
 
     def sensed_cells(self, prim: int, origin=(0, 0)) -> tuple[np.ndarray, np.ndarray]:
         """Tiled measurements of ``prim`` at ``origin``: cells (m, 2) and levels (m,)."""

@@ -5,7 +5,8 @@ import pytest
 
 from aerohrl.errors import UserError
 from aerohrl.ipp.baselines import PLANNERS, PlannerConfig, info_gain, make_planner
-from aerohrl.ipp.env import EnvConfig, make_env
+from aerohrl.ipp.env import EnvConfig
+from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
 from aerohrl.ipp.sensor import entropy_bits
 

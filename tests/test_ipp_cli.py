@@ -72,7 +72,11 @@ def test_train_then_bench_rl(tmp_path, capsys):
     assert (run / "model.pt").is_file() and (run / "config.json").is_file()
     assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
                  "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 0
-    assert "Ours-LSTM" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if "(run)" in line)
+    # the truthful name (issue 13): preset test = 2 DAgger iterations from detect + 1 PPO
+    assert row.startswith("| Imitation of detect planner + PPO 1 it. (DAgger; its features, GRU) (run)")
+    assert "88.5" in row and "Ours" not in row  # the thesis's RL-LSTM number beside it
     model = run / "model.pt"
     raw = bytearray(model.read_bytes())
     raw[len(raw) // 2] ^= 0x01  # a weight: torch alone would load it
