@@ -73,6 +73,30 @@ class PlannerConfig:
     sigma0: float = 0.3            # CMA-ES initial step size on [0, 1]^horizon
     max_nodes: int = 2_000_000     # memory bound per chunk for dense overlap maps
     budget_aware: bool | None = None  # tree planners: None = planner default (detect only)
+    scoring: str = "ratio"         # "ratio": utility / cost; "additive": utility - w * cost
+    cost_weight: float = 0.0       # additive: w per cost unit (0: utility alone, as the
+                                   # original's coverage planners)
+    prio_revisit: bool = True      # prioritised coverage scores belief mass of every sensed
+                                   # cell, covered or not (the original); False: new cells only
+    cmaes_tol: float = 0.0         # CMA-ES: stop a replan when the best score's std over the
+                                   # last 10 generations is < tol (original: 0.1); 0 = never
+
+    def validate(self) -> None:
+        if self.scoring not in ("ratio", "additive"):
+            raise UserError(f"unknown scoring {self.scoring!r} (ratio|additive)")
+        if not np.isfinite(self.cost_weight) or self.cost_weight < 0:
+            raise UserError("--cost-weight must be a finite number >= 0")
+
+
+def sequence_score(util: np.ndarray, cost: np.ndarray, cfg: "PlannerConfig") -> np.ndarray:
+    """Score of primitive sequences from their summed utility and cost (batched).
+
+    ``ratio`` (default): ``util / cost``, utility per unit of budget. ``additive``:
+    ``util - w * cost`` (the original code's form: its coverage planners maximise the
+    summed utility alone, ``w = 0``; its greedy planner subtracts the cost)."""
+    if cfg.scoring == "additive":
+        return util - cfg.cost_weight * cost
+    return util / cost
 
 
 class Planner:
@@ -80,6 +104,7 @@ class Planner:
 
     def __init__(self, env: SearchEnv, cfg: PlannerConfig | None = None):
         self.env, self.cfg = env, cfg or PlannerConfig()
+        self.cfg.validate()
 
     def reset(self) -> None:
         pass
@@ -119,6 +144,9 @@ class TreePlanner(Planner):
         if self.kind == "coverage":
             return new.astype(float)
         if self.kind == "prio":
+            if self.cfg.prio_revisit:  # the original: belief mass of every sensed cell (once
+                # per sequence), covered or not, so likely targets are revisited and confirmed
+                return (lp == 0) * env.plan_prio(b) + self.cfg.eps * new
             return new * (self.cfg.eps + env.plan_prio(b))
         if self.kind == "greedy":
             return self.cfg.f1 * env.plan_prio(b) + self.cfg.f2 * env.plan_entropy(b)
@@ -229,7 +257,7 @@ class TreePlanner(Planner):
             vert = lat.prim_to[pr].reshape(n, K * A)
         if self.budget_aware:
             cost = np.minimum(cost, env.remaining[idx, None])
-        score = np.where(alive, util / cost, -np.inf)
+        score = np.where(alive, sequence_score(util, cost, self.cfg), -np.inf)
         first = score.reshape(n, A, -1).max(-1)  # best continuation per first action
         best = first.argmax(1)
         flat_zero = ~(first.max(1) > 1e-9)
@@ -341,16 +369,23 @@ class CMAESPlanner(Planner):
             best_a = np.zeros((len(need), h), np.int64)
             P = cfg.popsize
             env_idx = np.repeat(need, P)
+            hist = []
+            self.evaluations = getattr(self, "evaluations", 0)
             for _ in range(cfg.generations):
                 X = np.array([[o.ask() for _ in range(P)] for o in opts])  # (E, P, h)
                 acts, util, cost = self._decode(X.reshape(-1, h), env_idx)
-                f = (-util / cost).reshape(len(need), P)
+                self.evaluations += X.shape[0] * P
+                f = (-sequence_score(util, cost, cfg)).reshape(len(need), P)
                 for j, o in enumerate(opts):
                     o.tell(list(zip(X[j], f[j])))
                 k = f.argmin(1)
                 better = f[np.arange(len(need)), k] < best_f
                 best_f[better] = f[np.arange(len(need)), k][better]
                 best_a[better] = acts.reshape(len(need), P, h)[np.arange(len(need)), k][better]
+                hist.append(f.min(1))
+                if cfg.cmaes_tol > 0 and len(hist) >= 10 and \
+                        np.all(np.std(hist[-10:], axis=0) < cfg.cmaes_tol):
+                    break  # the original's stop (all envs of the batch settled)
             newq[need] = best_a
             self.queue = newq
         a = np.where(self.queue[:, 0] >= 0, self.queue[:, 0], 0)

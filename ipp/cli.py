@@ -81,6 +81,17 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--horizon", type=T.positive_int, default=5, help="CMA-ES horizon")
         q.add_argument("--popsize", type=T.positive_int, default=12)
         q.add_argument("--generations", type=T.positive_int, default=15)
+        q.add_argument("--scoring", choices=("ratio", "additive"), default="ratio",
+                       help="planners: utility per unit cost (default) or utility - "
+                       "w * cost (the original's form)")
+        q.add_argument("--cost-weight", type=T.nonneg_float, default=0.0,
+                       help="--scoring additive: w per cost unit (default 0: utility alone)")
+        q.add_argument("--prio-revisit", action=argparse.BooleanOptionalAction, default=True,
+                       help="prio_coverage scores the belief mass of covered cells too "
+                       "(default, the original); --no-prio-revisit: new cells only")
+        q.add_argument("--cmaes-tol", type=T.nonneg_float, default=0.0,
+                       help="CMA-ES: stop when the best score's std over 10 generations is "
+                       "< tol (original 0.1; default 0: run every generation)")
         q.add_argument("--budget-aware", action=argparse.BooleanOptionalAction, default=None,
                        help="tree planners: score by min(cost, remaining budget) (default: "
                        "on for detect only)")
@@ -188,7 +199,9 @@ def _configs(a):
 
     env = _env_config(a, a.start)
     pc = PlannerConfig(depth=a.depth, horizon=a.horizon, popsize=a.popsize,
-                       generations=a.generations, budget_aware=a.budget_aware)
+                       generations=a.generations, budget_aware=a.budget_aware,
+                       scoring=a.scoring, cost_weight=a.cost_weight,
+                       prio_revisit=a.prio_revisit, cmaes_tol=a.cmaes_tol)
     if a.horizon < 1 or a.popsize < 2 or a.generations < 1:
         raise UserError("--horizon >= 1, --popsize >= 2 and --generations >= 1 are required")
     return env, pc
@@ -289,10 +302,7 @@ def _bench(a) -> int:
         r["summary"] = summarise(r["per_env"])
         results[name] = r
     labels = dict(THESIS_NAMES)
-    if pc.budget_aware is not None:  # a non-default scoring: say so in the table
-        for n in names:
-            if n not in ("rl", "cmaes") and pc.budget_aware != (n == "detect"):
-                labels[n] = f"{labels[n]} ({'' if pc.budget_aware else 'not '}budget-aware)"
+    labels = _variant_labels(labels, names, pc)
     from .policy import describe_policy
     for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
         labels[k] = f"{describe_policy(m)} ({m.run_label})"
@@ -309,10 +319,30 @@ def _bench(a) -> int:
     return 0
 
 
+def _variant_labels(labels: dict, names, pc) -> dict:
+    """Say so in the row name when a planner runs with a non-default option."""
+    labels = dict(labels)
+    for n in names:
+        if n == "rl" or n not in labels:
+            continue
+        tags = []
+        if pc.budget_aware is not None and n != "cmaes" and pc.budget_aware != (n == "detect"):
+            tags.append(f"{'' if pc.budget_aware else 'not '}budget-aware")
+        if pc.scoring == "additive":
+            tags.append(f"additive, w = {pc.cost_weight:g}")
+        if n == "prio_coverage" and not pc.prio_revisit:
+            tags.append("no revisits")
+        if n == "cmaes" and (pc.popsize, pc.generations) != (12, 15):
+            tags.append(f"{pc.popsize} x {pc.generations}")
+        if tags:
+            labels[n] = f"{labels[n]} ({', '.join(tags)})"
+    return labels
+
+
 def _labels(names, models, pc) -> dict:
     from .baselines import THESIS_NAMES
     from .policy import describe_policy
-    labels = dict(THESIS_NAMES)
+    labels = _variant_labels(THESIS_NAMES, names, pc)
     for k, m in models.items():
         labels[k] = f"{describe_policy(m)} ({m.run_label})"
     return labels
