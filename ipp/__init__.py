@@ -17,6 +17,13 @@ from .semantic import CLASSES, SemanticConfig, load_class_raster
 from .sensor import SensorConfig
 from .world import WorldConfig, Worlds, sample_worlds
 
+try:  # gymnasium is a dependency; registration must never break `import aerohrl.ipp`
+    from .gym_env import register as _register
+
+    _register()  # aerohrl/IPPSearch-v0
+except ImportError:  # pragma: no cover
+    pass
+
 __all__ = ["PLANNERS", "PlannerConfig", "make_planner", "TERMS", "EnvConfig", "SearchEnv",
            "make_env", "create_env", "semantic_config", "CLASSES", "SemanticConfig",
            "load_class_raster", "Lattice", "LatticeConfig", "build_lattice", "default_lattice",

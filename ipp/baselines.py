@@ -78,12 +78,16 @@ class PlannerConfig:
                                    # original's coverage planners)
     prio_revisit: bool = True      # prioritised coverage scores belief mass of every sensed
                                    # cell, covered or not (the original); False: new cells only
-    cmaes_tol: float = 0.0         # CMA-ES: stop a replan when the best score's std over the
-                                   # last 10 generations is < tol (original: 0.1); 0 = never
+    cmaes_tol: float = 0.0         # CMA-ES: stop an env's search when the std of its
+                                   # generation-best score over the last 10 generations is
+                                   # <= tol * |mean| (the original: absolute std < 0.1 in
+                                   # its reward units); 0 = run every generation
 
     def validate(self) -> None:
         if self.scoring not in ("ratio", "additive"):
             raise UserError(f"unknown scoring {self.scoring!r} (ratio|additive)")
+        if not np.isfinite(self.cmaes_tol) or self.cmaes_tol < 0:
+            raise UserError("--cmaes-tol must be a finite number >= 0")
         if not np.isfinite(self.cost_weight) or self.cost_weight < 0:
             raise UserError("--cost-weight must be a finite number >= 0")
 
@@ -369,23 +373,36 @@ class CMAESPlanner(Planner):
             best_a = np.zeros((len(need), h), np.int64)
             P = cfg.popsize
             env_idx = np.repeat(need, P)
-            hist = []
+            hist = np.zeros((0, len(need)))
+            active = np.ones(len(need), bool)  # envs whose search has not settled
             self.evaluations = getattr(self, "evaluations", 0)
+            self.generations_run = getattr(self, "generations_run", 0)
             for _ in range(cfg.generations):
-                X = np.array([[o.ask() for _ in range(P)] for o in opts])  # (E, P, h)
-                acts, util, cost = self._decode(X.reshape(-1, h), env_idx)
+                act_j = np.flatnonzero(active)
+                X = np.array([[opts[j].ask() for _ in range(P)] for j in act_j])  # (E, P, h)
+                acts, util, cost = self._decode(X.reshape(-1, h), np.repeat(need[act_j], P))
                 self.evaluations += X.shape[0] * P
-                f = (-sequence_score(util, cost, cfg)).reshape(len(need), P)
-                for j, o in enumerate(opts):
-                    o.tell(list(zip(X[j], f[j])))
+                self.generations_run += len(act_j)
+                f = (-sequence_score(util, cost, cfg)).reshape(len(act_j), P)
+                for r, j in enumerate(act_j):
+                    opts[j].tell(list(zip(X[r], f[r])))
                 k = f.argmin(1)
-                better = f[np.arange(len(need)), k] < best_f
-                best_f[better] = f[np.arange(len(need)), k][better]
-                best_a[better] = acts.reshape(len(need), P, h)[np.arange(len(need)), k][better]
-                hist.append(f.min(1))
-                if cfg.cmaes_tol > 0 and len(hist) >= 10 and \
-                        np.all(np.std(hist[-10:], axis=0) < cfg.cmaes_tol):
-                    break  # the original's stop (all envs of the batch settled)
+                fk = f[np.arange(len(act_j)), k]
+                better = fk < best_f[act_j]
+                best_f[act_j[better]] = fk[better]
+                best_a[act_j[better]] = acts.reshape(len(act_j), P, h)[np.arange(len(act_j)), k][better]
+                gen_best = np.full(len(need), np.nan)
+                gen_best[act_j] = fk
+                hist = np.vstack([hist, gen_best])
+                if cfg.cmaes_tol > 0 and len(hist) >= 10:
+                    # the original's stop (std of the generation's best over the last 10
+                    # generations), relative to its magnitude: our scores are per cost unit
+                    w = hist[-10:]
+                    with np.errstate(invalid="ignore"):
+                        settled = np.std(w, 0) <= cfg.cmaes_tol * np.abs(np.mean(w, 0))
+                    active &= ~settled
+                    if not active.any():
+                        break
             newq[need] = best_a
             self.queue = newq
         a = np.where(self.queue[:, 0] >= 0, self.queue[:, 0], 0)

@@ -162,6 +162,7 @@ class SearchEnv:
         self.boundary = (~inner).astype(np.float32)
         self.n = 0
         self.lazy_obs = False  # True: step() returns obs=None (planners that do not need it)
+        self.keep_trace = True  # per-step path records (figures); off in the Gymnasium wrapper
         self.version = 0  # bumped by reset() and step(): caches of derived quantities key on it
 
     # ----------------------------------------------------------------- set-up
@@ -186,6 +187,28 @@ class SearchEnv:
         self._common_reset(worlds, start)
         self.n_targets = worlds.targets.reshape(N, -1).sum(1)
         return self.observe()
+
+    def reset_rows(self, rows: np.ndarray, worlds: Worlds, start: np.ndarray | None = None) -> None:
+        """Start new episodes in environments ``rows`` only (the others keep running):
+        the rows of every per-environment array are replaced by those of a fresh batch
+        reset on ``worlds`` (target search). Traces are not kept per row (the Gymnasium
+        wrapper runs with ``keep_trace = False``)."""
+        rows = np.asarray(rows, np.int64)
+        if len(rows) != len(worlds):
+            raise ValueError("reset_rows: one world per row")
+        fresh = SearchEnv(self.cfg, self.lat)
+        fresh.keep_trace = False
+        fresh.reset(worlds, start)
+        N, k = self.n, len(rows)
+        for name, val in vars(fresh).items():
+            cur = getattr(self, name, None)
+            if isinstance(val, np.ndarray) and isinstance(cur, np.ndarray) and val.ndim \
+                    and val.shape[0] == k and cur.shape[0] == N and cur.shape[1:] == val.shape[1:]:
+                cur[rows] = val
+        w = self.worlds
+        for f in ("density", "targets", "prior", "kl", "kl_sym", "seeds"):
+            getattr(w, f)[rows] = getattr(worlds, f)
+        self.version += 1
 
     def _common_reset(self, worlds, start) -> None:
         """Start cells, lattice state, budget, entropy, counters (both env kinds)."""
@@ -214,9 +237,9 @@ class SearchEnv:
         self.n_flown = np.zeros(N, np.int64)
         self.path_cells = np.zeros(N)
         self.flight_s = np.zeros(N)
-        self.trace = [self.pos.copy()]
+        self.trace = [self.pos.copy()] if self.keep_trace else []
         self.trace_prim = []
-        self.trace_budget = [self.remaining.copy()]
+        self.trace_budget = [self.remaining.copy()] if self.keep_trace else []
         self.version += 1
         self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) \
             + worlds.seeds[:, 1].astype(np.uint64)
@@ -336,9 +359,10 @@ class SearchEnv:
             terms[stuck, 3] -= cfg.r_cost * self.remaining[stuck] / cfg.budget
             self.remaining[stuck] = 0.0
         self.done |= act & (self.remaining <= 1e-9 * cfg.budget)
-        self.trace.append(self.pos.copy())
-        self.trace_prim.append(np.where(valid, prim, -1))
-        self.trace_budget.append(np.maximum(self.remaining, 0.0))
+        if self.keep_trace:
+            self.trace.append(self.pos.copy())
+            self.trace_prim.append(np.where(valid, prim, -1))
+            self.trace_budget.append(np.maximum(self.remaining, 0.0))
         self.version += 1
         obs = None if self.lazy_obs else self.observe()
         return obs, terms.sum(1), terms, self.done.copy()
