@@ -147,6 +147,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="test environments (default 100; semantic 30, as the thesis)")
     be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together")
     be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
+    be.add_argument("--execution", type=_executions, default=("ideal",),
+                    help="ideal (the lattice's sensing, default) and/or flown (the 6-DoF "
+                    "simulator and geometric controller fly each primitive; sensing along the "
+                    "flown path), comma-separated: 'ideal,flown' writes ipp_execution.md")
     be.add_argument("--budgets", type=_budget_list, default=None,
                     help="sweep: comma-separated budgets (numbers or names); writes "
                     "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)")
@@ -157,6 +161,10 @@ def _parser() -> argparse.ArgumentParser:
     sh.add_argument("--env", type=T.nonneg_int, default=0, help="test-suite world index")
     sh.add_argument("--planner", default="dp")
     sh.add_argument("-o", "--output", required=True)
+    sh.add_argument("--gif", help="also write an animated episode (GIF): belief, path, found "
+                    "and missed targets, one frame per primitive")
+    sh.add_argument("--execution", type=_executions, default=("ideal",),
+                    help="ideal (default) or flown")
     env_flags(sh)
     return p
 
@@ -185,6 +193,19 @@ def _budget_list(text: str) -> tuple[float, ...]:
 
 
 _budget_list.__name__ = "budget list"
+
+
+def _executions(text: str) -> tuple[str, ...]:
+    from .flown import EXECUTIONS
+    modes = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [m for m in modes if m not in EXECUTIONS]
+    if not modes or bad:
+        raise argparse.ArgumentTypeError(f"unknown execution mode {(bad or [text])[0]!r} "
+                                         f"(choose from {', '.join(EXECUTIONS)})")
+    return tuple(dict.fromkeys(modes))
+
+
+_executions.__name__ = "execution"
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -291,24 +312,42 @@ def _bench(a) -> int:
         if name != "rl":
             make_planner(name, probe, pc)
     rows = [(n, None) for n in names if n != "rl"] + list(models.items())
+    if a.execution != ("ideal",) and env.kind != "targets":
+        raise UserError("--execution flown is for target search (--world targets)")
     if a.budgets:
+        if a.execution != ("ideal",):
+            raise UserError("--budgets sweeps ideal execution only (drop --execution)")
         return _bench_budgets(a, cfg, lat, rows, models, pc)
-    results = {}
-    for name, model in rows:
-        bar = tqdm(total=a.envs, desc=name, file=sys.stderr, disable=a.no_progress,
-                   leave=False)
-        r = run_episodes(name, lat, cfg, progress=bar, model=model)
-        bar.close()
-        r["summary"] = summarise(r["per_env"])
-        results[name] = r
+    by_mode = {}
+    for mode in a.execution:
+        mcfg = replace(cfg, execution=mode)
+        res = {}
+        for name, model in rows:
+            bar = tqdm(total=a.envs, desc=f"{name} ({mode})", file=sys.stderr,
+                       disable=a.no_progress or not sys.stderr.isatty(), leave=False)
+            r = run_episodes(name, lat, mcfg, progress=bar, model=model)
+            bar.close()
+            r["summary"] = summarise(r["per_env"])
+            res[name] = r
+        by_mode[mode] = res
+    results = by_mode[a.execution[-1]]
     labels = dict(THESIS_NAMES)
     labels = _variant_labels(labels, names, pc)
     from .policy import describe_policy
     for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
         labels[k] = f"{describe_policy(m)} ({m.run_label})"
-    md = markdown_table(results, labels, env.kind) + paired_markdown(results, labels, PLANNERS)
-    print(md, end="")
+    md = ""
+    for mode, res in by_mode.items():
+        if len(by_mode) > 1 or mode != "ideal":
+            md += f"\n**{mode} execution**\n\n"
+        md += markdown_table(res, labels, env.kind) + paired_markdown(res, labels, PLANNERS)
     out = Path(a.out_dir)
+    if len(by_mode) > 1 or "flown" in by_mode:
+        from .metrics import execution_markdown
+        ex = execution_markdown(by_mode, labels)
+        md += "\n**Execution: " + " vs ".join(by_mode) + "**\n\n" + ex
+        write_atomic(out / "ipp_execution.md", ex)
+    print(md, end="")
     write_atomic(out / "ipp_bench.md", md)
     write_atomic(out / "ipp_bench.csv", summary_csv(results, env.kind))
     write_atomic(out / "ipp_bench_envs.csv", per_env_csv(results))
@@ -463,7 +502,12 @@ def _show(a) -> int:
     if a.env < 0:
         raise UserError("--env must be >= 0")
     env, pc = _configs(a)
-    cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc)
+    if len(a.execution) != 1:
+        raise UserError("show takes one --execution mode")
+    if a.gif is not None and Path(a.gif).suffix.lower() != ".gif":
+        raise UserError(f"--gif must end in .gif, got {a.gif}")
+    cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc,
+                      execution=a.execution[0])
     lat = get_lattice(a.lattice, env.kind)
     key, model = next(iter(_load_models(a, env.kind).items())) if a.planner == "rl" \
         else (a.planner, None)
@@ -476,6 +520,11 @@ def _show(a) -> int:
              f"search eff. {m['search_efficiency'][0]:.0f}%")
     out = render_episode(r["env"], 0, a.output, title)
     print(f"{title} -> {out}")
+    if a.gif:
+        from .bench import animate_episode
+        g = animate_episode(a.planner, lat, cfg, a.env, a.gif, model=model,
+                            title=f"{label}, test world {a.env} ({cfg.execution})")
+        print(f"animation -> {g}")
     return 0
 
 

@@ -373,9 +373,15 @@ class SearchEnv:
         Returns the new map entropy (N,), covered-cell counts (N,), newly found targets
         (N,) and the target reward (N,). Eq. 2.2 per touched cell, batched.
         """
-        cfg, lat = self.cfg, self.lat
-        lev = lat.meas_level[pr].astype(np.int64)  # (k, M)
-        off = lat.meas_off[pr].astype(np.int64)
+        lat = self.lat
+        return self._apply_meas(idx, lat.meas_off[pr].astype(np.int64),
+                                lat.meas_level[pr].astype(np.int64))
+
+    def _apply_meas(self, idx: np.ndarray, off: np.ndarray, lev: np.ndarray):
+        """:meth:`_apply` for explicit measurement lists: cell offsets ``off`` (k, M, 2)
+        from the agents' cells and Chebyshev levels ``lev`` (k, M), -1 = none (the ideal
+        primitives' lists, or those of a flown path, :mod:`.flown`)."""
+        cfg = self.cfg
         flat = self.flat_index(off, idx)
         x = self.pos[idx, 0, None] + off[..., 0]
         y = self.pos[idx, 1, None] + off[..., 1]
@@ -387,7 +393,17 @@ class SearchEnv:
         if ring.any():
             self.cov_ring.reshape(-1)[flat[ring]] = True
         levc = np.maximum(lev, 0)
-        slot = np.arange(lev.shape[1])[None, :]
+        # noise keyed by the measurement itself, (footprint centre cell, footprint slot),
+        # not by its place in the list: the same measurements draw the same labels
+        # whichever list they come from (ideal primitive tables or a flown path, .flown)
+        r = self.lat.config.footprint_radius
+        F = (2 * r + 1) ** 2
+        fidx = np.arange(lev.shape[1]) % F
+        fx = fidx % (2 * r + 1) - r
+        fy = fidx // (2 * r + 1) - r
+        cx = x - fx[None, :] + 512
+        cy = y - fy[None, :] + 512
+        slot = (cy * 2048 + cx) * F + fidx[None, :]
         u = hashed_uniform(self._seed_key[idx, None], self.steps[idx, None], slot)
         z = measure(self.truth.ravel()[flat], self.err_levels[levc], u)
         dl = np.where(z, 1.0, -1.0) * self.lam_levels[levc]

@@ -539,25 +539,35 @@ def plot_lattice(lat: Lattice, path: str | os.PathLike) -> Path:
     for k, v in enumerate(lat.vertices):
         ax.annotate(str(k), v, fontsize=7)
     ax.set_aspect("equal")
-    ax.set_title("vertices (m/s)", fontsize=9)
+    ax.set_xlabel("v_x (m/s)", fontsize=8)
+    ax.set_ylabel("v_y (m/s)", fontsize=8)
+    ax.set_title(f"vertices (dotted: |v| = v_max = {lat.config.v_max:g} m/s)", fontsize=8)
     ax = axes[0, 1] if ncol > 1 else None
     if ax is not None:
         ax.set_visible(True)
         ax.plot(np.arange(1, V + 1), lat.dispersion, "o-")
-        ax.set_xlabel("vertices")
+        ax.set_xlabel("number of vertices k", fontsize=8)
+        ax.set_ylabel("d(V_k) (cost units: rho*T + int |jerk|^2)", fontsize=7)
         ax.set_title("dispersion d(V) (Eq. 2.3)", fontsize=9)
     for v in range(V):
         ax = axes[1 + v // ncol, v % ncol]
         ax.set_visible(True)
+        cmap = plt.get_cmap("viridis")
         for p in lat.edges[v][lat.edges[v] >= 0]:
             xy = lat.positions(int(p))
-            ax.plot(xy[:, 0], xy[:, 1], lw=0.7)
+            ax.plot(xy[:, 0], xy[:, 1], lw=0.7, color=cmap(lat.prim_to[p] / max(V - 1, 1)))
         ax.plot(0, 0, "k.")
         ax.set_aspect("equal")
+        ax.set_xlabel("x (cells = m)", fontsize=7)
+        ax.set_ylabel("y (cells = m)", fontsize=7)
+        ax.tick_params(labelsize=7)
         ax.set_title(f"vertex {v}: v=({lat.vertices[v, 0]:.1f},{lat.vertices[v, 1]:.1f})",
                      fontsize=8)
     fig.tight_layout()
+    sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, max(V - 1, 1)))
+    fig.colorbar(sm, ax=axes.ravel().tolist(), shrink=0.4, pad=0.01,
+                 label="vertex index (end vertex of a primitive)")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
+        fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)
     return Path(path)

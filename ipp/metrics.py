@@ -240,6 +240,54 @@ def plot_budgets(sweep: dict, names: dict[str, str], path, kind: str = "targets"
     return path
 
 
+def tracking_summary(tt: np.ndarray) -> dict[str, float]:
+    """Per-primitive tracking errors (rows: world, max m, RMS m, duration s) summarised:
+    mean / 95th percentile / maximum of the per-primitive maximum error, mean and maximum
+    of the per-primitive RMS error, in metres, and the number of primitives."""
+    if len(tt) == 0:
+        return {"n": 0}
+    return {"n": int(len(tt)), "max_mean": float(tt[:, 1].mean()),
+            "max_p95": float(np.percentile(tt[:, 1], 95)), "max_max": float(tt[:, 1].max()),
+            "rms_mean": float(tt[:, 2].mean()), "rms_max": float(tt[:, 2].max())}
+
+
+def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
+    """Ideal vs flown execution, per planner: Table 2.1's metrics in each mode, the paired
+    flown - ideal difference of search efficiency over the same worlds (mean ± standard
+    error) and the per-primitive tracking error of the flown runs (mm)."""
+    modes = list(by_mode)
+    base = modes[0]
+    head = ("| planner | " + " | ".join(f"{k} ({m})" for m in modes for k in
+                                        ("cov. % (1600)", "ent. red. %", "search eff. %"))
+            + " | " + " | ".join(f"{m} − {base} (search eff., paired)" for m in modes[1:])
+            + " | tracking max mm (mean / p95 / max) | tracking RMS mm (mean) |\n|"
+            + "---|" * (1 + 3 * len(modes) + len(modes) - 1 + 2) + "\n")
+    rows = []
+    for p in by_mode[base]:
+        cells = []
+        for m in modes:
+            s = by_mode[m][p]["summary"]
+            cells += [_ms(s, "coverage_padded"), _ms(s, "entropy_reduction"),
+                      _ms(s, "search_efficiency")]
+        for m in modes[1:]:
+            a, b = by_mode[m][p], by_mode[base][p]
+            if not np.array_equal(a["env_ids"], b["env_ids"]):
+                raise ValueError("execution modes ran on different worlds")
+            d = a["per_env"]["search_efficiency"] - b["per_env"]["search_efficiency"]
+            se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
+            cells.append(f"{d.mean():+.2f} ± {se:.2f}")
+        tr = [by_mode[m][p].get("tracking") for m in modes if "tracking" in by_mode[m][p]]
+        if tr:
+            t = tracking_summary(np.concatenate(tr, 0))
+            cells += [f"{1e3 * t['max_mean']:.1f} / {1e3 * t['max_p95']:.1f} / "
+                      f"{1e3 * t['max_max']:.1f} ({t['n']} primitives)",
+                      f"{1e3 * t['rms_mean']:.1f}"]
+        else:
+            cells += ["—", "—"]
+        rows.append(f"| {names.get(p, p)} | " + " | ".join(cells) + " |")
+    return head + "\n".join(rows) + "\n"
+
+
 def write_atomic(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         with open(tmp, "w") as f:

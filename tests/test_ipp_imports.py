@@ -14,7 +14,8 @@ import aerohrl.ipp
 PKG = Path(aerohrl.ipp.__file__).parent
 MODULES = sorted(p.stem for p in PKG.glob("*.py") if p.stem != "__init__")
 PLANNERS = {"baselines", "policy", "train", "bench", "cli"}
-ENVS = {"env", "semantic_env", "scoring", "sensor", "world", "semantic", "lattice", "features"}
+ENVS = {"env", "semantic_env", "scoring", "sensor", "world", "semantic", "lattice", "features",
+        "factory", "flown", "gym_env"}
 
 
 def _edges(mod: str) -> set[str]:
