@@ -47,20 +47,21 @@ class BenchConfig:
 
 
 def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids=None, progress=None,
-                 keep_env: bool = False, model=None) -> dict:
+                 keep_env: bool = False, model=None, skill=None) -> dict:
     """Run ``name`` on the suite; returns per-env metrics, summary inputs and timing."""
     ids = np.arange(cfg.envs) if env_ids is None else np.asarray(env_ids)
     per_env: dict[str, list] = {}
     plan_time, decisions = 0.0, 0
     env = None
     tracking: list[np.ndarray] = []
+    legs: list[np.ndarray] = []
     for s in range(0, len(ids), cfg.batch):
         chunk = ids[s:s + cfg.batch]
         if cfg.execution == "ideal":
             env = create_env(cfg.env, lattice)
         else:
             from .flown import create_flown_env
-            env = create_flown_env(cfg.env, lattice, cfg.execution)
+            env = create_flown_env(cfg.env, lattice, cfg.execution, skill)
             env.keep_trace = keep_env
         env.reset(sample_for(cfg.env, cfg.seed, chunk))
         env.lazy_obs = True  # baselines read the maps directly, RLPlanner observes itself
@@ -91,11 +92,15 @@ def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids=None, pr
             tt = env.tracking_table()
             tt[:, 0] = chunk[tt[:, 0].astype(int)]  # batch row -> world index
             tracking.append(tt)
+        if hasattr(env, "leg_table"):
+            legs.append(env.leg_table())
     out = {"per_env": {k: np.concatenate(v) for k, v in per_env.items()},
            "ms_per_decision": 1000.0 * plan_time / max(decisions, 1),
            "n": len(ids), "env_ids": ids, "execution": cfg.execution}
     if tracking:  # per flown primitive: world, max error (m), RMS error (m), duration (s)
         out["tracking"] = np.concatenate(tracking, 0)
+    if legs:  # per skill leg: strict success, near success, duration (s)
+        out["legs"] = np.concatenate(legs, 0)
     if keep_env:
         out["env"] = env
     return out
@@ -177,7 +182,7 @@ def render_episode(env: SearchEnv, n: int, path, title: str = "") -> Path:
 
 
 def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, path,
-                    model=None, title: str = "", fps: int = 4) -> Path:
+                    model=None, title: str = "", fps: int = 4, skill=None) -> Path:
     """Animated episode (GIF) on test world ``env_id`` (target search): one frame per
     primitive, showing the belief (colour bar), the path so far (flown path too with
     ``cfg.execution == "flown"``), the true targets found (green) and not yet found (red
@@ -193,7 +198,7 @@ def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, 
         env = create_env(cfg.env, lattice)
     else:
         from .flown import create_flown_env
-        env = create_flown_env(cfg.env, lattice, cfg.execution)
+        env = create_flown_env(cfg.env, lattice, cfg.execution, skill)
     env.reset(sample_for(cfg.env, cfg.seed, [env_id]))
     if model is not None:
         from .policy import RLPlanner

@@ -148,9 +148,14 @@ def _parser() -> argparse.ArgumentParser:
     be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together")
     be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
     be.add_argument("--execution", type=_executions, default=("ideal",),
-                    help="ideal (the lattice's sensing, default) and/or flown (the 6-DoF "
+                    help="ideal (the lattice's sensing, default), flown (the 6-DoF "
                     "simulator and geometric controller fly each primitive; sensing along the "
-                    "flown path), comma-separated: 'ideal,flown' writes ipp_execution.md")
+                    "flown path) and/or skill (the chapter-3 policy of --skill-run flies it "
+                    "through goals 0.5-1 s apart), comma-separated: e.g. 'ideal,flown,skill' "
+                    "writes ipp_execution.md")
+    be.add_argument("--skill-run", default=None,
+                    help="--execution skill: the chapter-3 goal-conditioned policy run "
+                    "(directory: its last checkpoint; or a checkpoint file)")
     be.add_argument("--budgets", type=_budget_list, default=None,
                     help="sweep: comma-separated budgets (numbers or names); writes "
                     "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)")
@@ -164,7 +169,8 @@ def _parser() -> argparse.ArgumentParser:
     sh.add_argument("--gif", help="also write an animated episode (GIF): belief, path, found "
                     "and missed targets, one frame per primitive")
     sh.add_argument("--execution", type=_executions, default=("ideal",),
-                    help="ideal (default) or flown")
+                    help="ideal (default), flown or skill")
+    sh.add_argument("--skill-run", default=None, help="--execution skill: policy run")
     env_flags(sh)
     return p
 
@@ -318,6 +324,12 @@ def _bench(a) -> int:
         if a.execution != ("ideal",):
             raise UserError("--budgets sweeps ideal execution only (drop --execution)")
         return _bench_budgets(a, cfg, lat, rows, models, pc)
+    skill = skill_label = None
+    if "skill" in a.execution:
+        from .flown import load_skill
+        skill, skill_label = load_skill(a.skill_run)
+    elif a.skill_run is not None:
+        raise UserError("--skill-run needs --execution skill")
     by_mode = {}
     for mode in a.execution:
         mcfg = replace(cfg, execution=mode)
@@ -325,7 +337,7 @@ def _bench(a) -> int:
         for name, model in rows:
             bar = tqdm(total=a.envs, desc=f"{name} ({mode})", file=sys.stderr,
                        disable=a.no_progress or not sys.stderr.isatty(), leave=False)
-            r = run_episodes(name, lat, mcfg, progress=bar, model=model)
+            r = run_episodes(name, lat, mcfg, progress=bar, model=model, skill=skill)
             bar.close()
             r["summary"] = summarise(r["per_env"])
             res[name] = r
@@ -342,10 +354,11 @@ def _bench(a) -> int:
             md += f"\n**{mode} execution**\n\n"
         md += markdown_table(res, labels, env.kind) + paired_markdown(res, labels, PLANNERS)
     out = Path(a.out_dir)
-    if len(by_mode) > 1 or "flown" in by_mode:
+    if len(by_mode) > 1 or set(by_mode) & {"flown", "skill"}:
         from .metrics import execution_markdown
         ex = execution_markdown(by_mode, labels)
-        md += "\n**Execution: " + " vs ".join(by_mode) + "**\n\n" + ex
+        md += "\n**Execution: " + " vs ".join(by_mode) + "**" + (
+            f" (skill: {skill_label})" if skill_label else "") + "\n\n" + ex
         write_atomic(out / "ipp_execution.md", ex)
     print(md, end="")
     write_atomic(out / "ipp_bench.md", md)
@@ -511,7 +524,12 @@ def _show(a) -> int:
     lat = get_lattice(a.lattice, env.kind)
     key, model = next(iter(_load_models(a, env.kind).items())) if a.planner == "rl" \
         else (a.planner, None)
-    r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model)
+    skill = None
+    if cfg.execution == "skill":
+        from .flown import load_skill
+        skill, _ = load_skill(a.skill_run)
+    r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model,
+                     skill=skill)
     m = r["per_env"]
     from .policy import describe_policy
     label = describe_policy(model) if model is not None else THESIS_NAMES.get(key, key)
@@ -522,7 +540,7 @@ def _show(a) -> int:
     print(f"{title} -> {out}")
     if a.gif:
         from .bench import animate_episode
-        g = animate_episode(a.planner, lat, cfg, a.env, a.gif, model=model,
+        g = animate_episode(a.planner, lat, cfg, a.env, a.gif, model=model, skill=skill,
                             title=f"{label}, test world {a.env} ({cfg.execution})")
         print(f"animation -> {g}")
     return 0

@@ -37,7 +37,9 @@ import numpy as np
 from .env import EnvConfig, SearchEnv
 from .lattice import Lattice, poly_eval
 
-EXECUTIONS = ("ideal", "flown")
+EXECUTIONS = ("ideal", "flown", "skill")
+SKILL_SPACING = 1.0   # s: goals at most this far apart along a primitive (0.5-1 s apart)
+SKILL_TIMEOUT = (2.0, 1.0)  # a leg gives up after 2 x its duration + 1 s
 VEHICLE = "hummingbird"
 FPS = 100
 SUBSTEPS = 5
@@ -193,16 +195,182 @@ class FlownEnv(SearchEnv):
         return np.concatenate(self.track_log, 0) if self.track_log else np.zeros((0, 4))
 
 
-def create_flown_env(cfg: EnvConfig, lattice: Lattice, execution: str) -> SearchEnv:
-    """A :class:`SearchEnv` (``ideal``) or :class:`FlownEnv` (``flown``), target search."""
+class SkillEnv(FlownEnv):
+    """Primitives flown by the chapter-3 goal-conditioned policy (issue 13, item 7).
+
+    Each primitive of duration ``T`` is cut into ``n = ceil(T / SKILL_SPACING)`` legs of
+    ``T / n`` s (0.5-1 s apart); leg ``l``'s goal is the primitive's state at
+    ``t_l = l T / n``: position, velocity and the flat attitude of its acceleration
+    (:func:`aerohrl.datagen.goals.flat_attitude`, yaw 0). The policy flies toward the
+    current goal; the leg ends when the goal is reached within the near-success
+    tolerance (x 2.5, a waypoint need not be hit exactly) or after ``2 x (T/n) + 1 s``,
+    and the next goal follows. A leg *succeeds* when the strict goal-reached test holds
+    at some step of it (``leg_success``; ``leg_near`` with x 2.5). Sensing samples the
+    flown position every 0.1 s of the (variable-length) flight. Tracking error: the
+    distance of the flown position to the primitive's path (nearest of 200 points on
+    it), max and RMS per primitive. Batched over environments: one policy forward and
+    one simulator step per control step for all of them."""
+
+    def __init__(self, cfg: EnvConfig, lattice: Lattice, policy_fn, vehicle: str = VEHICLE):
+        super().__init__(cfg, lattice, vehicle)
+        self.policy = policy_fn
+        self.leg_log: list[np.ndarray] = []
+
+    def reset(self, worlds, start=None) -> dict:
+        obs = super().reset(worlds, start)
+        self.leg_log = []  # per leg: (strict success, near success, duration s)
+        return obs
+
+    def fly(self, idx, pr):
+        from aerohrl import task
+        from aerohrl.datagen.goals import flat_attitude
+
+        lat, dt = self.lat, self.dt
+        k = len(idx)
+        T = lat.prim_T[pr]
+        nleg = np.ceil(T / SKILL_SPACING - 1e-9).astype(np.int64)
+        L = int(nleg.max())
+        origin = self.pos[idx].astype(float)
+        coef = lat.prim_coef[pr]
+        # goals (k, L, 15): legs beyond nleg repeat the last one (never used)
+        tl = np.minimum(np.arange(1, L + 1)[None, :], nleg[:, None]) * (T / nleg)[:, None]
+        goals = np.zeros((k, L, task.GOAL_DIM))
+        goals[..., 0:2] = origin[:, None, :] + np.moveaxis(poly_eval(coef, tl[:, None, :], 0), 1, 2)
+        goals[..., 3:5] = np.moveaxis(poly_eval(coef, tl[:, None, :], 1), 1, 2)
+        acc = np.zeros((k, L, 3))
+        acc[..., 0:2] = np.moveaxis(poly_eval(coef, tl[:, None, :], 2), 1, 2)
+        goals[..., 6:15] = flat_attitude(acc).reshape(k, L, 9)
+        leg_len = np.rint((T / nleg) / dt).astype(np.int64)
+        timeout = np.rint(SKILL_TIMEOUT[0] * leg_len + SKILL_TIMEOUT[1] / dt).astype(np.int64)
+        # the primitive's path, for the path-deviation error
+        tp = np.linspace(0, 1, 200)[None, :] * T[:, None]
+        path = origin[:, :, None] + poly_eval(coef, tp[:, None, :], 0)  # (k, 2, 200)
+        st = self.state.copy()
+        end_state, end_rot = st.copy(), self.rotors.copy()
+        leg = np.zeros(k, np.int64)
+        in_leg = np.zeros(k, np.int64)
+        strict = np.zeros(k, bool)
+        near = np.zeros(k, bool)
+        flying = np.ones(k, bool)
+        steps = np.zeros(k, np.int64)
+        emax, esq = np.zeros(k), np.zeros(k)
+        every = int(round(lat.config.sense_dt / dt))
+        max_steps = int((timeout * nleg).sum(0).max()) if k else 0
+        samples = np.zeros((k, max_steps // every + 2, 2))
+        sval = np.zeros(samples.shape[:2], bool)
+        trace = [] if self.keep_trace else None
+        rows = np.arange(k)
+        goal_all = np.zeros((self.n, task.GOAL_DIM))
+        goal_all[:] = np.concatenate([st[:, 0:6], st[:, 6:15]], 1)  # others: hold (restored)
+        step = 0
+        while flying.any():
+            step += 1
+            g = goals[rows, np.minimum(leg, L - 1)]
+            goal_all[idx] = g
+            a = self.policy(st, goal_all)
+            st = self.sim.step(a)
+            sub = st[idx]
+            ag = task.achieved_goal(sub)
+            hit = task.goal_reached(ag, g) & flying
+            hit_near = task.near_success(ag, g) & flying
+            strict |= hit
+            near |= hit_near
+            in_leg += flying
+            steps += flying
+            d = np.sqrt(((sub[:, 0:2, None] - path) ** 2).sum(1)).min(1)
+            d = np.sqrt(d ** 2 + sub[:, 2] ** 2)
+            emax = np.where(flying, np.maximum(emax, d), emax)
+            esq += np.where(flying, d * d, 0.0)
+            if step % every == 0:
+                j = step // every
+                samples[:, j] = sub[:, 0:2]
+                sval[:, j] = flying
+            if trace is not None:
+                trace.append(np.where(flying[:, None], sub[:, 0:2], np.nan))
+            end_leg = flying & (hit_near | (in_leg >= timeout))
+            if end_leg.any():
+                for r in np.flatnonzero(end_leg):
+                    self.leg_log.append(np.array([strict[r], near[r], in_leg[r] * dt]))
+                leg[end_leg] += 1
+                in_leg[end_leg] = 0
+                strict[end_leg] = False
+                near[end_leg] = False
+                done = end_leg & (leg >= nleg)
+                if done.any():
+                    flying &= ~done
+                    end_state[idx[done]] = st[idx[done]]
+                    end_rot[idx[done]] = self.sim.rotor_speeds[idx[done]]
+            if not np.isfinite(st).all():
+                raise RuntimeError("a skill-flown vehicle diverged")
+        self.state = self.sim.reset(end_state, end_rot)
+        self.rotors = end_rot
+        rms = np.sqrt(esq / np.maximum(steps, 1))
+        self.track_log.append(np.stack([idx.astype(float), emax, rms, steps * dt], 1))
+        self.track_max[idx] = np.maximum(self.track_max[idx], emax)
+        self.track_sq[idx] += esq
+        self.track_steps[idx] += steps
+        self.skill_time = getattr(self, "skill_time", np.zeros(self.n))
+        if len(self.skill_time) != self.n:
+            self.skill_time = np.zeros(self.n)
+        self.skill_time[idx] += steps * dt
+        if trace is not None and trace:
+            tr = np.stack(trace, 1)
+            for r, i in zip(rows, idx):
+                self.flown_trace[i].append(tr[r][np.isfinite(tr[r, :, 0])])
+        return samples[:, : step // every + 1], sval[:, : step // every + 1], emax, rms
+
+    def metrics(self):
+        m = super().metrics()
+        m["skill_flight_s"] = getattr(self, "skill_time", np.zeros(self.n)).copy()
+        return m
+
+    def leg_table(self) -> np.ndarray:
+        """(legs, 3): strict success, near success, duration (s) of every leg flown."""
+        return np.stack(self.leg_log, 0) if self.leg_log else np.zeros((0, 3))
+
+
+def load_skill(run) -> tuple:
+    """The goal-conditioned policy of a chapter-3 training run (``RUN`` directory: its last
+    checkpoint; or a checkpoint file) as a batched ``(states, goals) -> CTBR`` function,
+    and a label. A missing run or checkpoint is a one-line error."""
+    from pathlib import Path
+
+    from aerohrl.errors import UserError
+    if run is None:
+        raise UserError("--execution skill needs --skill-run <chapter-3 policy run directory>")
+    p = Path(run)
+    if p.is_dir():
+        cks = sorted((p / "checkpoints").glob("step-*.pt"))
+        if not cks:
+            raise UserError(f"skill run {p} has no checkpoints (checkpoints/step-*.pt)")
+        p = cks[-1]
+    elif not p.is_file():
+        raise UserError(f"no skill policy run at {run}")
+    import torch
+
+    from aerohrl.eval.harness import load_policy
+    from aerohrl.eval.rollout import PolicyFn
+    torch.set_num_threads(1)
+    algo, ck = load_policy(p)
+    return PolicyFn(algo), f"{p.parent.parent.name}/{p.name}"
+
+
+def create_flown_env(cfg: EnvConfig, lattice: Lattice, execution: str, skill=None) -> SearchEnv:
+    """A :class:`SearchEnv` (``ideal``), :class:`FlownEnv` (``flown``, the geometric
+    controller) or :class:`SkillEnv` (``skill``, the policy ``skill`` of
+    :func:`load_skill`); target search only."""
     from aerohrl.errors import UserError
     if execution not in EXECUTIONS:
         raise UserError(f"unknown execution mode {execution!r} (choose from {', '.join(EXECUTIONS)})")
     if execution == "ideal":
         return SearchEnv(cfg, lattice)
     if cfg.kind != "targets":
-        raise UserError("--execution flown is for target search (--world targets)")
+        raise UserError(f"--execution {execution} is for target search (--world targets)")
+    if execution == "skill":
+        if skill is None:
+            raise UserError("--execution skill needs --skill-run <chapter-3 policy run directory>")
+        return SkillEnv(cfg, lattice, skill)
     return FlownEnv(cfg, lattice)
 
 
-__all__ = ["FlownEnv", "EXECUTIONS", "create_flown_env"]
+__all__ = ["FlownEnv", "SkillEnv", "EXECUTIONS", "create_flown_env", "load_skill"]

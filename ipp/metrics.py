@@ -252,16 +252,19 @@ def tracking_summary(tt: np.ndarray) -> dict[str, float]:
 
 
 def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
-    """Ideal vs flown execution, per planner: Table 2.1's metrics in each mode, the paired
-    flown - ideal difference of search efficiency over the same worlds (mean ± standard
-    error) and the per-primitive tracking error of the flown runs (mm)."""
+    """Ideal vs flown (vs skill-flown) execution, per planner: Table 2.1's metrics in each
+    mode, the paired difference of search efficiency to the first mode over the same
+    worlds (mean ± standard error), and per non-ideal mode the per-primitive tracking
+    error (mm; skill: distance to the primitive's path) and the skill legs' success."""
     modes = list(by_mode)
     base = modes[0]
-    head = ("| planner | " + " | ".join(f"{k} ({m})" for m in modes for k in
-                                        ("cov. % (1600)", "ent. red. %", "search eff. %"))
-            + " | " + " | ".join(f"{m} − {base} (search eff., paired)" for m in modes[1:])
-            + " | tracking max mm (mean / p95 / max) | tracking RMS mm (mean) |\n|"
-            + "---|" * (1 + 3 * len(modes) + len(modes) - 1 + 2) + "\n")
+    flown = [m for m in modes if m != "ideal"]
+    cols = ([f"{k} ({m})" for m in modes for k in ("cov. % (1600)", "ent. red. %", "search eff. %")]
+            + [f"{m} − {base} (search eff., paired)" for m in modes[1:]]
+            + [c for m in flown for c in (f"{m}: tracking max mm (mean / p95 / max)",
+                                          f"{m}: tracking RMS mm")]
+            + (["skill legs: near / strict success, s per leg"] if "skill" in modes else []))
+    head = "| planner | " + " | ".join(cols) + " |\n|" + "---|" * (len(cols) + 1) + "\n"
     rows = []
     for p in by_mode[base]:
         cells = []
@@ -276,14 +279,19 @@ def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
             d = a["per_env"]["search_efficiency"] - b["per_env"]["search_efficiency"]
             se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
             cells.append(f"{d.mean():+.2f} ± {se:.2f}")
-        tr = [by_mode[m][p].get("tracking") for m in modes if "tracking" in by_mode[m][p]]
-        if tr:
-            t = tracking_summary(np.concatenate(tr, 0))
-            cells += [f"{1e3 * t['max_mean']:.1f} / {1e3 * t['max_p95']:.1f} / "
-                      f"{1e3 * t['max_max']:.1f} ({t['n']} primitives)",
-                      f"{1e3 * t['rms_mean']:.1f}"]
-        else:
-            cells += ["—", "—"]
+        for m in flown:
+            r = by_mode[m][p]
+            if "tracking" in r:
+                t = tracking_summary(r["tracking"])
+                cells += [f"{1e3 * t['max_mean']:.1f} / {1e3 * t['max_p95']:.1f} / "
+                          f"{1e3 * t['max_max']:.1f} ({t['n']} primitives)",
+                          f"{1e3 * t['rms_mean']:.1f}"]
+            else:
+                cells += ["—", "—"]
+        if "skill" in modes:
+            lg = by_mode["skill"][p].get("legs", np.zeros((0, 3)))
+            cells.append(f"{100 * lg[:, 1].mean():.1f} % / {100 * lg[:, 0].mean():.1f} %, "
+                         f"{lg[:, 2].mean():.2f} s ({len(lg)} legs)" if len(lg) else "—")
         rows.append(f"| {names.get(p, p)} | " + " | ".join(cells) + " |")
     return head + "\n".join(rows) + "\n"
 

@@ -95,3 +95,77 @@ def test_cli_ideal_vs_flown_table(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "flown − ideal" in out and "tracking max mm" in out
     assert (tmp_path / "ipp_execution.md").is_file()
+
+
+class _GoalSeeker:
+    """A stand-in goal-conditioned skill for CI (no trained run there): the geometric
+    controller steered at the goal's position and velocity."""
+
+    def __init__(self):
+        from aerohrl.datagen.expert import GeometricController
+        from aerohrl.sim import get_preset
+        self.ctrl = GeometricController(get_preset("hummingbird"))
+        self.calls = 0
+
+    def __call__(self, states, goals):
+        self.calls += 1
+        z = np.zeros((len(states), 3))
+        return self.ctrl(states, goals[:, 0:3], goals[:, 3:6], z, z)
+
+
+def test_skill_execution_legs_and_tracking(lat):
+    from aerohrl.ipp.flown import SKILL_SPACING, SkillEnv
+    cfg = EnvConfig(budget=1200.0)
+    skill = _GoalSeeker()
+    env = SkillEnv(cfg, lat, skill)
+    env.reset(sample_worlds(cfg.world, 1000, range(2)))
+    pl = make_planner("greedy", env)
+    while not env.done.all():
+        env.step(pl.act())
+    m = env.metrics()
+    legs = env.leg_table()
+    tt = env.tracking_table()
+    # every primitive is cut into ceil(T / 1 s) legs, each ends near its goal or times out
+    n_legs = sum(int(np.ceil(lat.prim_T[int(p)] / SKILL_SPACING - 1e-9))
+                 for row in env.trace_prim for p in row if p >= 0) if env.trace_prim else None
+    assert len(legs) == n_legs == len(legs)
+    # a leg ends when its goal is reached (x 2.5 tolerance) or at its timeout (>= 1 s)
+    assert legs[:, 1].any() and np.all(legs[:, 2] > 0)
+    assert np.all((legs[:, 1] == 1) | (legs[:, 2] >= 1.0 + 1e-9))
+    assert np.all(legs[:, 0] <= legs[:, 1])  # strict success implies near success
+    assert len(tt) == m["primitives"].sum() and np.all(tt[:, 1] >= tt[:, 2])
+    assert np.all(m["skill_flight_s"] > 0) and skill.calls > 0
+    assert np.all((m["search_efficiency"] >= 0) & (m["search_efficiency"] <= 100))
+
+
+def test_skill_run_errors(tmp_path, capsys):
+    from aerohrl.ipp.flown import load_skill
+    with pytest.raises(UserError, match="needs --skill-run"):
+        load_skill(None)
+    with pytest.raises(UserError, match="no skill policy run"):
+        load_skill(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(UserError, match="no checkpoints"):
+        load_skill(tmp_path / "empty")
+    assert main(["bench", "--execution", "skill", "--skill-run", str(tmp_path / "x"),
+                 "--envs", "1"]) == 2
+    assert "no skill policy run" in capsys.readouterr().err
+    assert main(["bench", "--skill-run", str(tmp_path), "--envs", "1"]) == 2
+    assert "--skill-run needs --execution skill" in capsys.readouterr().err
+
+
+SKILL_RUN = "/work/main/runs/recipes/noise-n25000-s0-30k"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not __import__("os").path.isdir(SKILL_RUN), reason="needs the chapter-3 run")
+def test_learned_skill_flies_primitives(lat):
+    from aerohrl.ipp.flown import SkillEnv, load_skill
+    pf, _ = load_skill(SKILL_RUN)
+    cfg = EnvConfig(budget=800.0)
+    env = SkillEnv(cfg, lat, pf)
+    env.reset(sample_worlds(cfg.world, 1000, [0]))
+    pl = make_planner("greedy", env)
+    while not env.done.all():
+        env.step(pl.act())
+    assert env.leg_table()[:, 1].mean() > 0.5 and env.tracking_table()[:, 2].max() < 0.5
