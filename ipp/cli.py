@@ -362,8 +362,10 @@ def _bench(a) -> int:
         write_atomic(out / "ipp_execution.md", ex)
     print(md, end="")
     write_atomic(out / "ipp_bench.md", md)
-    write_atomic(out / "ipp_bench.csv", summary_csv(results, env.kind))
-    write_atomic(out / "ipp_bench_envs.csv", per_env_csv(results))
+    flat = results if len(by_mode) == 1 else \
+        {f"{k}@{m}": r for m, res in by_mode.items() for k, r in res.items()}  # every mode
+    write_atomic(out / "ipp_bench.csv", summary_csv(flat, env.kind))
+    write_atomic(out / "ipp_bench_envs.csv", per_env_csv(flat))
     plot_kl(results, labels, out / "ipp_kl.png",
             xlabel="prior cross-entropy (nats/cell), quantile bins" if env.kind == "semantic"
             else "KL(truth || prior) (nats), quantile bins")
