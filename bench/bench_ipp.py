@@ -23,7 +23,8 @@ import time
 import numpy as np
 
 from aerohrl.ipp.baselines import PLANNERS, TEACHERS, PlannerConfig, make_planner
-from aerohrl.ipp.env import EnvConfig, SearchEnv, create_env, sample_for, semantic_config
+from aerohrl.ipp.env import EnvConfig, SearchEnv, semantic_config
+from aerohrl.ipp.factory import create_env, sample_for
 from aerohrl.ipp.lattice import default_lattice, semantic_lattice
 from aerohrl.ipp.world import sample_worlds
 

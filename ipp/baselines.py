@@ -47,13 +47,15 @@ from scipy.ndimage import distance_transform_edt
 from aerohrl.errors import UserError
 
 from .env import SearchEnv
-from .sensor import entropy_bits, sigmoid
+from .scoring import info_gain  # noqa: F401  (re-exported: tests, features' docs)
 
 PLANNERS = ("greedy", "dp", "cmaes", "coverage", "prio_coverage")  # thesis Table 2.1
 TEACHERS = ("detect",)  # training-time teachers; `ipp bench --planner detect`, not in --all
 THESIS_NAMES = {"greedy": "Greedy-IPP", "dp": "DP-IPP", "cmaes": "CMAES-IPP",
                 "coverage": "Coverage", "prio_coverage": "Prioritised Coverage",
-                "rl_nolstm": "Ours-noLSTM", "rl": "Ours-LSTM",
+                # learned rows are named by policy.describe_policy (what trained them);
+                # these two are the thesis's own names, for its columns only
+                "rl_nolstm": "Ours-noLSTM (thesis)", "rl": "Ours-LSTM (thesis)",
                 "detect": "Detection tree (teacher)"}
 
 
@@ -71,16 +73,34 @@ class PlannerConfig:
     sigma0: float = 0.3            # CMA-ES initial step size on [0, 1]^horizon
     max_nodes: int = 2_000_000     # memory bound per chunk for dense overlap maps
     budget_aware: bool | None = None  # tree planners: None = planner default (detect only)
+    scoring: str = "ratio"         # "ratio": utility / cost; "additive": utility - w * cost
+    cost_weight: float = 0.0       # additive: w per cost unit (0: utility alone, as the
+                                   # original's coverage planners)
+    prio_revisit: bool = True      # prioritised coverage scores belief mass of every sensed
+                                   # cell, covered or not (the original); False: new cells only
+    cmaes_tol: float = 0.0         # CMA-ES: stop an env's search when the std of its
+                                   # generation-best score over the last 10 generations is
+                                   # <= tol * |mean| (the original: absolute std < 0.1 in
+                                   # its reward units); 0 = run every generation
+
+    def validate(self) -> None:
+        if self.scoring not in ("ratio", "additive"):
+            raise UserError(f"unknown scoring {self.scoring!r} (ratio|additive)")
+        if not np.isfinite(self.cmaes_tol) or self.cmaes_tol < 0:
+            raise UserError("--cmaes-tol must be a finite number >= 0")
+        if not np.isfinite(self.cost_weight) or self.cost_weight < 0:
+            raise UserError("--cost-weight must be a finite number >= 0")
 
 
-def info_gain(b: np.ndarray, lam: np.ndarray) -> np.ndarray:
-    """Expected entropy reduction (bits) of a cell with belief ``b`` sensed with ``lam``."""
-    e = sigmoid(-lam)
-    pz1 = b * (1 - e) + (1 - b) * e
-    pz1 = np.clip(pz1, 1e-12, 1 - 1e-12)
-    post1 = b * (1 - e) / pz1
-    post0 = b * e / (1 - pz1)
-    return entropy_bits(b) - pz1 * entropy_bits(post1) - (1 - pz1) * entropy_bits(post0)
+def sequence_score(util: np.ndarray, cost: np.ndarray, cfg: "PlannerConfig") -> np.ndarray:
+    """Score of primitive sequences from their summed utility and cost (batched).
+
+    ``ratio`` (default): ``util / cost``, utility per unit of budget. ``additive``:
+    ``util - w * cost`` (the original code's form: its coverage planners maximise the
+    summed utility alone, ``w = 0``; its greedy planner subtracts the cost)."""
+    if cfg.scoring == "additive":
+        return util - cfg.cost_weight * cost
+    return util / cost
 
 
 class Planner:
@@ -88,6 +108,7 @@ class Planner:
 
     def __init__(self, env: SearchEnv, cfg: PlannerConfig | None = None):
         self.env, self.cfg = env, cfg or PlannerConfig()
+        self.cfg.validate()
 
     def reset(self) -> None:
         pass
@@ -127,6 +148,9 @@ class TreePlanner(Planner):
         if self.kind == "coverage":
             return new.astype(float)
         if self.kind == "prio":
+            if self.cfg.prio_revisit:  # the original: belief mass of every sensed cell (once
+                # per sequence), covered or not, so likely targets are revisited and confirmed
+                return (lp == 0) * env.plan_prio(b) + self.cfg.eps * new
             return new * (self.cfg.eps + env.plan_prio(b))
         if self.kind == "greedy":
             return self.cfg.f1 * env.plan_prio(b) + self.cfg.f2 * env.plan_entropy(b)
@@ -237,7 +261,7 @@ class TreePlanner(Planner):
             vert = lat.prim_to[pr].reshape(n, K * A)
         if self.budget_aware:
             cost = np.minimum(cost, env.remaining[idx, None])
-        score = np.where(alive, util / cost, -np.inf)
+        score = np.where(alive, sequence_score(util, cost, self.cfg), -np.inf)
         first = score.reshape(n, A, -1).max(-1)  # best continuation per first action
         best = first.argmax(1)
         flat_zero = ~(first.max(1) > 1e-9)
@@ -349,16 +373,36 @@ class CMAESPlanner(Planner):
             best_a = np.zeros((len(need), h), np.int64)
             P = cfg.popsize
             env_idx = np.repeat(need, P)
+            hist = np.zeros((0, len(need)))
+            active = np.ones(len(need), bool)  # envs whose search has not settled
+            self.evaluations = getattr(self, "evaluations", 0)
+            self.generations_run = getattr(self, "generations_run", 0)
             for _ in range(cfg.generations):
-                X = np.array([[o.ask() for _ in range(P)] for o in opts])  # (E, P, h)
-                acts, util, cost = self._decode(X.reshape(-1, h), env_idx)
-                f = (-util / cost).reshape(len(need), P)
-                for j, o in enumerate(opts):
-                    o.tell(list(zip(X[j], f[j])))
+                act_j = np.flatnonzero(active)
+                X = np.array([[opts[j].ask() for _ in range(P)] for j in act_j])  # (E, P, h)
+                acts, util, cost = self._decode(X.reshape(-1, h), np.repeat(need[act_j], P))
+                self.evaluations += X.shape[0] * P
+                self.generations_run += len(act_j)
+                f = (-sequence_score(util, cost, cfg)).reshape(len(act_j), P)
+                for r, j in enumerate(act_j):
+                    opts[j].tell(list(zip(X[r], f[r])))
                 k = f.argmin(1)
-                better = f[np.arange(len(need)), k] < best_f
-                best_f[better] = f[np.arange(len(need)), k][better]
-                best_a[better] = acts.reshape(len(need), P, h)[np.arange(len(need)), k][better]
+                fk = f[np.arange(len(act_j)), k]
+                better = fk < best_f[act_j]
+                best_f[act_j[better]] = fk[better]
+                best_a[act_j[better]] = acts.reshape(len(act_j), P, h)[np.arange(len(act_j)), k][better]
+                gen_best = np.full(len(need), np.nan)
+                gen_best[act_j] = fk
+                hist = np.vstack([hist, gen_best])
+                if cfg.cmaes_tol > 0 and len(hist) >= 10:
+                    # the original's stop (std of the generation's best over the last 10
+                    # generations), relative to its magnitude: our scores are per cost unit
+                    w = hist[-10:]
+                    with np.errstate(invalid="ignore"):
+                        settled = np.std(w, 0) <= cfg.cmaes_tol * np.abs(np.mean(w, 0))
+                    active &= ~settled
+                    if not active.any():
+                        break
             newq[need] = best_a
             self.queue = newq
         a = np.where(self.queue[:, 0] >= 0, self.queue[:, 0], 0)

@@ -68,8 +68,9 @@ def _parser() -> argparse.ArgumentParser:
                        "procedural campus maps (see aerohrl.ipp.semantic)")
         q.add_argument("--map-size", type=T.positive_int, default=None,
                        help=f"cells per side (default {ec.map_size}; semantic 256)")
-        q.add_argument("--budget", type=T.positive_float, default=None,
-                       help=f"cost budget (default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
+        q.add_argument("--budget", type=_budget, default=None,
+                       help=f"cost budget: a number > 0 or a name ({_budget_names()}; "
+                       f"default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
 
     def env_flags(q):
         q.add_argument("--lattice", help="lattice file (default: the shipped one)")
@@ -80,6 +81,17 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--horizon", type=T.positive_int, default=5, help="CMA-ES horizon")
         q.add_argument("--popsize", type=T.positive_int, default=12)
         q.add_argument("--generations", type=T.positive_int, default=15)
+        q.add_argument("--scoring", choices=("ratio", "additive"), default="ratio",
+                       help="planners: utility per unit cost (default) or utility - "
+                       "w * cost (the original's form)")
+        q.add_argument("--cost-weight", type=T.nonneg_float, default=0.0,
+                       help="--scoring additive: w per cost unit (default 0: utility alone)")
+        q.add_argument("--prio-revisit", action=argparse.BooleanOptionalAction, default=True,
+                       help="prio_coverage scores the belief mass of covered cells too "
+                       "(default, the original); --no-prio-revisit: new cells only")
+        q.add_argument("--cmaes-tol", type=T.nonneg_float, default=0.0,
+                       help="CMA-ES: stop when the best score's std over 10 generations is "
+                       "< tol (original 0.1; default 0: run every generation)")
         q.add_argument("--budget-aware", action=argparse.BooleanOptionalAction, default=None,
                        help="tree planners: score by min(cost, remaining budget) (default: "
                        "on for detect only)")
@@ -135,6 +147,18 @@ def _parser() -> argparse.ArgumentParser:
                     help="test environments (default 100; semantic 30, as the thesis)")
     be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together")
     be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
+    be.add_argument("--execution", type=_executions, default=("ideal",),
+                    help="ideal (the lattice's sensing, default), flown (the 6-DoF "
+                    "simulator and geometric controller fly each primitive; sensing along the "
+                    "flown path) and/or skill (the chapter-3 policy of --skill-run flies it "
+                    "through goals 0.5-1 s apart), comma-separated: e.g. 'ideal,flown,skill' "
+                    "writes ipp_execution.md")
+    be.add_argument("--skill-run", default=None,
+                    help="--execution skill: the chapter-3 goal-conditioned policy run "
+                    "(directory: its last checkpoint; or a checkpoint file)")
+    be.add_argument("--budgets", type=_budget_list, default=None,
+                    help="sweep: comma-separated budgets (numbers or names); writes "
+                    "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)")
     be.add_argument("--no-progress", action="store_true")
     env_flags(be)
 
@@ -142,8 +166,52 @@ def _parser() -> argparse.ArgumentParser:
     sh.add_argument("--env", type=T.nonneg_int, default=0, help="test-suite world index")
     sh.add_argument("--planner", default="dp")
     sh.add_argument("-o", "--output", required=True)
+    sh.add_argument("--gif", help="also write an animated episode (GIF): belief, path, found "
+                    "and missed targets, one frame per primitive")
+    sh.add_argument("--execution", type=_executions, default=("ideal",),
+                    help="ideal (default), flown or skill")
+    sh.add_argument("--skill-run", default=None, help="--execution skill: policy run")
     env_flags(sh)
     return p
+
+
+def _budget_names() -> str:
+    from .env import BUDGETS
+    return ", ".join(f"{k} = {v:g}" for k, v in BUDGETS.items())
+
+
+def _budget(text: str) -> float:
+    """A budget: a name of :data:`aerohrl.ipp.env.BUDGETS` or a finite number > 0."""
+    from .env import BUDGETS
+    if text.strip() in BUDGETS:
+        return BUDGETS[text.strip()]
+    return T.positive_float(text)
+
+
+_budget.__name__ = "budget"
+
+
+def _budget_list(text: str) -> tuple[float, ...]:
+    parts = [t for t in text.split(",") if t.strip()]
+    if not parts:
+        raise argparse.ArgumentTypeError(f"no budgets in {text!r}")
+    return tuple(_budget(t) for t in parts)
+
+
+_budget_list.__name__ = "budget list"
+
+
+def _executions(text: str) -> tuple[str, ...]:
+    from .flown import EXECUTIONS
+    modes = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [m for m in modes if m not in EXECUTIONS]
+    if not modes or bad:
+        raise argparse.ArgumentTypeError(f"unknown execution mode {(bad or [text])[0]!r} "
+                                         f"(choose from {', '.join(EXECUTIONS)})")
+    return tuple(dict.fromkeys(modes))
+
+
+_executions.__name__ = "execution"
 
 
 def _floats(text: str) -> tuple[float, ...]:
@@ -158,7 +226,9 @@ def _configs(a):
 
     env = _env_config(a, a.start)
     pc = PlannerConfig(depth=a.depth, horizon=a.horizon, popsize=a.popsize,
-                       generations=a.generations, budget_aware=a.budget_aware)
+                       generations=a.generations, budget_aware=a.budget_aware,
+                       scoring=a.scoring, cost_weight=a.cost_weight,
+                       prio_revisit=a.prio_revisit, cmaes_tol=a.cmaes_tol)
     if a.horizon < 1 or a.popsize < 2 or a.generations < 1:
         raise UserError("--horizon >= 1, --popsize >= 2 and --generations >= 1 are required")
     return env, pc
@@ -227,7 +297,7 @@ def _bench(a) -> int:
 
     from .baselines import PLANNERS, THESIS_NAMES, make_planner
     from .bench import BenchConfig, run_episodes
-    from .env import create_env
+    from .factory import create_env
     from .lattice import get_lattice
     from .metrics import (markdown_table, paired_markdown, per_env_csv, plot_kl, summarise,
                           summary_csv, write_atomic)
@@ -248,32 +318,120 @@ def _bench(a) -> int:
         if name != "rl":
             make_planner(name, probe, pc)
     rows = [(n, None) for n in names if n != "rl"] + list(models.items())
-    results = {}
-    for name, model in rows:
-        bar = tqdm(total=a.envs, desc=name, file=sys.stderr, disable=a.no_progress,
-                   leave=False)
-        r = run_episodes(name, lat, cfg, progress=bar, model=model)
-        bar.close()
-        r["summary"] = summarise(r["per_env"])
-        results[name] = r
+    if a.execution != ("ideal",) and env.kind != "targets":
+        raise UserError("--execution flown is for target search (--world targets)")
+    if a.budgets:
+        if a.execution != ("ideal",):
+            raise UserError("--budgets sweeps ideal execution only (drop --execution)")
+        return _bench_budgets(a, cfg, lat, rows, models, pc)
+    skill = skill_label = None
+    if "skill" in a.execution:
+        from .flown import load_skill
+        skill, skill_label = load_skill(a.skill_run)
+    elif a.skill_run is not None:
+        raise UserError("--skill-run needs --execution skill")
+    by_mode = {}
+    for mode in a.execution:
+        mcfg = replace(cfg, execution=mode)
+        res = {}
+        for name, model in rows:
+            bar = tqdm(total=a.envs, desc=f"{name} ({mode})", file=sys.stderr,
+                       disable=a.no_progress or not sys.stderr.isatty(), leave=False)
+            r = run_episodes(name, lat, mcfg, progress=bar, model=model, skill=skill)
+            bar.close()
+            r["summary"] = summarise(r["per_env"])
+            res[name] = r
+        by_mode[mode] = res
+    results = by_mode[a.execution[-1]]
     labels = dict(THESIS_NAMES)
-    if pc.budget_aware is not None:  # a non-default scoring: say so in the table
-        for n in names:
-            if n not in ("rl", "cmaes") and pc.budget_aware != (n == "detect"):
-                labels[n] = f"{labels[n]} ({'' if pc.budget_aware else 'not '}budget-aware)"
-    for k, m in models.items():
-        if k not in labels:  # second and further runs: label them by their directory
-            labels[k] = f"{THESIS_NAMES['rl' if m.cfg.recurrent else 'rl_nolstm']} ({m.run_label})"
-    md = markdown_table(results, labels, env.kind) + paired_markdown(results, labels, PLANNERS)
-    print(md, end="")
+    labels = _variant_labels(labels, names, pc)
+    from .policy import describe_policy
+    for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
+        labels[k] = f"{describe_policy(m)} ({m.run_label})"
+    md = ""
+    for mode, res in by_mode.items():
+        if len(by_mode) > 1 or mode != "ideal":
+            md += f"\n**{mode} execution**\n\n"
+        md += markdown_table(res, labels, env.kind) + paired_markdown(res, labels, PLANNERS)
     out = Path(a.out_dir)
+    if len(by_mode) > 1 or set(by_mode) & {"flown", "skill"}:
+        from .metrics import execution_markdown
+        ex = execution_markdown(by_mode, labels)
+        md += "\n**Execution: " + " vs ".join(by_mode) + "**" + (
+            f" (skill: {skill_label})" if skill_label else "") + "\n\n" + ex
+        write_atomic(out / "ipp_execution.md", ex)
+    print(md, end="")
     write_atomic(out / "ipp_bench.md", md)
-    write_atomic(out / "ipp_bench.csv", summary_csv(results, env.kind))
-    write_atomic(out / "ipp_bench_envs.csv", per_env_csv(results))
+    flat = results if len(by_mode) == 1 else \
+        {f"{k}@{m}": r for m, res in by_mode.items() for k, r in res.items()}  # every mode
+    write_atomic(out / "ipp_bench.csv", summary_csv(flat, env.kind))
+    write_atomic(out / "ipp_bench_envs.csv", per_env_csv(flat))
     plot_kl(results, labels, out / "ipp_kl.png",
             xlabel="prior cross-entropy (nats/cell), quantile bins" if env.kind == "semantic"
             else "KL(truth || prior) (nats), quantile bins")
     print(f"wrote {out}/ipp_bench.md, ipp_bench.csv, ipp_bench_envs.csv, ipp_kl.png")
+    return 0
+
+
+def _variant_labels(labels: dict, names, pc) -> dict:
+    """Say so in the row name when a planner runs with a non-default option."""
+    labels = dict(labels)
+    for n in names:
+        if n == "rl" or n not in labels:
+            continue
+        tags = []
+        if pc.budget_aware is not None and n != "cmaes" and pc.budget_aware != (n == "detect"):
+            tags.append(f"{'' if pc.budget_aware else 'not '}budget-aware")
+        if pc.scoring == "additive":
+            tags.append(f"additive, w = {pc.cost_weight:g}")
+        if n == "prio_coverage" and not pc.prio_revisit:
+            tags.append("no revisits")
+        if n == "cmaes" and (pc.popsize, pc.generations) != (12, 15):
+            tags.append(f"{pc.popsize} x {pc.generations}")
+        if tags:
+            labels[n] = f"{labels[n]} ({', '.join(tags)})"
+    return labels
+
+
+def _labels(names, models, pc) -> dict:
+    from .baselines import THESIS_NAMES
+    from .policy import describe_policy
+    labels = _variant_labels(THESIS_NAMES, names, pc)
+    for k, m in models.items():
+        labels[k] = f"{describe_policy(m)} ({m.run_label})"
+    return labels
+
+
+def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
+    """``ipp bench --budgets B1,B2,...``: every row at every budget (same worlds)."""
+    from dataclasses import replace as dc_replace
+
+    from tqdm import tqdm
+
+    from .bench import run_episodes
+    from .factory import create_env
+    from .metrics import budget_csv, budget_markdown, plot_budgets, summarise, write_atomic
+
+    for b in a.budgets:  # every budget must pay for a primitive: fail before running
+        create_env(dc_replace(cfg.env, budget=b), lat)
+    labels = _labels([n for n, _ in rows], models, pc)
+    sweep = {}  # (row, budget) -> result
+    for b in a.budgets:
+        bc = dc_replace(cfg, env=dc_replace(cfg.env, budget=b))
+        for name, model in rows:
+            bar = tqdm(total=a.envs, desc=f"{name} @ {b:g}", file=sys.stderr,
+                       disable=a.no_progress or not sys.stderr.isatty(), leave=False)
+            r = run_episodes(name, lat, bc, progress=bar, model=model)
+            bar.close()
+            r["summary"] = summarise(r["per_env"])
+            sweep[(name, b)] = r
+    md = budget_markdown(sweep, labels, cfg.env.kind)
+    print(md, end="")
+    out = Path(a.out_dir)
+    write_atomic(out / "ipp_budgets.md", md)
+    write_atomic(out / "ipp_budgets.csv", budget_csv(sweep))
+    plot_budgets(sweep, labels, out / "ipp_budgets.png", cfg.env.kind)
+    print(f"wrote {out}/ipp_budgets.md, ipp_budgets.csv, ipp_budgets.png")
     return 0
 
 
@@ -327,7 +485,7 @@ def _train(a) -> int:
     if cfg.teacher_depth is not None and not 1 <= cfg.teacher_depth <= 4:
         raise UserError(f"--teacher-depth must be in 1..4, got {cfg.teacher_depth}")
     cfg.validate()
-    from .env import create_env
+    from .factory import create_env
     create_env(cfg.env, lat)
     if not a.resume and not atomic.new_folder(run):  # exclusive: a second run never writes into the first's
         raise UserError(f"run folder {run} exists; choose another --run-dir, or --resume {run}")
@@ -359,17 +517,34 @@ def _show(a) -> int:
     if a.env < 0:
         raise UserError("--env must be >= 0")
     env, pc = _configs(a)
-    cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc)
+    if len(a.execution) != 1:
+        raise UserError("show takes one --execution mode")
+    if a.gif is not None and Path(a.gif).suffix.lower() != ".gif":
+        raise UserError(f"--gif must end in .gif, got {a.gif}")
+    cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc,
+                      execution=a.execution[0])
     lat = get_lattice(a.lattice, env.kind)
     key, model = next(iter(_load_models(a, env.kind).items())) if a.planner == "rl" \
         else (a.planner, None)
-    r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model)
+    skill = None
+    if cfg.execution == "skill":
+        from .flown import load_skill
+        skill, _ = load_skill(a.skill_run)
+    r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model,
+                     skill=skill)
     m = r["per_env"]
-    title = (f"{THESIS_NAMES.get(key, key)} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
+    from .policy import describe_policy
+    label = describe_policy(model) if model is not None else THESIS_NAMES.get(key, key)
+    title = (f"{label} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
              f"entropy red. {m['entropy_reduction'][0]:.0f}%, "
              f"search eff. {m['search_efficiency'][0]:.0f}%")
     out = render_episode(r["env"], 0, a.output, title)
     print(f"{title} -> {out}")
+    if a.gif:
+        from .bench import animate_episode
+        g = animate_episode(a.planner, lat, cfg, a.env, a.gif, model=model, skill=skill,
+                            title=f"{label}, test world {a.env} ({cfg.execution})")
+        print(f"animation -> {g}")
     return 0
 
 

@@ -37,12 +37,26 @@ import numpy as np
 from aerohrl.errors import UserError
 
 from .lattice import Lattice
+from .scoring import detect_prob, info_gain
 from .sensor import (SensorConfig, entropy_bits, hashed_uniform, logit,
                      logodds_step, measure, sigmoid)
 from .semantic import SemanticConfig
-from .world import WorldConfig, Worlds, sample_worlds
+from .world import WorldConfig, Worlds
 
 TERMS = ("entropy", "coverage", "target", "cost", "invalid")
+
+PAD_ORIG = 5     # the original code's padding per side: 30 x 30 inner map in a 40 x 40 world
+H_PAD = 0.0      # entropy (bits) of that padding ring there: belief 0 -> 0 bits
+
+# Budgets in primitive-cost units (rho*T + int |jerk|^2 of our lattice). The default buys
+# the original code's *ground track*: its budget (paper-era commit 0d6a531, 10 x 10000 of
+# its own cost units) flies about 72 primitives, 224 cells of path and 267 s; 9250 of ours
+# flies ~224 cells in ~47 primitives and ~88 s (our primitives are faster: ~2.5 vs ~0.8
+# cells/s). Measured by ``ipp bench --budgets`` (ipp/README.md). TIGHT is the earlier
+# default (about 20-26 primitives, ~120 cells, ~48 s).
+BUDGET_DEFAULT = 9250.0
+BUDGET_TIGHT = 5000.0
+BUDGETS = {"default": BUDGET_DEFAULT, "tight": BUDGET_TIGHT}
 
 
 @dataclass(frozen=True)
@@ -50,7 +64,7 @@ class EnvConfig:
     """Environment parameters; ``budget`` is in primitive-cost units."""
 
     map_size: int = 30
-    budget: float = 5000.0
+    budget: float = BUDGET_DEFAULT
     found_threshold: float = 0.95
     start: str = "center"          # "center" or "random" (valid, viable hover start)
     r_entropy: float = 15.0
@@ -148,6 +162,7 @@ class SearchEnv:
         self.boundary = (~inner).astype(np.float32)
         self.n = 0
         self.lazy_obs = False  # True: step() returns obs=None (planners that do not need it)
+        self.keep_trace = True  # per-step path records (figures); off in the Gymnasium wrapper
         self.version = 0  # bumped by reset() and step(): caches of derived quantities key on it
 
     # ----------------------------------------------------------------- set-up
@@ -162,6 +177,7 @@ class SearchEnv:
         self.L = np.full((N, self.Hp, self.Hp), -cfg.sensor.logodds_clip)
         self.L[sl] = logit(worlds.prior)
         self.cov = np.zeros((N, self.Hp, self.Hp), bool)
+        self.cov_ring = np.zeros((N, self.Hp, self.Hp), bool)  # sensed cells off the map
         self.found = np.zeros((N, self.Hp, self.Hp), bool)
         # observation planes kept up to date incrementally: belief (0 off the map),
         # coverage, boundary; float32 (N, 3, Hp, Hp)
@@ -171,6 +187,28 @@ class SearchEnv:
         self._common_reset(worlds, start)
         self.n_targets = worlds.targets.reshape(N, -1).sum(1)
         return self.observe()
+
+    def reset_rows(self, rows: np.ndarray, worlds: Worlds, start: np.ndarray | None = None) -> None:
+        """Start new episodes in environments ``rows`` only (the others keep running):
+        the rows of every per-environment array are replaced by those of a fresh batch
+        reset on ``worlds`` (target search). Traces are not kept per row (the Gymnasium
+        wrapper runs with ``keep_trace = False``)."""
+        rows = np.asarray(rows, np.int64)
+        if len(rows) != len(worlds):
+            raise ValueError("reset_rows: one world per row")
+        fresh = SearchEnv(self.cfg, self.lat)
+        fresh.keep_trace = False
+        fresh.reset(worlds, start)
+        N, k = self.n, len(rows)
+        for name, val in vars(fresh).items():
+            cur = getattr(self, name, None)
+            if isinstance(val, np.ndarray) and isinstance(cur, np.ndarray) and val.ndim \
+                    and val.shape[0] == k and cur.shape[0] == N and cur.shape[1:] == val.shape[1:]:
+                cur[rows] = val
+        w = self.worlds
+        for f in ("density", "targets", "prior", "kl", "kl_sym", "seeds"):
+            getattr(w, f)[rows] = getattr(worlds, f)
+        self.version += 1
 
     def _common_reset(self, worlds, start) -> None:
         """Start cells, lattice state, budget, entropy, counters (both env kinds)."""
@@ -195,9 +233,13 @@ class SearchEnv:
         self.H = self.H0.copy()
         self.n_cov = np.zeros(N, np.int64)
         self.n_found = np.zeros(N, np.int64)
-        self.trace = [self.pos.copy()]
+        # flight actually bought by the budget (valid primitives only; invalid ones stay)
+        self.n_flown = np.zeros(N, np.int64)
+        self.path_cells = np.zeros(N)
+        self.flight_s = np.zeros(N)
+        self.trace = [self.pos.copy()] if self.keep_trace else []
         self.trace_prim = []
-        self.trace_budget = [self.remaining.copy()]
+        self.trace_budget = [self.remaining.copy()] if self.keep_trace else []
         self.version += 1
         self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) \
             + worlds.seeds[:, 1].astype(np.uint64)
@@ -226,15 +268,39 @@ class SearchEnv:
         return (idx.reshape(sh) * self.Hp + y) * self.Hp + x
 
     def metrics(self) -> dict[str, np.ndarray]:
-        """Thesis Table 2.1 metrics on the inner map, per environment, in %."""
+        """Thesis Table 2.1 metrics per environment, in %, over both denominators.
+
+        * ``coverage``: covered cells / the inner ``S x S`` map (900 cells at S = 30);
+          ``coverage_padded``: the same cells / the padded ``(S + 2*PAD_ORIG)^2`` map
+          (1,600 cells), as the thesis and the original code (``env/Metrics.py``) divide;
+          its numerator also counts footprint cells in the 5-cell ring around the map
+          (the original's world holds them; the thesis's Coverage row, 62.2 % of 1,600
+          = 995 cells, exceeds the 900 inner cells, so it must). Our sensor never
+          *measures* off the map: the ring counts only for this column.
+        * ``entropy_reduction`` = ``1 - H_T / H_0`` (Eq. 2.4) over the inner map;
+          ``entropy_reduction_padded`` adds the padding ring's entropy to both sums, as
+          the original does. Its padding holds belief 0 (entropy 0), so the two are equal
+          by construction; the column is printed so that the match is visible.
+        * ``search_efficiency`` = targets found / targets.
+        * ``primitives``, ``path_cells`` (arc length, cells = m), ``flight_s``: the flight
+          the budget bought (valid primitives executed).
+        """
         p, S = self.pad, self.S
-        cov = self.cov[:, p:p + S, p:p + S].reshape(self.n, -1).mean(1)
+        ncov = self.cov[:, p:p + S, p:p + S].reshape(self.n, -1).sum(1)
+        nring = self.cov_ring.reshape(self.n, -1).sum(1)
+        Sp = S + 2 * PAD_ORIG
+        er = 100.0 * (1.0 - self.H / self.H0)
         return {
-            "coverage": 100.0 * cov,
-            "entropy_reduction": 100.0 * (1.0 - self.H / self.H0),
+            "coverage": 100.0 * ncov / (S * S),
+            "coverage_padded": 100.0 * (ncov + nring) / (Sp * Sp),
+            "entropy_reduction": er,
+            "entropy_reduction_padded": 100.0 * (1.0 - (self.H + H_PAD) / (self.H0 + H_PAD)),
             "search_efficiency": 100.0 * self.n_found / np.maximum(self.n_targets, 1),
             "kl": self.worlds.kl.copy(),
             "steps": self.steps.copy(),
+            "primitives": self.n_flown.copy(),
+            "path_cells": self.path_cells.copy(),
+            "flight_s": self.flight_s.copy(),
         }
 
     def action_features(self) -> np.ndarray:
@@ -271,6 +337,9 @@ class SearchEnv:
             Hn, ncov, nf, rt = self._apply(idx, pr)
             self.pos[idx] += lat.prim_disp[pr]
             self.vert[idx] = lat.prim_to[pr]
+            self.n_flown[idx] += 1
+            self.path_cells[idx] += lat.prim_length[pr]
+            self.flight_s[idx] += lat.prim_T[pr]
         else:
             Hn, ncov = self.H, self.n_cov
             nf, rt = np.zeros(self.n, np.int64), np.zeros(self.n)
@@ -290,9 +359,10 @@ class SearchEnv:
             terms[stuck, 3] -= cfg.r_cost * self.remaining[stuck] / cfg.budget
             self.remaining[stuck] = 0.0
         self.done |= act & (self.remaining <= 1e-9 * cfg.budget)
-        self.trace.append(self.pos.copy())
-        self.trace_prim.append(np.where(valid, prim, -1))
-        self.trace_budget.append(np.maximum(self.remaining, 0.0))
+        if self.keep_trace:
+            self.trace.append(self.pos.copy())
+            self.trace_prim.append(np.where(valid, prim, -1))
+            self.trace_budget.append(np.maximum(self.remaining, 0.0))
         self.version += 1
         obs = None if self.lazy_obs else self.observe()
         return obs, terms.sum(1), terms, self.done.copy()
@@ -303,15 +373,37 @@ class SearchEnv:
         Returns the new map entropy (N,), covered-cell counts (N,), newly found targets
         (N,) and the target reward (N,). Eq. 2.2 per touched cell, batched.
         """
-        cfg, lat = self.cfg, self.lat
-        lev = lat.meas_level[pr].astype(np.int64)  # (k, M)
-        off = lat.meas_off[pr].astype(np.int64)
+        lat = self.lat
+        return self._apply_meas(idx, lat.meas_off[pr].astype(np.int64),
+                                lat.meas_level[pr].astype(np.int64))
+
+    def _apply_meas(self, idx: np.ndarray, off: np.ndarray, lev: np.ndarray):
+        """:meth:`_apply` for explicit measurement lists: cell offsets ``off`` (k, M, 2)
+        from the agents' cells and Chebyshev levels ``lev`` (k, M), -1 = none (the ideal
+        primitives' lists, or those of a flown path, :mod:`.flown`)."""
+        cfg = self.cfg
         flat = self.flat_index(off, idx)
         x = self.pos[idx, 0, None] + off[..., 0]
         y = self.pos[idx, 1, None] + off[..., 1]
         use = (lev >= 0) & (x >= 0) & (x < self.S) & (y >= 0) & (y < self.S)
+        # the original's 40 x 40 world: footprint cells in its 5-cell ring count as covered
+        # for the padded denominator (never measured here: off the map)
+        ring = (lev >= 0) & ~use & (x >= -PAD_ORIG) & (x < self.S + PAD_ORIG) \
+            & (y >= -PAD_ORIG) & (y < self.S + PAD_ORIG)
+        if ring.any():
+            self.cov_ring.reshape(-1)[flat[ring]] = True
         levc = np.maximum(lev, 0)
-        slot = np.arange(lev.shape[1])[None, :]
+        # noise keyed by the measurement itself, (footprint centre cell, footprint slot),
+        # not by its place in the list: the same measurements draw the same labels
+        # whichever list they come from (ideal primitive tables or a flown path, .flown)
+        r = self.lat.config.footprint_radius
+        F = (2 * r + 1) ** 2
+        fidx = np.arange(lev.shape[1]) % F
+        fx = fidx % (2 * r + 1) - r
+        fy = fidx // (2 * r + 1) - r
+        cx = x - fx[None, :] + 512
+        cy = y - fy[None, :] + 512
+        slot = (cy * 2048 + cx) * F + fidx[None, :]
         u = hashed_uniform(self._seed_key[idx, None], self.steps[idx, None], slot)
         z = measure(self.truth.ravel()[flat], self.err_levels[levc], u)
         dl = np.where(z, 1.0, -1.0) * self.lam_levels[levc]
@@ -348,7 +440,6 @@ class SearchEnv:
 
     def plan_ig(self, b: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """Expected information gain (bits) of sensing cells ``b`` with total ``lam``."""
-        from .baselines import info_gain
         return info_gain(b, lam)
 
     def plan_prio(self, b: np.ndarray) -> np.ndarray:
@@ -365,10 +456,7 @@ class SearchEnv:
     def plan_detect(self, b: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """P(the cell is a target and is detected) after sensing with ``lam`` (as one
         measurement with error ``sigma(-lam)``)."""
-        L = logit(np.clip(b, 1e-12, 1 - 1e-12))
-        thr = logit(self.cfg.found_threshold)
-        e = sigmoid(-lam)
-        return b * ((1 - e) * (L + lam >= thr) + e * (L - lam >= thr))
+        return detect_prob(b, lam, self.cfg.found_threshold)
 
     def plan_open(self, b: np.ndarray) -> np.ndarray:
         """Cells the agent does not yet believe found (belief below the threshold)."""
@@ -454,26 +542,3 @@ def semantic_config(budget: float | None = None, raster: str | None = None,
                      sensor=SensorConfig(err0=0.1, err_slope=0.05),
                      world=WorldConfig(map_size=map_size),
                      semantic=SemanticConfig(map_size=map_size, raster=raster))
-
-
-def create_env(cfg: EnvConfig, lattice: Lattice) -> SearchEnv:
-    """A :class:`SearchEnv` or (``cfg.kind == "semantic"``) a ``SemanticEnv``."""
-    if cfg.kind == "semantic":
-        from .semantic_env import SemanticEnv
-        return SemanticEnv(cfg, lattice)
-    return SearchEnv(cfg, lattice)
-
-
-def sample_for(cfg: EnvConfig, seed: int, indices):
-    """Worlds ``indices`` of suite ``seed`` of the config's kind."""
-    if cfg.kind == "semantic":
-        from .semantic import sample_semantic_worlds
-        return sample_semantic_worlds(cfg.semantic, seed, indices)
-    return sample_worlds(cfg.world, seed, indices)
-
-
-def make_env(cfg: EnvConfig, lattice: Lattice, seed: int, indices) -> tuple[SearchEnv, dict]:
-    """Convenience: an env reset on worlds ``indices`` of suite ``seed``."""
-    env = create_env(cfg, lattice)
-    obs = env.reset(sample_for(cfg, seed, indices))
-    return env, obs

@@ -8,7 +8,7 @@ with the same tiled sensing tables the baselines use (:mod:`.baselines`):
 
 ====  =====================================================================
 0     expected information gain of the sensed cells, bits / footprint area
-      (``IG(b, lam)`` of :func:`aerohrl.ipp.baselines.info_gain`)
+      (``IG(b, lam)`` of :func:`aerohrl.ipp.scoring.info_gain`)
 1     expected detections: ``sum b * P(posterior >= threshold | target)`` over
       sensed cells not yet believed found (``env.plan_open``: belief below the
       threshold; one-measurement equivalent of ``lam``, as in
@@ -323,7 +323,7 @@ def _sem_tables(lat_id, lam_levels, n_classes):
     """Per lattice vertex: the sparse matrices and the residual table (see above)."""
     from scipy.sparse import csr_matrix
 
-    from .semantic_env import LAM_CAP, detect_success
+    from .scoring import LAM_CAP, detect_success
 
     lat = _LATS[lat_id]
     lamv = np.asarray(lam_levels, np.float64)
@@ -402,7 +402,7 @@ def _sem_sums(env, T, idx, v):
     first slots), the linear sums of the first slots (G, A, 3) (new cells, prioritised
     new cells, open prioritised cells) and of the pairs (G, A*A, 2), and the
     information gain of the first slots (G, A)."""
-    from .semantic_env import crossing_lam
+    from .scoring import crossing_lam
 
     C, W, K, Lam = env.n_classes, T["W"], T["K"], T["Lam"]
     WW, R, tv = W * W, T["nrow"], T["v"][v]

@@ -201,6 +201,16 @@ def poly_eval(coef: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
     return out
 
 
+def path_length(coef: np.ndarray, T: np.ndarray, n: int = 200) -> np.ndarray:
+    """Arc length ``int_0^T |p'(t)| dt`` of polynomials ``coef`` (P, 2, 6) of durations
+    ``T`` (P,), batched (trapezoid rule on ``n`` samples each)."""
+    T = np.asarray(T, float)
+    t = np.linspace(0.0, 1.0, n)[None, :] * T[:, None]  # (P, n)
+    v = poly_eval(coef, t[:, None, :], deriv=1)  # (P, 2, n)
+    sp = np.hypot(v[:, 0], v[:, 1])
+    return np.trapezoid(sp, t, axis=1)
+
+
 def jerk_cost(coef: np.ndarray, T: np.ndarray) -> np.ndarray:
     """``int_0^T |jerk|^2 dt`` summed over axes, closed form. coef (..., 2, 6), T (...)."""
     j0, j1, j2 = 6 * coef[..., 3], 24 * coef[..., 4], 60 * coef[..., 5]
@@ -262,6 +272,14 @@ class Lattice:
         t = np.linspace(0.0, self.prim_T[prim], n)
         p = poly_eval(self.prim_coef[prim], t[None, :])  # (2, n)
         return p.T + np.asarray(origin, float)
+
+    @property
+    def prim_length(self) -> np.ndarray:
+        """(P,) arc length of every primitive in cells, ``int_0^T |p'(t)| dt`` (trapezoid
+        on 200 samples; cached on the lattice)."""
+        if "prim_length" not in self._extra:
+            self._extra["prim_length"] = path_length(self.prim_coef, self.prim_T)
+        return self._extra["prim_length"]
 
     def sensed_cells(self, prim: int, origin=(0, 0)) -> tuple[np.ndarray, np.ndarray]:
         """Tiled measurements of ``prim`` at ``origin``: cells (m, 2) and levels (m,)."""
@@ -521,25 +539,35 @@ def plot_lattice(lat: Lattice, path: str | os.PathLike) -> Path:
     for k, v in enumerate(lat.vertices):
         ax.annotate(str(k), v, fontsize=7)
     ax.set_aspect("equal")
-    ax.set_title("vertices (m/s)", fontsize=9)
+    ax.set_xlabel("v_x (m/s)", fontsize=8)
+    ax.set_ylabel("v_y (m/s)", fontsize=8)
+    ax.set_title(f"vertices (dotted: |v| = v_max = {lat.config.v_max:g} m/s)", fontsize=8)
     ax = axes[0, 1] if ncol > 1 else None
     if ax is not None:
         ax.set_visible(True)
         ax.plot(np.arange(1, V + 1), lat.dispersion, "o-")
-        ax.set_xlabel("vertices")
+        ax.set_xlabel("number of vertices k", fontsize=8)
+        ax.set_ylabel("d(V_k) (cost units: rho*T + int |jerk|^2)", fontsize=7)
         ax.set_title("dispersion d(V) (Eq. 2.3)", fontsize=9)
     for v in range(V):
         ax = axes[1 + v // ncol, v % ncol]
         ax.set_visible(True)
+        cmap = plt.get_cmap("viridis")
         for p in lat.edges[v][lat.edges[v] >= 0]:
             xy = lat.positions(int(p))
-            ax.plot(xy[:, 0], xy[:, 1], lw=0.7)
+            ax.plot(xy[:, 0], xy[:, 1], lw=0.7, color=cmap(lat.prim_to[p] / max(V - 1, 1)))
         ax.plot(0, 0, "k.")
         ax.set_aspect("equal")
+        ax.set_xlabel("x (cells = m)", fontsize=7)
+        ax.set_ylabel("y (cells = m)", fontsize=7)
+        ax.tick_params(labelsize=7)
         ax.set_title(f"vertex {v}: v=({lat.vertices[v, 0]:.1f},{lat.vertices[v, 1]:.1f})",
                      fontsize=8)
     fig.tight_layout()
+    sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, max(V - 1, 1)))
+    fig.colorbar(sm, ax=axes.ravel().tolist(), shrink=0.4, pad=0.01,
+                 label="vertex index (end vertex of a primitive)")
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
+        fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)
     return Path(path)

@@ -1,8 +1,12 @@
-"""Table 2.1 metrics: summaries, the thesis's numbers, Markdown/CSV tables, the KL plot.
+"""Table 2.1 metrics: summaries, the thesis's numbers, Markdown/CSV tables, the KL plot,
+the metric-vs-budget plot.
 
-Per environment (computed by :meth:`aerohrl.ipp.env.SearchEnv.metrics` on the inner
-map, in %): coverage = covered cells / cells; entropy reduction = ``1 - H_T / H_0``
-(Eq. 2.4); search efficiency = targets found / targets.
+Per environment (computed by :meth:`aerohrl.ipp.env.SearchEnv.metrics`, in %): coverage
+= covered cells / cells and entropy reduction = ``1 - H_T / H_0`` (Eq. 2.4), each over
+the inner 30 x 30 map (900 cells) and over the original code's padded 40 x 40 world
+(1,600 cells, ``*_padded``; the thesis divides so); search efficiency = targets found /
+targets. The thesis's numbers are printed beside the padded columns only (target
+search); the flight the budget bought (primitives, path cells, seconds) beside them.
 """
 
 from __future__ import annotations
@@ -17,6 +21,9 @@ import numpy as np
 from aerohrl.atomic import atomic_path
 
 METRICS = ("coverage", "entropy_reduction", "search_efficiency")
+PADDED = ("coverage_padded", "entropy_reduction_padded")
+FLIGHT = ("primitives", "path_cells", "flight_s")
+ALL_METRICS = METRICS + PADDED + FLIGHT
 
 # thesis Table 2.1: (mean, std) of coverage, entropy reduction, search efficiency, %
 THESIS_TABLE = {
@@ -47,21 +54,48 @@ def thesis_table(kind: str = "targets") -> dict:
 
 
 def summarise(per_env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
-    return {k: (float(np.mean(per_env[k])), float(np.std(per_env[k]))) for k in METRICS}
+    """(mean, std) of every metric present in ``per_env``."""
+    return {k: (float(np.mean(per_env[k])), float(np.std(per_env[k])))
+            for k in ALL_METRICS if k in per_env}
+
+
+def _ms(s, k):
+    return f"{s[k][0]:.1f} ± {s[k][1]:.1f}"
 
 
 def markdown_table(results: dict[str, dict], names: dict[str, str], kind: str = "targets") -> str:
-    """``results[planner] = {"summary": ..., "ms_per_decision": ..., "n": ...}``; the
-    thesis column is Table 2.1 (``kind="targets"``) or Table 2.2 (``"semantic"``)."""
-    head = ("| planner | coverage % | entropy red. % | search eff. % | thesis cov / ent / eff "
-            "| ms/decision | envs |\n|---|---|---|---|---|---|---|\n")
+    """``results[planner] = {"summary": ..., "ms_per_decision": ..., "n": ...}``.
+
+    Target search (``kind="targets"``): coverage and entropy reduction over the inner
+    900 cells and over the padded 1,600, the thesis's Table 2.1 value beside the padded
+    one (its denominator), search efficiency beside the thesis's, and the flight bought
+    (primitives, path cells, seconds). Semantic: Table 2.2 columns as before."""
+    if kind == "semantic":
+        head = ("| planner | coverage % | entropy red. % | search eff. % | thesis cov / ent / eff "
+                "| ms/decision | envs |\n|---|---|---|---|---|---|---|\n")
+        rows = []
+        for p, r in results.items():
+            s = r["summary"]
+            th = thesis_table(kind).get(p)
+            ths = " / ".join(f"{m:.1f}±{sd:.1f}" for m, sd in th) if th else "—"
+            rows.append(f"| {names.get(p, p)} | " + " | ".join(_ms(s, k) for k in METRICS)
+                        + f" | {ths} | {r['ms_per_decision']:.2f} | {r['n']} |")
+        return head + "\n".join(rows) + "\n"
+    head = ("| planner | coverage % (900) | coverage % (1600) | thesis cov (1600) "
+            "| entropy red. % (900) | entropy red. % (1600) | thesis ent (1600) "
+            "| search eff. % | thesis eff | primitives | path cells | flight s "
+            "| ms/decision | envs |\n|" + "---|" * 14 + "\n")
     rows = []
     for p, r in results.items():
         s = r["summary"]
         th = thesis_table(kind).get(p)
-        ths = " / ".join(f"{m:.1f}±{sd:.1f}" for m, sd in th) if th else "—"
-        rows.append(f"| {names.get(p, p)} | " + " | ".join(f"{s[k][0]:.1f} ± {s[k][1]:.1f}" for k in METRICS)
-                    + f" | {ths} | {r['ms_per_decision']:.2f} | {r['n']} |")
+        t = [f"{m:.1f}±{sd:.1f}" for m, sd in th] if th else ["—"] * 3
+        fl = [f"{s[k][0]:.1f}" if k in s else "—" for k in FLIGHT]
+        rows.append(f"| {names.get(p, p)} | {_ms(s, 'coverage')} | {_ms(s, 'coverage_padded')} "
+                    f"| {t[0]} | {_ms(s, 'entropy_reduction')} "
+                    f"| {_ms(s, 'entropy_reduction_padded')} | {t[1]} "
+                    f"| {_ms(s, 'search_efficiency')} | {t[2]} | " + " | ".join(fl)
+                    + f" | {r['ms_per_decision']:.2f} | {r['n']} |")
     return head + "\n".join(rows) + "\n"
 
 
@@ -106,12 +140,14 @@ def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines) 
 def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["planner", "n_envs"] + [f"{k}_{s}" for k in METRICS for s in ("mean", "std")]
-               + [f"thesis_{k}_{s}" for k in METRICS for s in ("mean", "std")] + ["ms_per_decision"])
+    keys = [k for k in ALL_METRICS if all(k in r["summary"] for r in results.values())]
+    w.writerow(["planner", "n_envs"] + [f"{k}_{s}" for k in keys for s in ("mean", "std")]
+               + [f"thesis_{k}{'_padded' if kind == 'targets' and k != 'search_efficiency' else ''}_{s}"
+                  for k in METRICS for s in ("mean", "std")] + ["ms_per_decision"])
     for p, r in results.items():
         th = thesis_table(kind).get(p)
         thv = [v for m in th for v in m] if th else [""] * 6
-        w.writerow([p, r["n"]] + [f"{v:.4f}" for k in METRICS for v in r["summary"][k]]
+        w.writerow([p, r["n"]] + [f"{v:.4f}" for k in keys for v in r["summary"][k]]
                    + thv + [f"{r['ms_per_decision']:.4f}"])
     return buf.getvalue()
 
@@ -119,13 +155,145 @@ def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
 def per_env_csv(results: dict[str, dict]) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(["planner", "env", "kl"] + list(METRICS) + ["steps"])
+    first = next(iter(results.values()))["per_env"]
+    keys = [k for k in ALL_METRICS if k in first]
+    w.writerow(["planner", "env", "kl"] + keys + ["steps"])
     for p, r in results.items():
         e = r["per_env"]
         for i in range(len(e["kl"])):
             w.writerow([p, int(r["env_ids"][i]), f"{e['kl'][i]:.5f}"]
-                       + [f"{e[k][i]:.3f}" for k in METRICS] + [int(e["steps"][i])])
+                       + [f"{e[k][i]:.3f}" for k in keys] + [int(e["steps"][i])])
     return buf.getvalue()
+
+
+def budget_markdown(sweep: dict, names: dict[str, str], kind: str = "targets") -> str:
+    """One row per (planner, budget) of a ``bench --budgets`` sweep: the metrics (both
+    denominators on target search) and the flight each budget bought."""
+    order = ("coverage", "coverage_padded", "entropy_reduction", "entropy_reduction_padded",
+             "search_efficiency") + FLIGHT
+    keys = [k for k in order if all(k in r["summary"] for r in sweep.values())]
+    head = ("| planner | budget | " + " | ".join(_LABEL.get(k, k) for k in keys)
+            + " | envs |\n|" + "---|" * (len(keys) + 3) + "\n")
+    rows = [f"| {names.get(p, p)} | {b:g} | " + " | ".join(
+        f"{r['summary'][k][0]:.1f} ± {r['summary'][k][1]:.1f}" for k in keys) + f" | {r['n']} |"
+        for (p, b), r in sweep.items()]
+    return head + "\n".join(rows) + "\n"
+
+
+_LABEL = {"coverage": "coverage % (900)", "coverage_padded": "coverage % (1600)",
+          "entropy_reduction": "entropy red. % (900)",
+          "entropy_reduction_padded": "entropy red. % (1600)",
+          "search_efficiency": "search eff. %", "primitives": "primitives",
+          "path_cells": "path cells", "flight_s": "flight s"}
+
+
+def budget_csv(sweep: dict) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    keys = [k for k in ALL_METRICS if all(k in r["summary"] for r in sweep.values())]
+    w.writerow(["planner", "budget", "n_envs"] + [f"{k}_{s}" for k in keys for s in ("mean", "std")])
+    for (p, b), r in sweep.items():
+        w.writerow([p, f"{b:g}", r["n"]] + [f"{v:.4f}" for k in keys for v in r["summary"][k]])
+    return buf.getvalue()
+
+
+def plot_budgets(sweep: dict, names: dict[str, str], path, kind: str = "targets") -> Path:
+    """Each metric against the budget (mean ± standard error over the worlds), one line per
+    planner; the thesis's Table 2.1 value as a dotted line of the same colour on the
+    panels of its denominator (padded coverage / entropy, search efficiency)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = (["coverage", "coverage_padded", "entropy_reduction", "entropy_reduction_padded",
+               "search_efficiency", "flight_s"] if kind == "targets"
+              else ["coverage", "entropy_reduction", "search_efficiency", "flight_s"])
+    thesis_of = {"coverage_padded": 0, "entropy_reduction_padded": 1, "search_efficiency": 2} \
+        if kind == "targets" else {}
+    planners = list(dict.fromkeys(p for p, _ in sweep))
+    fig, axes = plt.subplots(2, (len(panels) + 1) // 2, figsize=(4.2 * ((len(panels) + 1) // 2), 7))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, k in zip(axes.ravel(), panels):
+        for j, p in enumerate(planners):
+            bs = sorted(b for q, b in sweep if q == p)
+            mu = [float(np.mean(sweep[(p, b)]["per_env"][k])) for b in bs]
+            se = [float(np.std(sweep[(p, b)]["per_env"][k]) / np.sqrt(max(sweep[(p, b)]["n"], 1)))
+                  for b in bs]
+            c = colours[j % len(colours)]
+            ax.errorbar(bs, mu, yerr=se, marker="o", ms=4, capsize=2, color=c, label=names.get(p, p))
+            th = thesis_table(kind).get(p)
+            if k in thesis_of and th:
+                ax.axhline(th[thesis_of[k]][0], color=c, ls=":", lw=1)
+        ax.set_xlabel("budget (cost units: rho*T + int |jerk|^2)")
+        ax.set_ylabel(_LABEL.get(k, k).replace("flight s", "flight time (s)"))
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[len(panels):]:
+        ax.axis("off")
+    axes.ravel()[0].legend(fontsize=7)
+    fig.suptitle("Metric vs budget (dotted: thesis Table 2.1 at the original budget)"
+                 if kind == "targets" else "Metric vs budget")
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+    return path
+
+
+def tracking_summary(tt: np.ndarray) -> dict[str, float]:
+    """Per-primitive tracking errors (rows: world, max m, RMS m, duration s) summarised:
+    mean / 95th percentile / maximum of the per-primitive maximum error, mean and maximum
+    of the per-primitive RMS error, in metres, and the number of primitives."""
+    if len(tt) == 0:
+        return {"n": 0}
+    return {"n": int(len(tt)), "max_mean": float(tt[:, 1].mean()),
+            "max_p95": float(np.percentile(tt[:, 1], 95)), "max_max": float(tt[:, 1].max()),
+            "rms_mean": float(tt[:, 2].mean()), "rms_max": float(tt[:, 2].max())}
+
+
+def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
+    """Ideal vs flown (vs skill-flown) execution, per planner: Table 2.1's metrics in each
+    mode, the paired difference of search efficiency to the first mode over the same
+    worlds (mean ± standard error), and per non-ideal mode the per-primitive tracking
+    error (mm; skill: distance to the primitive's path) and the skill legs' success."""
+    modes = list(by_mode)
+    base = modes[0]
+    flown = [m for m in modes if m != "ideal"]
+    cols = ([f"{k} ({m})" for m in modes for k in ("cov. % (1600)", "ent. red. %", "search eff. %")]
+            + [f"{m} − {base} (search eff., paired)" for m in modes[1:]]
+            + [c for m in flown for c in (f"{m}: tracking max mm (mean / p95 / max)",
+                                          f"{m}: tracking RMS mm")]
+            + (["skill legs: near / strict success, s per leg"] if "skill" in modes else []))
+    head = "| planner | " + " | ".join(cols) + " |\n|" + "---|" * (len(cols) + 1) + "\n"
+    rows = []
+    for p in by_mode[base]:
+        cells = []
+        for m in modes:
+            s = by_mode[m][p]["summary"]
+            cells += [_ms(s, "coverage_padded"), _ms(s, "entropy_reduction"),
+                      _ms(s, "search_efficiency")]
+        for m in modes[1:]:
+            a, b = by_mode[m][p], by_mode[base][p]
+            if not np.array_equal(a["env_ids"], b["env_ids"]):
+                raise ValueError("execution modes ran on different worlds")
+            d = a["per_env"]["search_efficiency"] - b["per_env"]["search_efficiency"]
+            se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
+            cells.append(f"{d.mean():+.2f} ± {se:.2f}")
+        for m in flown:
+            r = by_mode[m][p]
+            if "tracking" in r:
+                t = tracking_summary(r["tracking"])
+                cells += [f"{1e3 * t['max_mean']:.1f} / {1e3 * t['max_p95']:.1f} / "
+                          f"{1e3 * t['max_max']:.1f} ({t['n']} primitives)",
+                          f"{1e3 * t['rms_mean']:.1f}"]
+            else:
+                cells += ["—", "—"]
+        if "skill" in modes:
+            lg = by_mode["skill"][p].get("legs", np.zeros((0, 3)))
+            cells.append(f"{100 * lg[:, 1].mean():.1f} % / {100 * lg[:, 0].mean():.1f} %, "
+                         f"{lg[:, 2].mean():.2f} s ({len(lg)} legs)" if len(lg) else "—")
+        rows.append(f"| {names.get(p, p)} | " + " | ".join(cells) + " |")
+    return head + "\n".join(rows) + "\n"
 
 
 def write_atomic(path: str | os.PathLike, text: str) -> Path:

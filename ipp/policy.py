@@ -124,8 +124,46 @@ def load_policy(path) -> ActorCritic:
     if model.n_feat not in (0, N_FEAT):
         raise UserError(f"{path}: policy reads {model.n_feat} primitive features, this version "
                         f"computes {N_FEAT} (retrain it)")
+    model.train_info = _train_info(path.parent)
     model.eval()
     return model
+
+
+def _train_info(run: Path) -> dict:
+    """What trained the policy, from ``RUN/config.json`` (written by ``ipp train``):
+    DAgger iterations, teacher, PPO iterations. Empty if the file is absent or unreadable."""
+    import json
+    try:
+        cfg = json.loads((run / "config.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    tc = cfg.get("train", cfg) if isinstance(cfg, dict) else {}
+    keys = ("bc_iterations", "teacher", "teacher_depth", "iterations")
+    return {k: tc[k] for k in keys if isinstance(tc, dict) and k in tc}
+
+
+def describe_policy(model: ActorCritic) -> str:
+    """The truthful row name of a trained policy: what it learned from and what it reads.
+
+    * DAgger from a teacher, no PPO: ``Imitation of detect (DAgger; its features, GRU)``;
+    * DAgger then PPO: ``Imitation of detect + PPO (...)``;
+    * no warm start: ``Actor-critic RL (map-only, GRU)`` (the thesis's setting).
+    ``features`` = the per-primitive look-ahead features (:mod:`.features`), whose
+    feature 14 is the ``detect`` planner's own score."""
+    info = getattr(model, "train_info", {}) or {}
+    core = "GRU" if model.cfg.recurrent else "MLP core"
+    obs = "its features" if model.cfg.features else "map-only"
+    bc, it = int(info.get("bc_iterations", 0) or 0), int(info.get("iterations", 0) or 0)
+    if bc > 0:
+        t = info.get("teacher", "detect")
+        depth = info.get("teacher_depth")
+        t = f"{t}{'' if depth in (None, 2) else f' depth {depth}'}"
+        ppo = f" + PPO {it} it." if it > 0 else ""
+        feats = "its features" if model.cfg.features and t.startswith("detect") else obs
+        return f"Imitation of {t} planner{ppo} (DAgger; {feats}, {core})"
+    if info:
+        return f"Actor-critic RL ({obs}, {core})"
+    return f"Learned policy ({obs}, {core}; training unknown)"
 
 
 class RLPlanner(Planner):

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .env import SearchEnv
+from .scoring import LAM_CAP, crossing_lam, detect_success
 from .sensor import hashed_uniform, logit
 from .semantic import (SemanticWorlds, entropy_cat_bits, info_gain_cat, label_logratio,
                        measure_labels, softmax)
@@ -46,6 +47,7 @@ class SemanticEnv(SearchEnv):
         self.L = np.zeros((N, self.Hp, self.Hp, C), np.float32)
         self.L[sl] = np.log(np.maximum(worlds.prior, 1e-12))
         self.cov = np.zeros((N, self.Hp, self.Hp), bool)
+        self.cov_ring = np.zeros((N, self.Hp, self.Hp), bool)
         self.found = np.zeros((N, self.Hp, self.Hp), bool)
         self.planes = np.zeros((N, C + 2, self.Hp, self.Hp), np.float32)
         self.planes[:, :C][:, :, p:p + S, p:p + S] = np.moveaxis(worlds.prior, -1, 1)
@@ -169,22 +171,6 @@ class SemanticEnv(SearchEnv):
         """Cells whose most likely feature class is still below the threshold."""
         return b[..., 1:].max(-1) < self.cfg.found_threshold
 
-
-
-LAM_CAP = 50.0  # cap of the summed label log-ratio in the detection model (exp overflow)
-
-
-def detect_success(lam_e: np.ndarray, n_classes: int) -> np.ndarray:
-    """``1 - e``: the one-measurement equivalent of summed label log-ratio ``lam_e``
-    (already capped) returns the true class."""
-    return 1.0 - 1.0 / (1.0 + np.exp(lam_e) / (n_classes - 1))
-
-
-def crossing_lam(b: np.ndarray, threshold: float) -> np.ndarray:
-    """``logit(threshold) - logit(b)``: the summed label log-ratio at which a class of
-    probability ``b`` reaches ``threshold`` (+inf for b = 0, -inf for b = 1)."""
-    with np.errstate(divide="ignore"):
-        return logit(threshold) - (np.log(b) - np.log1p(-b))
 
 
 __all__ = ["SemanticEnv", "LAM_CAP", "detect_success", "crossing_lam"]

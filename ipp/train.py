@@ -58,7 +58,8 @@ from aerohrl.errors import UserError, warn
 
 from aerohrl import atomic
 from aerohrl.atomic import atomic_path
-from .env import TERMS, EnvConfig, create_env, sample_for, semantic_config
+from .env import TERMS, EnvConfig, semantic_config
+from .factory import create_env, sample_for
 from .features import N_FEAT
 from .lattice import Lattice
 from .policy import ActorCritic, PolicyConfig, save_policy, valid_loss

@@ -72,7 +72,11 @@ def test_train_then_bench_rl(tmp_path, capsys):
     assert (run / "model.pt").is_file() and (run / "config.json").is_file()
     assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
                  "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 0
-    assert "Ours-LSTM" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if "(run)" in line)
+    # the truthful name (issue 13): preset test = 2 DAgger iterations from detect + 1 PPO
+    assert row.startswith("| Imitation of detect planner + PPO 1 it. (DAgger; its features, GRU) (run)")
+    assert "88.5" in row and "Ours" not in row  # the thesis's RL-LSTM number beside it
     model = run / "model.pt"
     raw = bytearray(model.read_bytes())
     raw[len(raw) // 2] ^= 0x01  # a weight: torch alone would load it
@@ -81,3 +85,48 @@ def test_train_then_bench_rl(tmp_path, capsys):
                  "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"aerohrl ipp: error: checkpoint {model} is damaged: its SHA-256 differs from model.pt.sha256"
+
+
+def test_show_writes_figure_and_animated_gif(tmp_path, capsys):
+    """Issue 13 figures: the episode figure and a GIF with one frame per primitive."""
+    png, gif = tmp_path / "ep.png", tmp_path / "ep.gif"
+    assert main(["show", "--env", "2", "--planner", "greedy", "--budget", "1500",
+                 "-o", str(png), "--gif", str(gif)]) == 0
+    from PIL import Image
+    im = Image.open(gif)
+    assert im.format == "GIF" and im.n_frames >= 3
+    assert png.stat().st_size > 10_000
+    assert main(["show", "--planner", "greedy", "-o", str(png), "--gif", str(tmp_path / "x.mp4")]) == 2
+    assert "--gif must end in .gif" in capsys.readouterr().err
+
+
+def test_budget_sweep_and_named_budgets(tmp_path, capsys):
+    assert main(["bench", "--planner", "greedy", "--envs", "2", "--budgets", "1500,tight",
+                 "--out-dir", str(tmp_path), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "| Greedy-IPP | 1500 |" in out and "| Greedy-IPP | 5000 |" in out
+    for f in ("ipp_budgets.md", "ipp_budgets.csv", "ipp_budgets.png"):
+        assert (tmp_path / f).is_file()
+    import csv
+    rows = list(csv.DictReader(open(tmp_path / "ipp_budgets.csv")))
+    assert [r["budget"] for r in rows] == ["1500", "5000"]
+    # a bigger budget flies further
+    assert float(rows[1]["path_cells_mean"]) > 2 * float(rows[0]["path_cells_mean"])
+    for bad in ("0", "-3", "nan", "lots", ""):
+        assert main(["bench", "--budgets", bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("aerohrl ipp: error: argument --budgets") and "\n" not in err
+
+
+def test_table_has_both_denominators_and_thesis_beside_padded(tmp_path, capsys):
+    assert main(["bench", "--planner", "dp", "--envs", "2", "--budget", "1500",
+                 "--out-dir", str(tmp_path), "--no-progress"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    head = [c.strip() for c in lines[0].split("|")]
+    row = [c.strip() for c in lines[2].split("|")]
+    assert head.index("thesis cov (1600)") == head.index("coverage % (1600)") + 1
+    assert head.index("thesis ent (1600)") == head.index("entropy red. % (1600)") + 1
+    assert row[head.index("thesis cov (1600)")].startswith("57.8")  # DP-IPP, Table 2.1
+    inner = float(row[head.index("coverage % (900)")].split()[0])
+    padded = float(row[head.index("coverage % (1600)")].split()[0])
+    assert padded < inner and padded >= inner * 900 / 1600 - 0.05

@@ -5,7 +5,8 @@ import pytest
 
 import aerohrl.ipp.env as envmod
 from aerohrl.errors import UserError
-from aerohrl.ipp.env import EnvConfig, SearchEnv, TERMS, make_env
+from aerohrl.ipp.env import EnvConfig, SearchEnv, TERMS
+from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
 from aerohrl.ipp.sensor import (SensorConfig, logit, logodds_step, logodds_update,
                                 sigmoid)

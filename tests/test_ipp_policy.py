@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from aerohrl.errors import UserError
-from aerohrl.ipp.env import TERMS, EnvConfig, make_env
+from aerohrl.ipp.env import TERMS, EnvConfig
+from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
 from aerohrl.ipp.policy import RLPlanner, load_policy, valid_loss
 from aerohrl.ipp.train import _gae, preset, train
@@ -118,3 +119,28 @@ def test_warm_start_and_mismatch(tmp_path):
     with pytest.raises(UserError, match="does not match"):
         train(preset("test", init=str(tmp_path / "a"), policy=preset("test").policy.__class__(
             hidden=16)), lat, tmp_path / "c")
+
+
+def test_describe_policy_names_what_trained_it(tmp_path):
+    """Issue 13: a learned row says what it is (imitation of detect, or RL), never
+    the thesis's 'Ours-LSTM'."""
+    import json
+
+    from aerohrl.ipp.policy import ActorCritic, PolicyConfig, describe_policy, load_policy, save_policy
+
+    dims = dict(map_ch=9, map_hw=8, vec_dim=10, n_actions=4)
+    for feats, train, want in [
+            (True, {"bc_iterations": 30, "teacher": "detect", "iterations": 0},
+             "Imitation of detect planner (DAgger; its features, GRU)"),
+            (True, {"bc_iterations": 3, "teacher": "detect", "iterations": 5},
+             "Imitation of detect planner + PPO 5 it. (DAgger; its features, GRU)"),
+            (False, {"bc_iterations": 0, "teacher": "detect", "iterations": 782},
+             "Actor-critic RL (map-only, GRU)")]:
+        run = tmp_path / f"r{len(want)}"
+        run.mkdir()
+        from aerohrl.ipp.features import N_FEAT
+        d = dict(dims, n_feat=N_FEAT if feats else 0)
+        m = ActorCritic(**d, cfg=PolicyConfig(hidden=16, features=feats))
+        save_policy(m, d, run / "model.pt")
+        (run / "config.json").write_text(json.dumps({"train": train}))
+        assert describe_policy(load_policy(run)) == want

@@ -8,7 +8,8 @@ import aerohrl.ipp.semantic_env as semenv
 from aerohrl.errors import UserError
 from aerohrl.ipp.baselines import PLANNERS, TEACHERS, PlannerConfig, info_gain, make_planner
 from aerohrl.ipp.cli import main
-from aerohrl.ipp.env import TERMS, make_env, semantic_config
+from aerohrl.ipp.env import TERMS, semantic_config
+from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import semantic_lattice
 from aerohrl.ipp.semantic import (CLASSES, PALETTE, SemanticConfig, _info_gain_cat_direct,
                                   campus_map, categorical_update, info_gain_cat,

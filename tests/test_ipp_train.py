@@ -11,7 +11,8 @@ import torch
 from aerohrl.errors import UserError
 from aerohrl.ipp.baselines import make_planner
 from aerohrl.ipp.cli import main
-from aerohrl.ipp.env import EnvConfig, make_env
+from aerohrl.ipp.env import EnvConfig
+from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
 from aerohrl.ipp.metrics import paired_differences
 from aerohrl.ipp.policy import load_policy
