@@ -398,7 +398,7 @@ def tables(recs: list[dict], variants: list[str], margins: dict) -> str:
                 if x["feasible"]:
                     c += f"; feasible goals {x['feasible']['mean']:.1f}"
                 cells.append(c)
-            lines.append(f"| {r['ring'].label} | {r['ring'].horizon()} | {fcell} | " + " | ".join(cells) + " |")
+            lines.append(f"| {r['ring'].label.replace('|', chr(92) + '|')} | {r['ring'].horizon()} | {fcell} | " + " | ".join(cells) + " |")
         parts.append(f"**{fam}**\n\n" + head + "\n".join(lines) + "\n")
     ms = ", ".join(f"{p}: {m:g}" for p, m in margins.items())
     return "\n".join(parts) + (f"\nDecline margins chosen on held-out goals: {ms}.\n" if ms else "")
@@ -426,12 +426,14 @@ def plot_curves(recs: list[dict], variants: list[str], path: Path) -> Path:
             mean = [y["success"]["mean"] if y else np.nan for y in ys]
             lo = [min(y["success"]["values"]) if y else np.nan for y in ys]
             hi = [max(y["success"]["values"]) if y else np.nan for y in ys]
-            ax.plot(x, mean, "-o", ms=3, color=colours.get(v), label=VARIANT_LABEL[v])
+            ax.plot(x, mean, "--o" if v.endswith("-decline") else "-o", ms=3, color=colours.get(v), label=VARIANT_LABEL[v],
+                    lw=1.2 if v.endswith("-decline") else 1.6)
             ax.fill_between(x, lo, hi, color=colours.get(v), alpha=0.15)
         fz = [r["feasible"]["feasible"] if r["feasible"] else np.nan for r in rs]
         if not np.all(np.isnan(fz)):
             ax.plot(x, fz, ":", color="grey", label="expert feasible")
-        ax.set_xticks(x, [r["ring"].label.split(" in ")[1] for r in rs], rotation=20, fontsize=7)
+        ax.set_xticks(x, [r["ring"].label.split(" in ")[1] if len(r["ring"].ranges) == 1 else "p, v and a\nout at once"
+                          for r in rs], rotation=20, fontsize=7)
         unit = rs[0]["ring"].label.split(" in ")[0] if len(rs[0]["ring"].ranges) == 1 else "rings"
         ax.set_xlabel(f"{fam}: {unit}")
         ax.set_ylabel("success % (mean; band: min-max over seeds)")
