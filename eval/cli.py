@@ -149,6 +149,10 @@ def _oracle_parser() -> ArgumentParser:
     ap.add_argument("--run", type=Path, required=True)
     ap.add_argument("--task", default="ood", help="goals of: ood | reach-novel [ood]")
     ap.add_argument("--goals", type=T.positive_int, default=40, help="task goals [40]")
+    ap.add_argument("--family", default=None, help="goals of an OOD family ring instead (eval/families.py) [none]")
+    ap.add_argument("--ring", default=None, help="--family: step 1..K or LO:HI [1]")
+    ap.add_argument("--candidate-source", default="dataset", choices=["dataset", "synthetic"],
+                    help="waypoints: the dataset's achieved goals | synthetic states within rho_D of the start [dataset]")
     ap.add_argument("--candidates", type=T.positive_int, default=150, help="achieved goals (seeded subset) [150]")
     ap.add_argument("--leg-horizon", type=T.positive_int, default=500, help="steps per leg [500]")
     ap.add_argument("--alpha", type=T.nonneg_float, default=1.0, help="variance penalty of the Eq. 3.7 choice [1.0]")
@@ -177,11 +181,29 @@ def cmd_oracle(a) -> int:
     ckpt = run_checkpoints(a.run, 1)[-1]
     data, _ = load_run_dataset(a.run)
     algo, ck = load_policy(ckpt)
-    goals = make_episodes(a.task, data, a.goals, a.seed).goals
+    if a.ring is not None and a.family is None:
+        raise UserError("--ring needs --family")
+    name = a.task
+    if a.family is not None:
+        from aerohrl.eval.families import parse_ring
+        from aerohrl.eval.tasks import ood_family
+
+        ring = parse_ring(a.family, a.ring or "1")
+        goals = ood_family(data, a.goals, a.seed, ring=ring).goals
+        name = "ood-" + ring.slug
+    else:
+        goals = make_episodes(a.task, data, a.goals, a.seed).goals
+    cand = None
+    if a.candidate_source == "synthetic":
+        from aerohrl.eval.oracle import synthetic_candidates
+
+        cand = synthetic_candidates(data.info.get("spec"), a.candidates, a.seed)
+        name += "-synth"
     r = oracle_single(algo, data, goals, candidates=a.candidates, seed=a.seed, leg_horizon=a.leg_horizon, alpha=a.alpha,
-                      sim=sim_kwargs(data), progress=not a.no_progress and sys.stderr.isatty())
-    r.update(run=str(a.run), checkpoint=ckpt.name, step=int(ck["step"]), task=a.task, seed=a.seed)
-    out = a.out or Path(a.run) / "eval" / f"oracle-{a.task}"
+                      sim=sim_kwargs(data), progress=not a.no_progress and sys.stderr.isatty(), cand=cand)
+    r.update(run=str(a.run), checkpoint=ckpt.name, step=int(ck["step"]), task=name, seed=a.seed,
+             candidate_source=a.candidate_source)
+    out = a.out or Path(a.run) / "eval" / f"oracle-{name}"
     strict = {k: None if isinstance(v, float) and v != v else v for k, v in r.items()}  # NaN AUC -> null (valid JSON)
     path = results.write_text(out / "oracle.json", json.dumps(strict, indent=2, sort_keys=True, allow_nan=False) + "\n")
     print(f"oracle, {a.task}, {a.run} at step {ck['step']}:\n{format_report(r)}\nreport: {path}")

@@ -55,8 +55,11 @@ def roc_auc(score: np.ndarray, label: np.ndarray) -> float:
 
 
 def oracle_single(algo, data, goals: np.ndarray, *, candidates: int = 150, seed: int = 0, leg_horizon: int = 500,
-                  alpha: float = 1.0, chunk: int = 4096, sim: dict | None = None, progress: bool = False) -> dict:
-    """Fly every first and second leg of the single-goal planner (see the module docstring)."""
+                  alpha: float = 1.0, chunk: int = 4096, sim: dict | None = None, progress: bool = False,
+                  cand=None) -> dict:
+    """Fly every first and second leg of the single-goal planner (see the module docstring).
+    ``cand`` (:class:`~aerohrl.eval.planner.Candidates`) replaces the dataset's achieved
+    goals, e.g. :func:`synthetic_candidates`."""
     from tqdm import tqdm
 
     from aerohrl.eval.planner import Planner, candidates_from_dataset, leg_values
@@ -64,7 +67,8 @@ def oracle_single(algo, data, goals: np.ndarray, *, candidates: int = 150, seed:
 
     sim = sim or {}
     G = np.asarray(goals, np.float64)
-    cand = candidates_from_dataset(data, candidates, seed=seed)
+    if cand is None:
+        cand = candidates_from_dataset(data, candidates, seed=seed)
     S = cand.states.double().cpu().numpy()
     E, C = len(G), len(cand)
     first = rollout(algo, _flights(hover_states(C), cand.goals.double().cpu().numpy(), leg_horizon), **sim)
@@ -108,6 +112,18 @@ def oracle_single(algo, data, goals: np.ndarray, *, candidates: int = 150, seed:
     }
 
 
+def synthetic_candidates(spec: dict | None, n: int, seed: int = 0):
+    """``n`` synthetic waypoints relative to the start at the origin (eval/planner.py's
+    offsets, none biased toward a goal): any state within rho_D of the start, as
+    :class:`~aerohrl.eval.planner.Candidates` (state = the waypoint with zero body rates)."""
+    from aerohrl.eval.planner import Candidates, offsets_from_spec
+
+    off = offsets_from_spec(spec, n, seed, toward=0.0)
+    goals = torch.cat([off.pos, off.vel, off.rot], dim=1).float()
+    states = torch.cat([goals, torch.zeros(len(goals), 3)], dim=1)
+    return Candidates(goals.clone(), states, np.full(len(goals), -1))
+
+
 def format_report(r: dict) -> str:
     lines = [
         f"{r['goals']} goals x {r['candidates']} candidates, legs of {r['leg_horizon']} steps",
@@ -123,4 +139,4 @@ def format_report(r: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["oracle_single", "format_report", "roc_auc"]
+__all__ = ["oracle_single", "format_report", "roc_auc", "synthetic_candidates"]

@@ -392,7 +392,7 @@ def tables(recs: list[dict], variants: list[str], margins: dict) -> str:
                 if not x:
                     cells.append("—")
                     continue
-                c = seed_cell(x["success"])
+                c = seed_cell(x["success"]) + f"; near {x['near']['mean']:.1f}"
                 if v != "straight":
                     c += f"; vs straight {_paired(x['paired'])}"
                 if x["feasible"]:

@@ -167,3 +167,23 @@ def test_eval_cli_family_errors(run, capsys, args, msg):
     assert code == 2 and msg in err and len(err.splitlines()) == 1
     code = main(["eval", "--task", "reach-novel", "--family", "velocity", "--run", str(run), "--no-progress"])
     assert code == 2 and "apply to --task ood only" in capsys.readouterr().err
+
+
+def test_oracle_on_a_family_ring_with_synthetic_candidates(run, tmp_path, capsys):
+    out = tmp_path / "oracle"
+    assert main(["eval", "oracle", "--run", str(run), "--family", "velocity", "--ring", "2", "--candidate-source",
+                 "synthetic", "--goals", "3", "--candidates", "4", "--leg-horizon", "20", "--out", str(out),
+                 "--no-progress"]) == 0
+    r = json.loads((out / "oracle.json").read_text())
+    assert r["task"] == "ood-velocity-3.5-5-synth" and r["candidates"] == 4 and r["goals"] == 3
+    assert 0.0 <= r["oracle"] <= 1.0 and r["planner"] <= r["oracle"]
+    code = main(["eval", "oracle", "--run", str(run), "--ring", "2", "--no-progress"])
+    assert code == 2 and "--ring needs --family" in capsys.readouterr().err
+
+
+def test_synthetic_candidates_lie_in_rho_d():
+    from aerohrl.eval.oracle import synthetic_candidates
+
+    c = synthetic_candidates({"pos_range": [1, 2], "vel_range": [-2.5, 2.5], "acc_range": [-5, 5]}, 50, 0)
+    assert len(c) == 50 and c.states.shape == (50, 18) and (c.goals[:, :3].abs() <= 2).all()
+    assert (c.goals[:, 3:6].abs() <= 2.5).all() and torch.equal(c.states[:, :15], c.goals)
