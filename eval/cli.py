@@ -206,7 +206,7 @@ def cmd_oracle(a) -> int:
     out = a.out or Path(a.run) / "eval" / f"oracle-{name}"
     strict = {k: None if isinstance(v, float) and v != v else v for k, v in r.items()}  # NaN AUC -> null (valid JSON)
     path = results.write_text(out / "oracle.json", json.dumps(strict, indent=2, sort_keys=True, allow_nan=False) + "\n")
-    print(f"oracle, {a.task}, {a.run} at step {ck['step']}:\n{format_report(r)}\nreport: {path}")
+    print(f"oracle, {name}, {a.run} at step {ck['step']}:\n{format_report(r)}\nreport: {path}")
     return 0
 
 
