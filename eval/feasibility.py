@@ -166,14 +166,7 @@ def _pos_int(name: str, x) -> int:
     return int(x)
 
 
-def _pos_float(name: str, x) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise UserError(f"{name} must be a number, got {x!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise UserError(f"{name} must be finite and positive, got {x!r}")
-    return v
+_pos_float = reference._positive  # the reference generator's check: a finite number > 0, else a one-line error
 
 
 # ------------------------------------------------------------------- references

@@ -98,3 +98,19 @@ def small_disk(tmp_path, monkeypatch):
     finally:
         if real:
             subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory):
+    """A small synthetic dataset (algorithms/synthetic.py), one per test module."""
+    from aerohrl.algorithms.synthetic import write_synthetic_dataset
+
+    return write_synthetic_dataset(tmp_path_factory.mktemp("ds") / "synthetic" / "v1")
+
+
+@pytest.fixture(scope="module")
+def data(dataset_dir):
+    """That dataset, loaded for training."""
+    from aerohrl.algorithms.data import load_dataset
+
+    return load_dataset(dataset_dir)

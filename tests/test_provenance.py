@@ -21,16 +21,6 @@ from aerohrl.algorithms.trainer import ProgressLines, resume_run, start_run
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)
 
 
-@pytest.fixture(scope="module")
-def dataset_dir(tmp_path_factory):
-    return write_synthetic_dataset(tmp_path_factory.mktemp("ds") / "synthetic" / "v1")
-
-
-@pytest.fixture(scope="module")
-def data(dataset_dir):
-    return load_dataset(dataset_dir)
-
-
 def test_config_json_records_code_packages_and_machine(data, tmp_path):
     cfg = make_config("cpu", algo="gcsl", dataset=str(data.info["path"]), **TINY)
     tr = start_run(cfg, tmp_path / "r", data=data, progress=False)

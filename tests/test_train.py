@@ -24,16 +24,6 @@ warnings.filterwarnings("ignore", category=UserWarning)
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)
 
 
-@pytest.fixture(scope="module")
-def dataset_dir(tmp_path_factory):
-    return write_synthetic_dataset(tmp_path_factory.mktemp("ds") / "synthetic" / "v1")
-
-
-@pytest.fixture(scope="module")
-def data(dataset_dir):
-    return load_dataset(dataset_dir)
-
-
 def _same(a, b):
     sa, sb = a.state_dict(), b.state_dict()
     return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
