@@ -43,7 +43,7 @@ demo: venv
 
 # Everything CI runs: fast tests and the slow end-to-end ones.
 test: venv
-	$(BIN)/python -m pytest -m "slow or not slow"
+	$(BIN)/python -m pytest -m "slow or not slow" --durations=20
 
 test-fast: venv
 	$(BIN)/python -m pytest
