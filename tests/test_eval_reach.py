@@ -126,7 +126,7 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
             "single", "single-decline", "chain", "--candidates", "64", "--out", str(tmp_path / "out"), "--readme", str(readme), "--fly-declines"]
     assert reach.main(argv) == 0
     text = readme.read_text()
-    assert "old" not in text and "|v_i| in [3.5, 5] m/s" in text and text.endswith(f"{reach.END}\ntail\n")
+    assert "\nold\n" not in text and "\\|v_i\\| in [3.5, 5] m/s" in text and text.endswith(f"{reach.END}\ntail\n")
     margins = json.loads((tmp_path / "out" / "reach-margins.json").read_text())["margins"]
     assert "single" in margins and "chain" in margins
     chain = json.loads((reach.eval_root(run, 5) / "ood-velocity-3.5-5-multi2-synth" / "summary.json").read_text())
