@@ -62,6 +62,13 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
         return ray
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
+    # Ray starts its workers at niceness 15 (its raylet's worker_niceness), to keep a driver
+    # responsive; here the tasks are the work itself, and beside any ordinary process at
+    # niceness 0 they starve: a TD3-BC run in a sweep trained at 1.5 steps/s beside two
+    # other jobs on these 2 cores, and ~12 steps/s once reniced to 0. Workers of a local Ray
+    # (whose raylet inherits this environment) run at the caller's priority; on a cluster,
+    # start the nodes with RAY_worker_niceness=0 (README "Running on a cluster").
+    os.environ.setdefault("RAY_worker_niceness", "0")
     if address:
         if address != "auto":
             host, _, port = address.removeprefix("ray://").rpartition(":")
@@ -305,7 +312,7 @@ def train_task(run_dir: str, cfg_dict: dict, threads: int) -> dict:
         ck = checkpoint_paths(rd)
         if ck and checkpoint_step(ck[-1]) >= cfg.steps:
             return {"run": run_dir, "step": checkpoint_step(ck[-1]), "status": "finished before", "seconds": 0.0}
-        tr = resume_run(rd, **kw)
+        tr = resume_run(rd, overrides={"steps": cfg.steps}, **kw)
         status = f"resumed at step {tr.step}"
     else:
         if rd.is_dir() and not checkpoint_paths(rd):
@@ -409,31 +416,21 @@ def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus:
         (out / "runs").mkdir(exist_ok=True)
         log(f"sweep: {len(pts)} runs on Ray ({have.get('CPU', 0):g} CPUs, {have.get('GPU', 0):g} GPUs; {cpus_per_run} CPU"
             + (f" + {gpus:g} GPU" if gpus else "") + " per run) -> " + str(out))
-        train = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(train_task)
         evaluate_r = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(eval_task)
-        refs = {train.remote(str((out / "runs" / p.name()).resolve()), _cfg_dict(sp, p), cpus_per_run): p for p in pts}
-        report = {"runs": {}, "errors": {}}
-        pending = list(refs)
         evals = {}
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            p = refs[ready[0]]
-            try:
-                r = ray.get(ready[0])
-            except Exception as e:  # a run that failed for good (bad data, divergence): the others go on
-                report["errors"][p.name()] = _one_line(e)
-                log(f"sweep: {p.name()} FAILED: {_one_line(e)}")
-                continue
-            report["runs"][p.name()] = r
-            log(f"sweep: {p.name()} {r['status']}, step {r['step']} ({r['seconds']:.0f} s)")
+
+        def then_evaluate(name: str, r: dict) -> None:  # as soon as a run is trained, beside the others
             if evaluate:
-                evals[evaluate_r.remote(r["run"], sp.tasks, sp.episodes, sp.checkpoints, cpus_per_run)] = p
-        for ref, p in evals.items():
+                evals[evaluate_r.remote(r["run"], sp.tasks, sp.episodes, sp.checkpoints, cpus_per_run)] = name
+
+        report = train_on_ray(ray, [(p.name(), str((out / "runs" / p.name()).resolve()), _cfg_dict(sp, p)) for p in pts],
+                              cpus_per_run=cpus_per_run, gpus=gpus, max_retries=max_retries, log=log, on_trained=then_evaluate)
+        for ref, name in evals.items():
             try:
                 ray.get(ref)
             except Exception as e:
-                report["errors"][p.name()] = _one_line(e)
-                log(f"sweep: evaluating {p.name()} FAILED: {_one_line(e)}")
+                report["errors"][name] = _one_line(e)
+                log(f"sweep: evaluating {name} FAILED: {_one_line(e)}")
     finally:
         if not address:
             ray.shutdown()
@@ -444,6 +441,51 @@ def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus:
     if evaluate:
         report["tables"] = write_tables(out, [p.name() for p in pts])
     return report
+
+
+def train_on_ray(ray, items: list[tuple[str, str, dict]], *, cpus_per_run: int = 1, gpus: float = 0, max_retries: int = 3,
+                 log=print, on_trained=None) -> dict:
+    """Train every ``(label, run folder, config dict)`` as one Ray task (``train_task``)
+    declaring ``cpus_per_run`` CPUs and ``gpus`` GPUs, retried ``max_retries`` times when
+    its worker dies; ``on_trained(label, result)`` as each one ends. The longest-first
+    order is the caller's. ``{"runs": {label: result}, "errors": {label: one line}}``: a
+    run that fails for good (bad data, divergence) does not stop the others."""
+    train = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(train_task)
+    refs = {train.remote(rd, cfg, cpus_per_run): label for label, rd, cfg in items}
+    report = {"runs": {}, "errors": {}}
+    pending = list(refs)
+    while pending:
+        ready, pending = ray.wait(pending, num_returns=1)
+        label = refs[ready[0]]
+        try:
+            r = ray.get(ready[0])
+        except Exception as e:
+            report["errors"][label] = _one_line(e)
+            log(f"sweep: {label} FAILED: {_one_line(e)}")
+            continue
+        report["runs"][label] = r
+        log(f"sweep: {label} {r['status']}, step {r['step']} ({r['seconds']:.0f} s)")
+        if on_trained:
+            on_trained(label, r)
+    return report
+
+
+def train_runs(items: list[tuple[str, str, dict]], *, address: str | None = None, num_cpus: int | None = None,
+               log=print) -> dict[str, dict]:
+    """``train_on_ray`` on a local Ray of ``num_cpus`` cores (started and stopped here) or
+    the cluster at ``address``, one CPU per run: what ``make results`` trains through
+    (eval/reproduce.py). The result of each run by label; UserError when any failed."""
+    ray = ray_connect(address, num_cpus=num_cpus)
+    try:
+        report = train_on_ray(ray, items, log=log)
+    finally:
+        if not address:
+            ray.shutdown()
+    if report["errors"]:
+        label, msg = next(iter(report["errors"].items()))
+        raise UserError(f"{len(report['errors'])} of {len(items)} training runs failed (first: {label}: {msg}); rerun the "
+                        "same command to resume them")
+    return report["runs"]
 
 
 def _cfg_dict(sp: SweepSpec, p: Point) -> dict:

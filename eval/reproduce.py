@@ -7,9 +7,9 @@
 1. ``datagen build --goals 250`` (seed 0; verified, not rebuilt, when it exists);
 2. ``train --algo A --preset cpu --checkpoint-every STEPS/30 --seed S`` for GCSL, TD3-BC,
    TD3-AWBC and CQL and every seed of ``--seeds`` (0 1 2; seed 0's runs keep the names
-   ``ALGO-cpu`` of the one-seed tables, the others are ``ALGO-cpu-sS``) as Ray tasks of one CPU each
-   (``aerohrl sweep``'s Ray: a local one of ``--jobs`` (2) cores, or the cluster at ``--address``), one
-   thread each (an existing run is resumed, a finished one is left as it is; a task whose worker dies is
+   ``ALGO-cpu`` of the one-seed tables, the others are ``ALGO-cpu-sS``) through ``aerohrl sweep``'s
+   training tasks (``aerohrl.sweep.train_runs``: Ray tasks of one CPU each on a local Ray of ``--jobs``
+   (2) cores, or on the cluster at ``--address``), one thread each (an existing run is resumed, a finished one is left as it is; a task whose worker dies is
    retried and resumes its run); checkpoints every 1/30 of the run so that "the last 10 checkpoints"
    are the final third of training, as the thesis' last 10 epochs are its end;
 3. ``aerohrl eval`` Reach-Desired, Reach-Intermediate and the Reach-Novel diagnostic for
@@ -29,7 +29,8 @@
    ``README`` between the lines ``<!-- results:begin -->`` and ``<!-- results:end -->``
    (when those markers exist; ``OUT/results.md`` always).
 
-Every stage is the real command line run as a subprocess with ``OMP_NUM_THREADS=1``.
+Every stage but training is the real command line run as a subprocess with ``OMP_NUM_THREADS=1``;
+training goes through ``aerohrl sweep``'s Ray tasks (``aerohrl.sweep.train_runs``), one thread each.
 """
 
 from __future__ import annotations
@@ -63,55 +64,23 @@ def _run(cmd: list[str], log) -> str:
     return p.stdout
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: SIGKILL when the parent (a Ray worker) dies, so that a
-    killed worker leaves no training process holding its run."""
-    import ctypes
-    import signal
+def _train_all(items: list[tuple[str, Path, dict]], log, jobs: int, address: str | None = None) -> dict[str, float]:
+    """Train the runs ``(label, run folder, config)`` through ``aerohrl sweep``'s Ray tasks
+    (aerohrl/sweep.py: one CPU each on a local Ray of ``jobs`` cores, or on the cluster at
+    ``address``; a run is started, resumed or left finished; a task whose worker dies is
+    retried and resumes its run); the seconds each took here."""
+    from aerohrl.algorithms.config import to_dict
+    from aerohrl.sweep import train_runs
 
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
+    def note(line: str) -> None:
+        print(line, flush=True)
+        log.write(line + "\n")
+        log.flush()
 
-
-def command_task(fresh: list[str], resume: list[str] | None, run_dir: str | None) -> tuple[int, float, str]:
-    """A Ray task: one stage's command line as a subprocess with one thread; ``resume``
-    instead of ``fresh`` when ``run_dir`` has a config.json by the time it starts (a
-    retry after the worker died continues the run from its last checkpoint)."""
-    cmd = resume if run_dir and resume and (Path(run_dir) / "config.json").exists() else fresh
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    t0 = time.perf_counter()
-    p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, preexec_fn=_die_with_parent)
-    return p.returncode, time.perf_counter() - t0, "+ " + " ".join(cmd) + "\n" + p.stdout + "\n"
-
-
-def _run_parallel(cmds: list[tuple[str, list[str], list[str] | None, str | None]], log, jobs: int,
-                  address: str | None = None) -> dict[str, float]:
-    """Run the named commands as Ray tasks of one CPU each (aerohrl.sweep's Ray: a local
-    one of ``jobs`` cores, or the cluster at ``address``); wall time of each. A task
-    whose worker dies is retried (resuming its run). The longest (CQL, listed last by
-    default) is submitted first."""
-    from aerohrl.sweep import ray_connect
-
-    ray = ray_connect(address, num_cpus=jobs)
-    try:
-        task = ray.remote(num_cpus=1, max_retries=3)(command_task)
-        order = list(reversed(cmds)) if jobs > 1 else cmds
-        refs = [(name, fresh, task.remote(fresh, resume, rd)) for name, fresh, resume, rd in order]
-        out = {}
-        for name, fresh, ref in refs:
-            code, dt, text = ray.get(ref)
-            log.write(text)
-            log.flush()
-            if code != 0:
-                tail = text.strip().splitlines()[-1:] or ["(no output)"]
-                raise UserError(f"`{' '.join(fresh[:4])} ...` failed (exit {code}): {tail[0]}")
-            out[name] = dt
-    finally:
-        if not address:
-            ray.shutdown()
-    return {name: out[name] for name, *_ in cmds}
+    # the longest (CQL, the continuation runs: listed last) first, so that 2 cores end together
+    done = train_runs([(label, str(rd.resolve()), to_dict(cfg)) for label, rd, cfg in reversed(items)],
+                      address=address, num_cpus=None if address else jobs, log=note)
+    return {label: done[label]["seconds"] for label, *_ in items}
 
 
 def _evaluated(rd: Path, name: str, episodes: int, checkpoints: int) -> bool:
@@ -198,31 +167,25 @@ def main(argv=None) -> int:
                 ds_cont = _run(build + ["--goals", n, "--continuations", n], log).strip().splitlines()[-1].strip()
             times["datasets"] = time.perf_counter() - t0
 
-            def train(rd: Path, flags: list[str], steps) -> tuple[list[str], list[str], str]:
-                """(new-run command, resume command, run folder): the task picks when it starts."""
-                resume = [py, "-m", "aerohrl.algorithms.cli", "--resume", str(rd), "--no-progress"] \
-                    + (["--steps", str(steps)] if steps else [])
-                fresh = [py, "-m", "aerohrl.algorithms.cli", *flags, "--preset", "cpu", "--out", a.runs, "--name", rd.name,
-                         "--no-progress"] + (["--steps", str(steps)] if steps else [])
-                return fresh, resume, str(rd)
+            def config(**kw):  # the cpu preset, as `train --preset cpu --FLAG ...` would make it
+                return make_config("cpu", **kw)
 
-            runs, cmds = [], []  # (run dir, algorithm, label, seed); seed 0 keeps the one-seed names (runs reused)
+            runs, items = [], []  # (run dir, algorithm, label, seed); seed 0 keeps the one-seed names (runs reused)
             for seed in a.seeds:
                 sfx = f"-s{seed}" if seed else ""
-                sflag = ["--seed", str(seed)]
                 for algo in a.algos:
                     rd = Path(a.runs) / f"{algo}-cpu{sfx}"
-                    cmds.append((f"train {algo}{sfx}", *train(rd, ["--algo", algo, "--dataset", ds, "--checkpoint-every",
-                                                                  str(ckpt_every), *sflag], a.steps)))
+                    items.append((f"train {algo}{sfx}", rd, config(algo=algo, dataset=str(Path(ds).resolve()), seed=seed, steps=a.steps,
+                                                                   checkpoint_every=ckpt_every)))
                     runs.append((rd, algo, f"{algo}{sfx}", seed))
                 if a.continuations:
                     rd = Path(a.runs) / f"gcsl-cpu-cont{sfx}"
                     c_steps = a.steps or a.continuation_steps
-                    cmds.append((f"train gcsl-cont{sfx}", *train(rd, ["--algo", "gcsl", "--dataset", ds_cont, "--checkpoint-every",
-                                                                    str(max(1, c_steps // 30)), "--critic-random-goal-prob",
-                                                                    str(a.critic_random_goal_prob), *sflag], c_steps)))
+                    items.append((f"train gcsl-cont{sfx}", rd, config(
+                        algo="gcsl", dataset=str(Path(ds_cont).resolve()), seed=seed, steps=c_steps, checkpoint_every=max(1, c_steps // 30),
+                        critic_random_goal_prob=a.critic_random_goal_prob)))
                     runs.append((rd, "gcsl", f"gcsl-cont{sfx}", seed))
-            times.update(_run_parallel(cmds, log, a.jobs, a.address))
+            times.update(_train_all(items, log, a.jobs, a.address))
             ev = [py, "-m", "aerohrl.eval.cli"]
             oracles = []
 

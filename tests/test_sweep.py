@@ -133,7 +133,7 @@ def test_sweep_survives_a_killed_worker(tmp_path):
     killed = tmp_path / "killed"
     p = subprocess.Popen(_sweep_cmd(ds, killed), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     victim = None
-    deadline = time.time() + 240
+    deadline = time.time() + 600  # Ray start-up and the first checkpoint on a loaded machine
     while victim is None and time.time() < deadline and p.poll() is None:
         for ck in sorted(killed.glob("runs/*/checkpoints/step-000000040.pt")):
             run = ck.parent.parent
@@ -169,3 +169,18 @@ def test_sweep_survives_a_killed_worker(tmp_path):
     assert {v["status"] for v in rep["runs"].values()} == {"finished before"}
     assert {f: f.stat().st_mtime for f in clean.glob("runs/*/eval/*/summary.json")} == summaries
     assert tables in r.stdout and (clean / "tables.md").read_text() == tables
+
+
+
+@pytest.mark.slow
+def test_local_ray_workers_run_at_the_callers_priority():
+    """Ray's default worker niceness (15) starves sweep tasks beside any ordinary process;
+    the local Ray of ray_connect starts its workers at the caller's niceness."""
+    code = ("import os\nfrom aerohrl.sweep import ray_connect\n"
+            "def niceness():\n    return os.nice(0)\n"
+            "r = ray_connect(num_cpus=1)\nprint('NICE', r.get(r.remote(niceness).remote()), os.nice(0))\nr.shutdown()\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    line = [x for x in p.stdout.splitlines() if x.startswith("NICE")]
+    assert p.returncode == 0 and line, p.stderr[-2000:]
+    worker, caller = map(int, line[0].split()[1:])
+    assert worker == caller
