@@ -466,7 +466,8 @@ def parser() -> ArgumentParser:
                device={"default": None, "help": "torch device of each run: cpu | cuda (asks Ray for GPUs) [cpu]"})
     ap.add_argument("--algos", nargs="+", default=None, metavar="ALGO", help="train algorithms: gcsl td3bc td3awbc cql (required here or in --config)")
     ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=None, metavar="SEED", help="[0]")
-    ap.add_argument("--datasets", nargs="+", type=Path, default=None, metavar="DATASET")
+    ap.add_argument("--datasets", nargs="+", type=Path, default=None, metavar="DATASET",
+                    help="dataset folders (datasets/<name>/<version>; required here or in --config)")
     ap.add_argument("--preset", default=None, help="train preset of every run [cpu]")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a train flag for every run (--set steps=2000 --set hidden=[256,256]); repeatable")

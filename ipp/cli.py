@@ -491,6 +491,9 @@ def _train(a) -> int:
         if saved is not None and saved != json.loads(json.dumps(asdict(lat.config))):
             raise UserError(f"{run}: trained on another lattice (pass the same --lattice)")
     else:
+        run_dir = getattr(a, "run_dir", None)  # the deprecated --run-dir: the whole folder
+        if run_dir is not None and (a.name is not None or a.out != "runs"):
+            raise UserError("--run-dir is --out DIR --name NAME; give those instead")
         if a.preset is None:
             a.preset = "semantic" if a.world == "semantic" else "cpu"
         if a.preset == "semantic":
@@ -505,9 +508,6 @@ def _train(a) -> int:
                      eval_every=a.eval_every,
                      features=False if a.no_features else None)
         cfg = replace(cfg, env=_env_config(a, a.start or "random"))
-        run_dir = getattr(a, "run_dir", None)  # the deprecated --run-dir: the whole folder
-        if run_dir is not None and (a.name is not None or a.out != "runs"):
-            raise UserError("--run-dir is --out DIR --name NAME; give those instead")
         # the shape of every command's run names (aerohrl.cli_common.run_name); two runs in one second differ
         run = Path(run_dir) if run_dir else Path(a.out) / (a.name or run_name("ipp", a.preset, "nornn" if a.no_rnn else None,
                                                                               seed=cfg.seed))
