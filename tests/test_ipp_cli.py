@@ -45,7 +45,7 @@ def test_bench_and_show(tmp_path, capsys):
     (["frobnicate"], "invalid choice"),
     (["bench", "--planner", "rl", "--envs", "1"], "needs --run"),
     (["bench", "--planner", "rl", "--run", "nowhere"], "no trained policy"),
-    (["train", "--preset", "gpu-cluster"], "unknown preset"),
+    (["train", "--preset", "gpu-cluster"], "invalid choice: 'gpu-cluster'"),
     (["train", "--preset", "test", "--iterations", "-1"], "--iterations"),
     (["lattice", "build"], "required"),
     (["lattice", "build", "-o", "x.npz", "--vertices", "0"], "--vertices: must be >= 1"),
