@@ -94,7 +94,7 @@ def test_intermediate_ood_planners_table_and_plots(setup, capsys, tmp_path):
 def test_bad_input_is_one_line(setup, capsys, case):
     run, empty = str(setup["run"]), str(setup["empty"])
     argv, match = {
-        "task": (["eval", "--task", "reach-far", "--run", run], "unknown task 'reach-far'"),
+        "task": (["eval", "--task", "reach-far", "--run", run], "invalid choice: 'reach-far'"),
         "no-ckpt": (["eval", "--task", "reach-desired", "--run", empty], "has no checkpoints"),
         "no-run": (["eval", "--task", "reach-desired", "--run", run + "-missing"], "no run at"),
         "mismatch": (["eval", "--task", "reach-desired", "--run", run, "--dataset", str(setup["other"])], "does not belong"),

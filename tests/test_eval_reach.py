@@ -157,12 +157,15 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args, msg", [
-    (["--family", "speed"], "unknown goal family"),
+    (["--family", "speed"], "invalid choice: 'speed'"),
     (["--family", "velocity", "--ring", "9"], "rings 1..3"),
     (["--ring", "2"], "--ring needs --family"),
 ])
 def test_eval_cli_family_errors(run, capsys, args, msg):
-    code = main(["eval", "--task", "ood", "--run", str(run), "--quiet", *args])
+    try:
+        code = main(["eval", "--task", "ood", "--run", str(run), "--quiet", *args])
+    except SystemExit as e:  # a usage error found while parsing (a choice): one line, exit 2
+        code = e.code
     err = capsys.readouterr().err.strip()
     assert code == 2 and msg in err and len(err.splitlines()) == 1
     code = main(["eval", "--task", "reach-novel", "--family", "velocity", "--run", str(run), "--quiet"])
