@@ -30,7 +30,7 @@ PROG = "train"
 RESUMABLE = {"steps", "device", "log_every", "checkpoint_every", "keep_checkpoints", "eval_every", "eval_episodes", "eval_horizon"}
 HELP = {
     "algo": "algorithm",
-    "dataset": "dataset folder (datasets/<name>/<version>)",
+    "dataset": "dataset folder (datasets/<name>/<version>); required unless --resume or a --config file names it",
     "bc_target": "what GCSL and the BC terms imitate on a noisy (DART) dataset: expert (the clean command, column "
                  "action.expert) | executed (the flown action); critics always learn from the flown action",
     "steps": "gradient steps",
@@ -123,7 +123,7 @@ def parser() -> ArgumentParser:
             ap.add_argument(flag, type=flag_type(f.name, default), nargs="+", default=None, metavar="N",
                             help=f"{h} [cpu: {' '.join(map(str, default))}]")
         elif isinstance(default, str):
-            ap.add_argument(flag, default=None, choices=CHOICES.get(f.name), help=f"{h} [cpu: {default}]")
+            ap.add_argument(flag, default=None, choices=CHOICES.get(f.name), help=f"{h} [cpu: {default}]" if default else h)
         else:
             ap.add_argument(flag, type=flag_type(f.name, default), default=None, help=f"{h} [cpu: {default}]")
     return ap

@@ -34,7 +34,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
         "bisection_tol": "bisection stop width (s)", "fps": "control/recording rate (Hz)", "substeps": "RK4 substeps per step",
         "continuations": "extra episodes from states of the rest-start flights (moved to the origin) to fresh rho_D goals",
         "expert": "open-loop (one take-off plan, the thesis) | replan (shrinking-horizon re-planning from the flown state)",
-        "replan_every": "replan: steps between re-plans (100 Hz steps)", "replan_endgame": "replan: no re-planning in the last S seconds (s)",
+        "replan_every": "replan: control steps between re-plans (steps)", "replan_endgame": "replan: no re-planning in the flight's last seconds (s)",
         "action_noise": "DART noise: stationary std of the Ornstein-Uhlenbeck noise added to the flown command, "
                         "per CTBR dimension c (m/s^2) wx wy wz (rad/s), or 2 numbers (c, rates)",
         "noise_tau": "correlation time of the action noise (s)",

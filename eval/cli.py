@@ -47,16 +47,16 @@ def _eval_parser() -> ArgumentParser:
     ap.add_argument("--candidate-source", default=d.candidate_source, choices=("dataset", "synthetic"),
                     help="planner: dataset achieved goals | synthetic offsets chained from the start (far goals) [dataset]")
     ap.add_argument("--replan-every", type=T.nonneg_int, default=d.replan_every,
-                    help="re-plan from the current state every K steps during intermediate legs (0: never) [0]")
+                    help="re-plan from the current state every K simulator steps during intermediate legs (0: never) [0]")
     ap.add_argument("--no-replan", action="store_true", help="multi: keep the take-off plan (no re-planning at reached goals)")
     ap.add_argument("--horizon", type=T.positive_int, default=None,
-                    help="ood: steps per episode, every planner [1000; a family ring: its own, scaled to distance]")
+                    help="ood: simulator steps per episode (100 Hz: 1000 = 10 s), every planner [1000; a family ring: its own, scaled to distance]")
     ap.add_argument("--family", default=None, choices=FAMILIES, help="ood: goals that leave rho_D along one axis: position | velocity | "
                     "acceleration | combined (eval/families.py) [the thesis's OOD set]")
     ap.add_argument("--ring", default=None, help="ood --family: step 1..K of the family, or a range LO:HI of |x_i| "
                     "(m, m/s or m/s^2) [1]")
     ap.add_argument("--leg-horizon", type=T.nonneg_int, default=d.leg_horizon,
-                    help="ood: step budget to reach an intermediate goal [horizon / (intermediate goals + 1)]")
+                    help="ood: budget to reach an intermediate goal (simulator steps) [horizon / (intermediate goals + 1)]")
     ap.add_argument("--min-leg", type=T.nonneg_float, default=d.min_leg,
                     help=f"planner: skip candidates closer than this (m) to the start as first goal [{d.min_leg:g}: none skipped]")
     ap.add_argument("--decline-margin", type=T.finite_float, default=None, metavar="M",
