@@ -87,9 +87,10 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--raster", help="semantic: class raster (.npy/.npz/.png) instead of "
                        "procedural campus maps (see aerohrl.ipp.semantic)")
         q.add_argument("--map-size", type=T.positive_int, default=None,
-                       help=f"cells per side (default {ec.map_size}; semantic 256)")
+                       help=f"map side (cells) (default {ec.map_size}; semantic 256)")
         q.add_argument("--budget", type=_budget, default=None,
-                       help=f"cost budget: a number > 0 or a name ({_budget_names()}; "
+                       help=f"cost budget in primitive-cost units (sum of rho*T + int |jerk|^2): a number > 0 "
+                       f"or a name ({_budget_names()}; "
                        f"default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
 
     def env_flags(q):
