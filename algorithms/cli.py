@@ -93,6 +93,13 @@ def flag_type(name: str, default):
 
 
 def parser() -> ArgumentParser:
+    # argparse rather than draccus or tyro: the flags are already generated from TrainConfig's
+    # fields (below), so a library would remove little code here but would change the flag
+    # spellings users have (draccus: --batch_size), bypass the one-line parse-time errors of
+    # aerohrl.cli_types and errors.ArgumentParser, and draccus is only installed by the
+    # [lerobot] extra (lerobot requires it), which `train` does not need. run.toml is written
+    # by aerohrl.cli_common.to_toml (tomllib reads TOML; tomli_w is not a dependency) and
+    # read by config.load_toml.
     ap = ArgumentParser(prog=PROG, description="Offline goal-conditioned training on an expert dataset (thesis §3.4.2, Alg. 2).")
     ap.add_argument("--preset", default=None, choices=tuple(C.PRESETS), help="hyper-parameter preset [cpu]")
     ap.add_argument("--config", type=Path, default=None, metavar="FILE",
