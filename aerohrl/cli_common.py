@@ -99,13 +99,20 @@ def add_common(p: argparse.ArgumentParser, *, out: dict | None = None, quiet: bo
     return p
 
 
-def set_threads(n: int | None) -> None:
-    """``--threads N``: torch's intra-op threads and the OpenMP/BLAS threads of this
-    process and of the processes it starts (None: leave the defaults)."""
+def set_threads(n: int | None, *, torch: bool = True) -> None:
+    """``--threads N``: the OpenMP/BLAS threads of the processes started from here on (and
+    of this one, when called before numpy is imported) and, with ``torch``, torch's
+    intra-op threads (importing torch if needed). None: leave the defaults."""
     if n is None:
         return
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = str(n)
+    if not torch:
+        return
+    _set_torch_threads(n)
+
+
+def _set_torch_threads(n: int) -> None:
     torch = sys.modules.get("torch")
     if torch is None:
         try:

@@ -119,12 +119,12 @@ def parser() -> argparse.ArgumentParser:
 
 
 def cmd_build(a) -> int:
+    set_threads(a.threads, torch=False)  # before numpy loads: the simulator is numpy, and so are the workers
     from aerohrl.datagen.build import build
     from aerohrl.datagen.spec import load_spec
 
     overrides = {f.name: getattr(a, f.name) for f in fields(DatasetSpec)}
     spec = load_spec(a.spec, **overrides)
-    set_threads(a.threads)
     res = build(spec, a.out, progress=progress(a.quiet), force=a.force, workers=a.workers,
                 ray_address=a.ray_address)
     if res.created:

@@ -359,3 +359,24 @@ def test_run_toml_is_written_beside_config_json(data, tmp_path):
     assert _cfg(["--config", str(run_toml)]) == saved
     resume_run(tmp_path / "r", data=data, progress=False, overrides={"steps": 6}).train()
     assert _cfg(["--config", str(run_toml)]) == dataclasses.replace(saved, steps=6)
+
+
+def test_threads_sets_torch_and_openmp(monkeypatch):
+    import os
+
+    import torch
+
+    from aerohrl.cli_common import set_threads
+
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    old = torch.get_num_threads()
+    try:
+        set_threads(None)
+        assert "OMP_NUM_THREADS" not in os.environ and torch.get_num_threads() == old  # not given: defaults stay
+        set_threads(2, torch=False)
+        assert os.environ["OMP_NUM_THREADS"] == "2" and torch.get_num_threads() == old
+        set_threads(1)
+        assert os.environ["OPENBLAS_NUM_THREADS"] == "1" and torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(old)
