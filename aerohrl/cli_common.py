@@ -99,6 +99,14 @@ def add_common(p: argparse.ArgumentParser, *, out: dict | None = None, quiet: bo
     return p
 
 
+def add_run(p: argparse.ArgumentParser, *, help: str, type=Path) -> None:
+    """The run a command reads, as ``RUN`` or ``--run RUN`` (``aerohrl eval``'s spelling), either one;
+    checked by :class:`aerohrl.errors.ArgumentParser` (``p`` must be one)."""
+    p.add_argument("run", nargs="?", type=type, default=None, metavar="RUN", help=f"{help} (or --run RUN)")
+    p.add_argument("--run", dest="run_flag", type=type, default=None, metavar="RUN", help="the same, as a flag")
+    p.run_positional = True  # type: ignore[attr-defined]
+
+
 def set_threads(n: int | None, *, torch: bool = True) -> None:
     """``--threads N``: the OpenMP/BLAS threads of the processes started from here on (and
     of this one, when called before numpy is imported) and, with ``torch``, torch's
@@ -171,4 +179,4 @@ def to_toml(values: dict, header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["COMMON", "add_common", "deprecated", "set_threads", "progress", "run_name", "toml_value", "to_toml"]
+__all__ = ["COMMON", "add_common", "add_run", "deprecated", "set_threads", "progress", "run_name", "toml_value", "to_toml"]

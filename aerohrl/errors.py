@@ -72,8 +72,14 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def parse_known_args(self, args=None, namespace=None):
         namespace, extras = super().parse_known_args(args, namespace)
-        if "-h" not in (args or ()) and "--help" not in (args or ()):
-            for dest, flag in getattr(self, "required_dests", ()):
-                if getattr(namespace, dest, None) is None:
-                    self.error(f"the following arguments are required: {flag}")
+        if getattr(self, "run_positional", False):  # RUN or --run RUN (aerohrl.cli_common.add_run)
+            flag = namespace.__dict__.pop("run_flag", None)
+            if flag is not None and namespace.run is not None and flag != namespace.run:
+                self.error(f"two runs given: {namespace.run} and --run {flag}")
+            namespace.run = namespace.run if flag is None else flag
+            if namespace.run is None:
+                self.error("the following arguments are required: RUN (or --run RUN)")
+        for dest, flag in getattr(self, "required_dests", ()):
+            if getattr(namespace, dest, None) is None:
+                self.error(f"the following arguments are required: {flag}")
         return namespace, extras

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from aerohrl.atomic import save_figure
-from aerohrl.cli_common import add_common
+from aerohrl.cli_common import add_common, add_run
 from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl runs"
@@ -222,7 +222,7 @@ def parser() -> ArgumentParser:
     ap = ArgumentParser(prog=PROG, description="Inspect training runs.")
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
     s = sub.add_parser("show", help="config, dataset version, progress and learning-curve plot of a run")
-    s.add_argument("run", type=Path, help="run folder (runs/<run>; a train or an ipp train run)")
+    add_run(s, help="run folder (runs/<run>; a train or an ipp train run)")
     add_common(s, out={"help": "plot file [RUN/learning_curve.png]"}, old_out=("--output",))
     s.add_argument("--no-plot", action="store_true", help="no plot")
     return ap

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from aerohrl import atomic
 from aerohrl import cli_types as T
-from aerohrl.cli_common import add_common, run_name, set_threads
+from aerohrl.cli_common import add_common, add_run, run_name, set_threads
 from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl ipp"
@@ -167,7 +167,7 @@ def _parser() -> argparse.ArgumentParser:
     tr.set_defaults(_defaults={a.dest: a.default for a in tr._actions})
 
     cu = sub.add_parser("curve", help="learning curve of a training run (PNG)")
-    cu.add_argument("run", help="training run directory")
+    add_run(cu, help="training run directory", type=str)
     add_common(cu, out={"type": str, "help": "figure path [RUN/learning_curve.png]"}, old_out=("--output",))
 
     be = sub.add_parser("bench", help="Table 2.1 analogue on the seeded test suite")

@@ -380,3 +380,18 @@ def test_threads_sets_torch_and_openmp(monkeypatch):
         assert os.environ["OPENBLAS_NUM_THREADS"] == "1" and torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(old)
+
+
+@pytest.mark.parametrize("name", ["aerohrl runs show", "aerohrl ipp curve"])
+def test_a_run_is_positional_or_a_flag(name, capsys):
+    from aerohrl.errors import UserError
+
+    factory, _, _ = COMMANDS[name]
+    p, prefix = factory()
+    prefix = prefix[:1]  # the subcommand without its run
+    assert str(p.parse_args(prefix + ["runs/a"]).run) == "runs/a"
+    assert str(p.parse_args(prefix + ["--run", "runs/a"]).run) == "runs/a"  # aerohrl eval's spelling
+    assert not hasattr(p.parse_args(prefix + ["runs/a"]), "run_flag")
+    for argv in (prefix, prefix + ["runs/a", "--run", "runs/b"]):
+        with pytest.raises((SystemExit, UserError)):
+            p.parse_args(argv)
