@@ -121,12 +121,10 @@ def set_threads(n: int | None, *, torch: bool = True) -> None:
 
 
 def _set_torch_threads(n: int) -> None:
-    torch = sys.modules.get("torch")
-    if torch is None:
-        try:
-            import torch  # type: ignore[no-redef]  # the commands that take --threads use it; core installs lack it
-        except ModuleNotFoundError:
-            return
+    try:
+        import torch  # the commands that take --threads use it anyway; a core install lacks it
+    except ModuleNotFoundError:
+        return
     torch.set_num_threads(n)
 
 
