@@ -295,5 +295,9 @@ def load_toml(path) -> dict:
     defaults = {f.name: f.default for f in fields(TrainConfig)}
     unknown = sorted(set(raw) - set(defaults))
     if unknown:
-        raise UserError(f"{path}: unknown key(s) {', '.join(unknown)} (a train config takes: {', '.join(defaults)})")
+        import difflib
+
+        near = sorted({m for k in unknown for m in difflib.get_close_matches(k, defaults, n=3)})
+        hint = f"did you mean {', '.join(near)}?" if near else "the keys are train's flags with _ for - (train --help)"
+        raise UserError(f"{path}: unknown key(s) {', '.join(unknown)} ({hint})")
     return {k: _coerce(k, defaults[k], v, str(path)) for k, v in raw.items()}
