@@ -38,7 +38,7 @@ demo: venv
 	$(BIN)/aerohrl eval --task reach-desired --run $$run --checkpoints 3; \
 	$(BIN)/aerohrl eval --task reach-intermediate --run $$run --checkpoints 1; \
 	$(BIN)/aerohrl eval plot --task reach-desired --run $$run -o $(OUT)/reach-desired.png; \
-	$(BIN)/aerohrl ipp bench --planner greedy --envs 10 --out-dir $(OUT)/ipp; \
+	$(BIN)/aerohrl ipp bench --planner greedy --envs 10 --out $(OUT)/ipp; \
 	echo "demo: dataset $$ds, run $$run, figures in $(OUT)/ (a short run: make results trains the cpu preset in full)"
 
 # Everything CI runs: fast tests and the slow end-to-end ones.

@@ -19,6 +19,8 @@ commands:
   eval      evaluate runs in the simulator (reach-desired, reach-intermediate, ood + planner; table, plot)
   sweep     a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, evaluated, seed-aggregated tables
 
+Every command takes, where they mean something, the same flags: -o/--out PATH (where
+results go), --quiet (no progress bars), --threads N, --seed N, --device DEV.
 `aerohrl COMMAND --help` for each command's options."""
 
 

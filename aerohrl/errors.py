@@ -60,8 +60,26 @@ def run_cli(prog: str, fn: Callable[[], int | None]) -> int:
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line (``prog: error: ...``) and exit status 2."""
+    """argparse, but a usage error is one line (``prog: error: ...``) and exit status 2.
+
+    A flag that is required but also has a deprecated spelling (aerohrl.cli_common) is
+    declared not required to argparse, which cannot see the old spelling as the same
+    flag, and listed in ``required_dests``: checked here after parsing."""
 
     def error(self, message: str):  # noqa: D401 - argparse API
         print(f"{self.prog}: error: {message} (see --help)", file=sys.stderr)
         sys.exit(2)
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        if getattr(self, "run_positional", False):  # RUN or --run RUN (aerohrl.cli_common.add_run)
+            flag = namespace.__dict__.pop("run_flag", None)
+            if flag is not None and namespace.run is not None and flag != namespace.run:
+                self.error(f"two runs given: {namespace.run} and --run {flag}")
+            namespace.run = namespace.run if flag is None else flag
+            if namespace.run is None:
+                self.error("the following arguments are required: RUN (or --run RUN)")
+        for dest, flag in getattr(self, "required_dests", ()):
+            if getattr(namespace, dest, None) is None:
+                self.error(f"the following arguments are required: {flag}")
+        return namespace, extras

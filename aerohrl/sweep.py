@@ -42,6 +42,7 @@ from pathlib import Path
 
 from aerohrl import atomic
 from aerohrl import cli_types as T
+from aerohrl.cli_common import add_common, toml_value
 from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl sweep"
@@ -129,15 +130,10 @@ class SweepSpec:
 
 
 def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise UserError(f"cannot write {v!r} to a TOML grid")
+    try:
+        return toml_value(v)  # the writer of run.toml too (aerohrl.cli_common)
+    except TypeError:
+        raise UserError(f"cannot write {v!r} to a TOML grid") from None
 
 
 def _parse_value(text: str):
@@ -342,7 +338,7 @@ def eval_task(run_dir: str, tasks: list[str], episodes: int, checkpoints: int, t
         err = io.StringIO()
         with redirect_stdout(io.StringIO()), redirect_stderr(err):
             code = eval_main(["--task", t, "--run", str(rd), "--episodes", str(episodes), "--checkpoints", str(checkpoints),
-                              "--threads", str(threads), "--no-progress"])
+                              "--threads", str(threads), "--quiet"])
         if code != 0:
             raise RuntimeError(f"aerohrl eval --task {t} --run {rd} failed: {err.getvalue().strip().splitlines()[-1:]}")
         done.append(t)
@@ -508,16 +504,17 @@ def parser() -> ArgumentParser:
                         "evaluate them and write seed-aggregated tables.")
     ap.add_argument("--config", type=Path, default=None, help="sweep grid, TOML or .yaml (keys: algos, seeds, datasets, "
                     "preset, [set], [grid], [eval] tasks/episodes/checkpoints); flags add to it; saved as OUT/sweep.toml")
-    ap.add_argument("--out", type=Path, required=True, help="sweep folder: sweep.toml, runs/, tables.md")
-    ap.add_argument("--algos", nargs="+", default=None, metavar="ALGO")
+    add_common(ap, out={"required": True, "help": "sweep folder: sweep.toml, runs/, tables.md"},
+               device={"default": None, "help": "torch device of each run: cpu | cuda (asks Ray for GPUs) [cpu]"})
+    ap.add_argument("--algos", nargs="+", default=None, metavar="ALGO", help="train algorithms: gcsl td3bc td3awbc cql (required here or in --config)")
     ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=None, metavar="SEED", help="[0]")
-    ap.add_argument("--datasets", nargs="+", type=Path, default=None, metavar="DATASET")
+    ap.add_argument("--datasets", nargs="+", type=Path, default=None, metavar="DATASET",
+                    help="dataset folders (datasets/<name>/<version>; required here or in --config)")
     ap.add_argument("--preset", default=None, help="train preset of every run [cpu]")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a train flag for every run (--set steps=2000 --set hidden=[256,256]); repeatable")
     ap.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2",
                     help="a train flag swept over values (--grid batch_size=256,512); repeatable: the product")
-    ap.add_argument("--device", default=None, help="cpu | cuda: each run's device; cuda asks Ray for GPUs [cpu]")
     ap.add_argument("--address", default=None, help="join the Ray cluster at HOST:PORT (or auto) instead of a local one")
     ap.add_argument("--num-cpus", type=T.positive_int, default=None,
                     help="local Ray: the core budget [all cores, os.cpu_count()]")

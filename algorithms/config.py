@@ -235,3 +235,69 @@ def relabel_future(cfg: TrainConfig) -> dict:
 
 
 __all__ = ["TrainConfig", "PRESETS", "ALGORITHMS", "make_config", "check", "to_dict", "from_dict", "field"]
+
+
+# ----------------------------------------------------------------------------- run.toml
+
+TOML_NAME = "run.toml"  # beside config.json in every run folder; `train --config RUN/run.toml` trains it again
+
+
+def to_toml(cfg: TrainConfig) -> str:
+    """The config as a flat TOML file (every field, preset included), readable by :func:`load_toml`."""
+    from aerohrl.cli_common import to_toml as flat_toml
+
+    return flat_toml(to_dict(cfg), header="aerohrl train config (written by `train`); train it again with "
+                                          "`train --config run.toml`, flags override its values")
+
+
+def _coerce(name: str, default, value, where: str):
+    """A TOML value as the field's type (ints for floats are fine); UserError naming the key otherwise."""
+    def bad(kind):
+        return UserError(f"{where}: {name} must be {kind}, got {value!r}")
+
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise bad("true or false")
+        return value
+    if isinstance(default, tuple):
+        if not isinstance(value, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in value):
+            raise bad("a list of integers")
+        return tuple(value)
+    if isinstance(default, int):
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise bad("an integer")
+        return value
+    if isinstance(default, float):
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise bad("a number")
+        return float(value)
+    if not isinstance(value, str):
+        raise bad("a string")
+    return value
+
+
+def load_toml(path) -> dict:
+    """The values of a ``--config`` TOML file, by field name, typed as the fields (preset
+    included when the file has it). UserError (one line) on a missing or malformed file,
+    an unknown key or a value of the wrong type; ranges are checked by :func:`make_config`."""
+    import tomllib
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise UserError(f"no config file at {path}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise UserError(f"cannot read {path}: {getattr(e, 'strerror', None) or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise UserError(f"{path} is not valid TOML: {e}") from None
+    defaults = {f.name: f.default for f in fields(TrainConfig)}
+    unknown = sorted(set(raw) - set(defaults))
+    if unknown:
+        import difflib
+
+        near = sorted({m for k in unknown for m in difflib.get_close_matches(k, defaults, n=3)})
+        hint = f"did you mean {', '.join(near)}?" if near else "the keys are train's flags with _ for - (train --help)"
+        raise UserError(f"{path}: unknown key(s) {', '.join(unknown)} ({hint})")
+    return {k: _coerce(k, defaults[k], v, str(path)) for k, v in raw.items()}

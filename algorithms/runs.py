@@ -1,6 +1,6 @@
 """``aerohrl runs show RUN``: config, dataset version, progress and the learning curve.
 
-The plot (``RUN/learning_curve.png`` unless ``-o``) follows thesis Fig. 3.3/3.4: the
+The plot (``RUN/learning_curve.png`` unless ``--out``) follows thesis Fig. 3.3/3.4: the
 closed-loop success rate against training steps (one line per evaluation task: the
 trainer's periodic evaluations and, when ``aerohrl eval`` has been run, its results of
 every evaluated checkpoint), with the training losses beside it.
@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from aerohrl.atomic import save_figure
+from aerohrl.cli_common import add_common, add_run
 from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl runs"
@@ -184,7 +185,7 @@ def cmd_show_ipp(a) -> int:
     kept = [n for n in ("model.pt", "best.pt", "checkpoint.pt") if (a.run / n).exists()]
     print(f"files:     {', '.join(kept) or 'no weights yet'}")
     if not a.no_plot and rows:
-        print(f"plot:      {ipp_curve(a.run, a.output)}")
+        print(f"plot:      {ipp_curve(a.run, a.out)}")
     return 0
 
 
@@ -213,7 +214,7 @@ def cmd_show(a) -> int:
     _print_eval_results(a.run)
     print("config:    " + " ".join(f"{k}={v}" for k, v in sorted(cfg.items()) if k not in ("algo", "preset", "seed", "device")))
     if not a.no_plot:
-        print(f"plot:      {plot_learning_curve(a.run, a.output)}")
+        print(f"plot:      {plot_learning_curve(a.run, a.out)}")
     return 0
 
 
@@ -221,9 +222,9 @@ def parser() -> ArgumentParser:
     ap = ArgumentParser(prog=PROG, description="Inspect training runs.")
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
     s = sub.add_parser("show", help="config, dataset version, progress and learning-curve plot of a run")
-    s.add_argument("run", type=Path)
-    s.add_argument("-o", "--output", type=Path, default=None, help="plot file [RUN/learning_curve.png]")
-    s.add_argument("--no-plot", action="store_true")
+    add_run(s, help="run folder (runs/<run>; a train or an ipp train run)")
+    add_common(s, out={"help": "plot file [RUN/learning_curve.png]"}, old_out=("--output",))
+    s.add_argument("--no-plot", action="store_true", help="no plot")
     return ap
 
 

@@ -3,6 +3,7 @@
 A run folder ``runs/<run>/`` holds::
 
     config.json              the resolved TrainConfig + the dataset's identity (absolute path, version)
+    run.toml                 the same TrainConfig as TOML (`train --config RUN/run.toml` trains it again)
     checkpoints/step-NNNNNNNNN.pt   weights, optimiser states, step, RNG states, config,
                              dataset version/checksum/shapes (last ``keep_checkpoints``)
     checkpoints/step-NNNNNNNNN.pt.sha256   its SHA-256 (``sha256sum -c`` format)
@@ -35,7 +36,6 @@ import json
 import math
 import os
 import random
-import secrets
 import shutil
 import time
 from datetime import datetime, timezone
@@ -185,8 +185,9 @@ def new_run_dir(cfg: C.TrainConfig, runs_root="runs", name: str | None = None) -
     random suffix keeps runs started in the same second apart. Not created here:
     :func:`claim_run_dir` does that, exclusively."""
     if name is None:
-        stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
-        name = f"{cfg.algo}-{cfg.preset}-s{cfg.seed}-{stamp}-{secrets.token_hex(3)}"
+        from aerohrl.cli_common import run_name
+
+        name = run_name(cfg.algo, cfg.preset, seed=cfg.seed)  # the shape of every command's run names
     d = Path(runs_root) / name
     if (d / "config.json").exists():
         raise UserError(f"run {d} exists; use --resume {d} to continue it")
@@ -443,6 +444,7 @@ class Trainer:
         atomic.write_json(self.run_dir / "config.json", {"config": C.to_dict(cfg), "dataset": self.dataset,
                                                          "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                                                          "logger": self.logger, "provenance": provenance(cfg.device)})
+        atomic.write_text(self.run_dir / C.TOML_NAME, C.to_toml(cfg))  # the same config, for `train --config`
         self.resumed_from = None
 
     def _newest_intact(self, ckpts: list[Path]) -> tuple[Path, dict]:
@@ -666,6 +668,7 @@ def resume_run(run_dir, *, data: Dataset | None = None, progress: bool = True, e
         # e.g. more --steps: the run's config says so from now on; each resume records its own code and machine
         resumes = [*meta.get("resumes", []), {**provenance(cfg.device), "step": _newest_step(run_dir)}]
         atomic.write_json(run_dir / "config.json", {**meta, "config": C.to_dict(cfg), "logger": logger, "resumes": resumes})
+        atomic.write_text(run_dir / C.TOML_NAME, C.to_toml(cfg))
         return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock, logger=logger, **trainer_kw)
     except BaseException:
         lock.release()

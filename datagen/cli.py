@@ -13,24 +13,28 @@ from dataclasses import fields
 from pathlib import Path
 
 from aerohrl import cli_types as T
+from aerohrl.cli_common import add_common, progress, set_threads
 from aerohrl.errors import ArgumentParser, UserError, run_cli, warn
-from aerohrl.datagen.spec import DatasetSpec
+from aerohrl.datagen.spec import EXPERTS, SOLVERS, START_STATES, DatasetSpec
 
 PROG = "datagen"
+# the spec fields whose values are a fixed set (DatasetSpec.check), shown and checked by argparse
+# (vehicles: sim/params.py PRESETS, not imported here to keep --help fast; tests/test_cli_vocabulary.py checks them)
+SPEC_CHOICES = {"vehicle": ("hummingbird", "crazyflie"), "solver": SOLVERS, "expert": EXPERTS, "start_states": START_STATES}
 
 
 def _spec_flags(p: argparse.ArgumentParser) -> None:
     """One flag per DatasetSpec field (``--pos-range 1 2`` for tuples), default None = spec file / default."""
     helps = {
         "name": "dataset name (folder under --out)", "goals": "number of desired goals / expert episodes",
-        "seed": "random seed", "pos_range": "|p_i| range per axis (m), random sign", "vel_range": "v_i range (m/s)",
-        "acc_range": "a_i range (m/s^2)", "vehicle": "vehicle preset (hummingbird | crazyflie)",
+        "pos_range": "|p_i| range per axis (m), random sign", "vel_range": "v_i range (m/s)",
+        "acc_range": "a_i range (m/s^2)", "vehicle": "vehicle preset",
         "a_max": "reference acceleration bound per axis (m/s^2)", "degree": "polynomial degree per axis",
         "solver": "closed-form (degree 5) | qp (OSQP)", "t_max": "bisection upper bracket (s)",
         "bisection_tol": "bisection stop width (s)", "fps": "control/recording rate (Hz)", "substeps": "RK4 substeps per step",
         "continuations": "extra episodes from states of the rest-start flights (moved to the origin) to fresh rho_D goals",
         "expert": "open-loop (one take-off plan, the thesis) | replan (shrinking-horizon re-planning from the flown state)",
-        "replan_every": "replan: steps between re-plans", "replan_endgame": "replan: no re-planning in the last S seconds",
+        "replan_every": "replan: control steps between re-plans (steps)", "replan_endgame": "replan: no re-planning in the flight's last seconds (s)",
         "action_noise": "DART noise: stationary std of the Ornstein-Uhlenbeck noise added to the flown command, "
                         "per CTBR dimension c (m/s^2) wx wy wz (rad/s), or 2 numbers (c, rates)",
         "noise_tau": "correlation time of the action noise (s)",
@@ -43,6 +47,8 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
     nonneg = {"seed", "continuations"}
     nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate"}  # 0 switches the part off
     for f in fields(DatasetSpec):
+        if f.name == "seed":  # a common flag (aerohrl.cli_common), added with them
+            continue
         flag = "--" + f.name.replace("_", "-")
         default = f.default
         if f.name == "action_noise":
@@ -51,7 +57,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
             p.add_argument(flag, type=T.finite_float, nargs=2, metavar=("LOW", "HIGH"), default=None,
                            help=f"{helps[f.name]} [{default[0]} {default[1]}]")
         elif isinstance(default, str):
-            p.add_argument(flag, default=None, help=f"{helps[f.name]} [{default}]")
+            p.add_argument(flag, default=None, choices=SPEC_CHOICES.get(f.name), help=f"{helps[f.name]} [{default}]")
         elif f.name in nonneg_float:
             p.add_argument(flag, type=T.nonneg_float, default=None, help=f"{helps[f.name]} [{default}]")
         else:
@@ -65,8 +71,9 @@ def parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build", help="generate a dataset (or verify the existing version)")
     b.add_argument("--spec", type=Path, default=None, help="dataset spec TOML (default: built-in defaults = datasets/quadrotor-reach.toml)")
-    b.add_argument("--out", type=Path, default=Path("datasets"), help="root folder; the dataset goes to OUT/NAME/VERSION [datasets]")
-    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_common(b, out={"default": Path("datasets"), "help": "root folder: the dataset goes to OUT/NAME/VERSION [datasets]"},
+               quiet=True, threads={"help": "OpenMP/BLAS threads of each process that flies episodes [their default]"},
+               seed={"default": None, "help": "random seed of the goals and noise (>= 0) [0]"})
     b.add_argument("--force", action="store_true", help="build even when the estimate exceeds the free memory or disk")
     b.add_argument("--workers", type=T.positive_int, default=1, metavar="N",
                    help="fly the blocks of 8,192 episodes in N local processes (or N Ray tasks at a time with "
@@ -76,23 +83,23 @@ def parser() -> argparse.ArgumentParser:
     _spec_flags(b)
 
     i = sub.add_parser("info", help="summary, spec, checksums and expert success of a dataset")
-    i.add_argument("path", type=Path)
+    i.add_argument("path", type=Path, help="dataset folder (datasets/<name>/<version>)")
     i.add_argument("--json", action="store_true", help="print the full metadata as JSON")
 
     v = sub.add_parser("validate", help="integrity check; non-zero exit on any damage")
-    v.add_argument("path", type=Path)
+    v.add_argument("path", type=Path, help="dataset folder (datasets/<name>/<version>)")
 
     m = sub.add_parser("export-mcap", help="one episode as MCAP (Foxglove-viewable)")
     m.add_argument("path", type=Path)
-    m.add_argument("--episode", type=T.nonneg_int, required=True)
-    m.add_argument("-o", "--output", type=Path, required=True)
+    m.add_argument("--episode", type=T.nonneg_int, required=True, help="episode index (0-based)")
+    add_common(m, out={"required": True, "help": "the .mcap file to write"}, old_out=("--output",))
 
     x = sub.add_parser("export", help="convert a dataset: minari (Minari dataset), ogbench (OGBench .npz), mcap (one episode)")
     x.add_argument("path", type=Path)
     x.add_argument("--format", required=True, choices=("minari", "ogbench", "mcap"), help="target format")
-    x.add_argument("-o", "--out", "--output", dest="out", type=Path, default=None,
-                   help="minari: datasets root [$MINARI_DATASETS_PATH or ~/.minari/datasets]; ogbench: the .npz file "
-                        "[<name>-<version>.npz]; mcap: the .mcap file (required)")
+    add_common(x, old_out=("--output",), out={
+                   "help": "minari: datasets root [$MINARI_DATASETS_PATH or ~/.minari/datasets]; ogbench: the .npz file "
+                        "[<name>-<version>.npz]; mcap: the .mcap file (required)"})
     x.add_argument("--dataset-id", default=None, help="minari: dataset id [aerohrl/<name>/<version>-v0]")
     x.add_argument("--episode", type=T.nonneg_int, default=None, help="mcap: the episode to export")
 
@@ -106,18 +113,19 @@ def parser() -> argparse.ArgumentParser:
 
     pl = sub.add_parser("plot", help="3-D expert trajectories and goals (thesis Fig. 3.2 analogue)")
     pl.add_argument("path", type=Path)
-    pl.add_argument("-o", "--output", type=Path, required=True)
+    add_common(pl, out={"required": True, "help": "figure file (.png, .pdf, .svg)"}, old_out=("--output",))
     pl.add_argument("--max-episodes", type=T.positive_int, default=250, help="episodes drawn [250]")
     return ap
 
 
 def cmd_build(a) -> int:
+    set_threads(a.threads, torch=False)  # before numpy loads: the simulator is numpy, and so are the workers
     from aerohrl.datagen.build import build
     from aerohrl.datagen.spec import load_spec
 
     overrides = {f.name: getattr(a, f.name) for f in fields(DatasetSpec)}
     spec = load_spec(a.spec, **overrides)
-    res = build(spec, a.out, progress=not a.quiet and sys.stderr.isatty(), force=a.force, workers=a.workers,
+    res = build(spec, a.out, progress=progress(a.quiet), force=a.force, workers=a.workers,
                 ray_address=a.ray_address)
     if res.created:
         print(f"built {res.path}: {res.episodes} episodes, {res.frames} frames, "
@@ -192,8 +200,8 @@ def cmd_export_mcap(a) -> int:
     from aerohrl.datagen.mcap_export import export_mcap
 
     warn_if_damaged(a.path)
-    counts = export_mcap(a.path, a.episode, a.output)
-    print(f"wrote {a.output}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    counts = export_mcap(a.path, a.episode, a.out)
+    print(f"wrote {a.out}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
     return 0
 
 
@@ -253,8 +261,8 @@ def cmd_plot(a) -> int:
     from aerohrl.datagen.plots import plot_dataset
 
     warn_if_damaged(a.path)
-    plot_dataset(a.path, a.output, max_episodes=a.max_episodes)
-    print(f"wrote {a.output}")
+    plot_dataset(a.path, a.out, max_episodes=a.max_episodes)
+    print(f"wrote {a.out}")
     return 0
 
 

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from aerohrl import cli_types as T
+from aerohrl.cli_common import add_common, progress, set_threads
 from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl eval"
@@ -28,14 +29,16 @@ def _eval_parser() -> ArgumentParser:
     from aerohrl.eval.harness import EvalOptions, PLANNERS
     from aerohrl.eval.tasks import TASKS
 
+    FAMILIES = ("position", "velocity", "acceleration", "combined")  # = eval/families.py FAMILIES (numpy-free here)
     d = EvalOptions()
     ap = ArgumentParser(prog=PROG, description="Evaluate the last checkpoints of a training run in the batched simulator "
                         "(subcommands: `table RUN...`, `plot ...`, `oracle ...`).")
-    ap.add_argument("--task", required=True, help=f"{' | '.join(TASKS)}")
+    ap.add_argument("--task", required=True, choices=tuple(TASKS), help="evaluation task (eval/tasks.py)")
     ap.add_argument("--run", required=True, type=Path, help="training run folder (runs/<run>)")
     ap.add_argument("--episodes", type=T.positive_int, default=d.episodes, help=f"episodes per checkpoint [{d.episodes}]")
     ap.add_argument("--checkpoints", type=T.positive_int, default=d.checkpoints, help=f"newest checkpoints evaluated [{d.checkpoints}]")
-    ap.add_argument("--planner", default=d.planner, help=f"ood only: {' | '.join(PLANNERS)} [{d.planner}]")
+    ap.add_argument("--planner", default=d.planner, choices=tuple(PLANNERS),
+                    help=f"ood only: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6) [{d.planner}]")
     ap.add_argument("--waypoints", type=T.positive_int, default=d.waypoints, help=f"multi: intermediate goals (Eq. 3.6 n) [{d.waypoints}]")
     ap.add_argument("--beam", type=T.positive_int, default=d.beam, help=f"multi: beam width [{d.beam}]")
     ap.add_argument("--alpha", type=T.nonneg_float, default=d.alpha, help=f"variance penalty of Eq. 3.6/3.7 [{d.alpha}]")
@@ -44,16 +47,16 @@ def _eval_parser() -> ArgumentParser:
     ap.add_argument("--candidate-source", default=d.candidate_source, choices=("dataset", "synthetic"),
                     help="planner: dataset achieved goals | synthetic offsets chained from the start (far goals) [dataset]")
     ap.add_argument("--replan-every", type=T.nonneg_int, default=d.replan_every,
-                    help="re-plan from the current state every K steps during intermediate legs (0: never) [0]")
+                    help="re-plan from the current state every K simulator steps during intermediate legs (0: never) [0]")
     ap.add_argument("--no-replan", action="store_true", help="multi: keep the take-off plan (no re-planning at reached goals)")
     ap.add_argument("--horizon", type=T.positive_int, default=None,
-                    help="ood: steps per episode, every planner [1000; a family ring: its own, scaled to distance]")
-    ap.add_argument("--family", default=None, help="ood: goals that leave rho_D along one axis: position | velocity | "
+                    help="ood: simulator steps per episode (100 Hz: 1000 = 10 s), every planner [1000; a family ring: its own, scaled to distance]")
+    ap.add_argument("--family", default=None, choices=FAMILIES, help="ood: goals that leave rho_D along one axis: position | velocity | "
                     "acceleration | combined (eval/families.py) [the thesis's OOD set]")
     ap.add_argument("--ring", default=None, help="ood --family: step 1..K of the family, or a range LO:HI of |x_i| "
                     "(m, m/s or m/s^2) [1]")
     ap.add_argument("--leg-horizon", type=T.nonneg_int, default=d.leg_horizon,
-                    help="ood: step budget to reach an intermediate goal [horizon / (intermediate goals + 1)]")
+                    help="ood: budget to reach an intermediate goal (simulator steps) [horizon / (intermediate goals + 1)]")
     ap.add_argument("--min-leg", type=T.nonneg_float, default=d.min_leg,
                     help=f"planner: skip candidates closer than this (m) to the start as first goal [{d.min_leg:g}: none skipped]")
     ap.add_argument("--decline-margin", type=T.finite_float, default=None, metavar="M",
@@ -67,26 +70,22 @@ def _eval_parser() -> ArgumentParser:
     ap.add_argument("--waypoint-tol", type=T.positive_float, default=d.waypoint_tol,
                     help=f"an intermediate goal is reached with the goal tolerances x this (2.5: near success) [{d.waypoint_tol}]")
     ap.add_argument("--dataset", default=None, help="the run's dataset at another path (identity is checked)")
-    ap.add_argument("--out", default=None, help="result folder [RUN/eval/<task>[-<planner>]]")
-    ap.add_argument("--device", default=d.device, help="cpu | cuda [cpu]")
-    ap.add_argument("--seed", type=T.nonneg_int, default=d.seed, help="episode-set seed [0]")
-    ap.add_argument("--threads", type=T.positive_int, default=1, help="torch threads [1]")
-    ap.add_argument("--no-progress", action="store_true")
+    add_common(ap, out={"help": "result folder [RUN/eval/<task>[-<planner>]]"}, quiet=True, old_quiet=("--no-progress",),
+               threads={"default": 1}, seed={"default": d.seed, "help": f"episode-set seed (>= 0) [{d.seed}]"},
+               device={"default": d.device})
     return ap
 
 
 def cmd_eval(a) -> int:
-    import torch
-
     from aerohrl.eval.harness import EvalOptions, evaluate_run
 
-    torch.set_num_threads(max(1, a.threads))
+    set_threads(a.threads)
     opt = EvalOptions(task=a.task, episodes=a.episodes, checkpoints=a.checkpoints, planner=a.planner, waypoints=a.waypoints,
                       beam=a.beam, alpha=a.alpha, candidates=a.candidates, replan=not a.no_replan, replan_every=a.replan_every,
                       horizon=a.horizon, family=a.family, ring=a.ring, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol,
                       goal_tol=a.goal_tol, floor=a.floor, decline_margin=a.decline_margin, min_leg=a.min_leg,
-                      candidate_source=a.candidate_source, seed=a.seed, device=a.device, dataset=a.dataset, out=a.out,
-                      progress=not a.no_progress and sys.stderr.isatty())
+                      candidate_source=a.candidate_source, seed=a.seed, device=a.device, dataset=a.dataset,
+                      out=None if a.out is None else str(a.out), progress=progress(a.quiet))
     s = evaluate_run(a.run, opt)
     print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "
           f"near success {100 * s['near_success_mean']:.1f} ± {100 * s['near_success_std']:.1f} % "
@@ -99,8 +98,8 @@ def cmd_eval(a) -> int:
 def _table_parser() -> ArgumentParser:
     ap = ArgumentParser(prog=f"{PROG} table", description="Table 3.1 / 3.2 analogues (Markdown on stdout; with -o also "
                         "PREFIX.md, PREFIX-t31.csv, PREFIX-t32.csv).")
-    ap.add_argument("runs", nargs="+", type=Path)
-    ap.add_argument("-o", "--output", type=Path, default=None, help="file prefix for .md and .csv")
+    ap.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="run folders (or folders of runs)")
+    add_common(ap, out={"help": "file prefix: writes OUT.md, OUT-t31.csv, OUT-t32.csv [stdout only]"}, old_out=("--output",))
     return ap
 
 
@@ -110,8 +109,8 @@ def cmd_table(a) -> int:
     t = results.tables(a.runs)
     md = results.tables_markdown(t)
     print(md, end="")
-    if a.output:
-        p = a.output
+    if a.out:
+        p = a.out
         results.write_text(p.with_name(p.name + ".md"), md)
         results.write_text(p.with_name(p.name + "-t31.csv"), results.to_csv(*t["t31"]))
         results.write_text(p.with_name(p.name + "-t32.csv"), results.to_csv(*t["t32"]))
@@ -121,12 +120,15 @@ def cmd_table(a) -> int:
 def _plot_parser() -> ArgumentParser:
     ap = ArgumentParser(prog=f"{PROG} plot", description="3D trajectories of an evaluation (thesis Fig. 3.5/3.6) or learning "
                         "curves of runs (Fig. 3.3/3.4).")
-    ap.add_argument("--task", default=None, help="evaluation to draw: reach-desired | reach-intermediate | ood")
-    ap.add_argument("--planner", default=None, help="ood: which evaluation (none | single | multi) [the planned one present]")
-    ap.add_argument("--run", type=Path, default=None)
+    from aerohrl.eval.harness import PLANNERS
+    from aerohrl.eval.tasks import TASKS
+
+    ap.add_argument("--task", default=None, choices=tuple(TASKS), help="evaluation to draw")
+    ap.add_argument("--planner", default=None, choices=tuple(PLANNERS), help="ood: which evaluation [the planned one present]")
+    ap.add_argument("--run", type=Path, default=None, help="training run folder (runs/<run>)")
     ap.add_argument("--curves", type=Path, nargs="+", default=None, metavar="RUN", help="learning curves of these runs")
     ap.add_argument("--max", type=T.positive_int, default=12, help="trajectories per panel [12]")
-    ap.add_argument("-o", "--output", type=Path, required=True)
+    add_common(ap, out={"required": True, "help": "figure file (.png, .pdf, .svg)"}, old_out=("--output",))
     return ap
 
 
@@ -134,11 +136,11 @@ def cmd_plot(a) -> int:
     from aerohrl.eval import plots
 
     if a.curves:
-        out = plots.plot_learning_curves(a.curves, a.output)
+        out = plots.plot_learning_curves(a.curves, a.out)
     else:
         if a.task is None or a.run is None:
             raise UserError("plot needs --task and --run (trajectories) or --curves RUN... (learning curves)")
-        out = plots.plot_trajectories(a.run, a.task, a.output, planner=a.planner, max_per_panel=a.max)
+        out = plots.plot_trajectories(a.run, a.task, a.out, planner=a.planner, max_per_panel=a.max)
     print(f"plot: {out}")
     return 0
 
@@ -146,27 +148,24 @@ def cmd_plot(a) -> int:
 def _oracle_parser() -> ArgumentParser:
     ap = ArgumentParser(prog=f"{PROG} oracle", description="Fly every first and second leg of the single-goal planner "
                         "(Eq. 3.7) to bound what any planner over the achieved goals can reach with this policy.")
-    ap.add_argument("--run", type=Path, required=True)
-    ap.add_argument("--task", default="ood", help="goals of: ood | reach-novel [ood]")
+    ap.add_argument("--run", type=Path, required=True, help="training run folder (runs/<run>): its newest checkpoint")
+    ap.add_argument("--task", default="ood", choices=("ood", "reach-novel"), help="goals of this task [ood]")
     ap.add_argument("--goals", type=T.positive_int, default=40, help="task goals [40]")
-    ap.add_argument("--family", default=None, help="goals of an OOD family ring instead (eval/families.py) [none]")
+    ap.add_argument("--family", default=None, choices=("position", "velocity", "acceleration", "combined"),
+                    help="goals of an OOD family ring instead (eval/families.py) [none]")
     ap.add_argument("--ring", default=None, help="--family: step 1..K or LO:HI [1]")
     ap.add_argument("--candidate-source", default="dataset", choices=["dataset", "synthetic"],
                     help="waypoints: the dataset's achieved goals | synthetic states within rho_D of the start [dataset]")
     ap.add_argument("--candidates", type=T.positive_int, default=150, help="achieved goals (seeded subset) [150]")
-    ap.add_argument("--leg-horizon", type=T.positive_int, default=500, help="steps per leg [500]")
+    ap.add_argument("--leg-horizon", type=T.positive_int, default=500, help="simulator steps per leg (100 Hz) [500]")
     ap.add_argument("--alpha", type=T.nonneg_float, default=1.0, help="variance penalty of the Eq. 3.7 choice [1.0]")
-    ap.add_argument("--seed", type=T.nonneg_int, default=0)
-    ap.add_argument("--threads", type=T.positive_int, default=1)
-    ap.add_argument("--out", type=Path, default=None, help="report folder [RUN/eval/oracle-TASK]")
-    ap.add_argument("--no-progress", action="store_true")
+    add_common(ap, out={"help": "report folder [RUN/eval/oracle-TASK]"}, quiet=True, old_quiet=("--no-progress",),
+               threads={"default": 1}, seed={"help": "goal and candidate seed (>= 0) [0]"})
     return ap
 
 
 def cmd_oracle(a) -> int:
     import json
-
-    import torch
 
     from aerohrl.eval import results
     from aerohrl.eval.harness import load_policy, load_run_dataset, run_checkpoints, sim_kwargs
@@ -177,7 +176,7 @@ def cmd_oracle(a) -> int:
         raise UserError(f"oracle --task must be ood or reach-novel, got {a.task!r}")
     if a.goals < 1 or a.candidates < 1 or a.leg_horizon < 1:
         raise UserError("--goals, --candidates and --leg-horizon must be >= 1")
-    torch.set_num_threads(max(1, a.threads))
+    set_threads(a.threads)
     ckpt = run_checkpoints(a.run, 1)[-1]
     data, _ = load_run_dataset(a.run)
     algo, ck = load_policy(ckpt)
@@ -200,7 +199,7 @@ def cmd_oracle(a) -> int:
         cand = synthetic_candidates(data.info.get("spec"), a.candidates, a.seed)
         name += "-synth"
     r = oracle_single(algo, data, goals, candidates=a.candidates, seed=a.seed, leg_horizon=a.leg_horizon, alpha=a.alpha,
-                      sim=sim_kwargs(data), progress=not a.no_progress and sys.stderr.isatty(), cand=cand)
+                      sim=sim_kwargs(data), progress=progress(a.quiet), cand=cand)
     r.update(run=str(a.run), checkpoint=ckpt.name, step=int(ck["step"]), task=name, seed=a.seed,
              candidate_source=a.candidate_source)
     out = a.out or Path(a.run) / "eval" / f"oracle-{name}"

@@ -130,12 +130,12 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log) -> Path:
     rd = runs / row.name
     train = [py, "-m", "aerohrl.algorithms.cli"]
     if (rd / "config.json").exists():
-        _run(train + ["--resume", str(rd), "--no-progress", "--steps", str(row.steps)], log)
+        _run(train + ["--resume", str(rd), "--quiet", "--steps", str(row.steps)], log)
     else:
         _run(train + ["--algo", "gcsl", "--preset", "cpu", *TRAIN_FLAGS.get(row.recipe, []), "--dataset", ds,
                       "--seed", str(row.seed), "--steps", str(row.steps),
                       "--checkpoint-every", str(max(1, row.steps // 30)), "--out", str(runs), "--name", row.name,
-                      "--no-progress"], log)
+                      "--quiet"], log)
     todo = [(EVAL_DIR.get(col, col), flags, k) for col, flags in EVALS]
     if row.seed == 0:
         todo += [(f"{EVAL_DIR.get(col, col)}-floor-{f}", flags + ["--floor", f], 1)
@@ -144,7 +144,7 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log) -> Path:
         n = min(EPISODES, row.goals) if name.startswith("reach-desired") else EPISODES  # one flight per own goal at most
         if not _evaluated(rd, name, n, kk):
             _run([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", str(n), "--checkpoints", str(kk),
-                  "--no-progress"], log)
+                  "--quiet"], log)
     return rd
 
 

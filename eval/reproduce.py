@@ -193,7 +193,7 @@ def main(argv=None) -> int:
                 k = checkpoints or a.checkpoints
                 if a.reevaluate or not _evaluated(rd, name, a.episodes, k):
                     _run(ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k),
-                                       "--no-progress"], log)
+                                       "--quiet"], log)
 
             for rd, algo, label, seed in runs:
                 t0 = time.perf_counter()
@@ -207,7 +207,7 @@ def main(argv=None) -> int:
                         evaluate(rd, f"ood-{name}", ["--task", "ood", "--planner"] + pl)
                 if algo in a.planner_algos and seed == a.seeds[0]:  # the oracle and the figures: the first seed's run
                     rep = _run(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
-                                     str(a.oracle_candidates), "--no-progress"], log)
+                                     str(a.oracle_candidates), "--quiet"], log)
                     oracles.append(f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
                                    f"{a.oracle_goals} --candidates {a.oracle_candidates}`, eval/oracle.py):\n\n```\n"
                                    + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:")) + "\n```\n")

@@ -8,19 +8,47 @@ Modules: :mod:`.lattice` (dispersion-minimising primitive lattice, file format),
 :mod:`.bench`, :mod:`.cli`. See ipp/README.md.
 """
 
-from .baselines import PLANNERS, PlannerConfig, make_planner
-from .env import TERMS, EnvConfig, SearchEnv, semantic_config
-from .factory import create_env, make_env
-from .lattice import (Lattice, LatticeConfig, build_lattice, default_lattice, load_lattice,
-                      save_lattice)
-from .semantic import CLASSES, SemanticConfig, load_class_raster
-from .sensor import SensorConfig
-from .world import WorldConfig, Worlds, sample_worlds
+import importlib
+
+# the package's names, loaded on first use (PEP 562): `aerohrl ipp ... --help` and
+# `import aerohrl.ipp` stay light (scipy.ndimage and torch load with the modules that need them)
+_EXPORTS = {
+    "PLANNERS": "baselines", "PlannerConfig": "baselines", "make_planner": "baselines",
+    "TERMS": "env", "EnvConfig": "env", "SearchEnv": "env", "semantic_config": "env",
+    "create_env": "factory", "make_env": "factory",
+    "Lattice": "lattice", "LatticeConfig": "lattice", "build_lattice": "lattice", "default_lattice": "lattice",
+    "load_lattice": "lattice", "save_lattice": "lattice",
+    "CLASSES": "semantic", "SemanticConfig": "semantic", "load_class_raster": "semantic",
+    "SensorConfig": "sensor",
+    "WorldConfig": "world", "Worlds": "world", "sample_worlds": "world",
+}
+ENV_ID = "aerohrl/IPPSearch-v0"  # = gym_env.ENV_ID
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    try:  # a submodule not imported yet (aerohrl.ipp.bench after `import aerohrl.ipp`)
+        return importlib.import_module(f".{name}", __name__)
+    except ModuleNotFoundError as e:
+        if e.name != f"{__name__}.{name}":
+            raise
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _register() -> None:
+    """Register ``aerohrl/IPPSearch-v0`` by name: its module loads on ``gymnasium.make``."""
+    import gymnasium as gym
+
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point="aerohrl.ipp.gym_env:IPPSearchEnv",
+                     vector_entry_point="aerohrl.ipp.gym_env:IPPSearchVectorEnv", max_episode_steps=None)
+
 
 try:  # gymnasium is a dependency; registration must never break `import aerohrl.ipp`
-    from .gym_env import register as _register
-
-    _register()  # aerohrl/IPPSearch-v0
+    _register()
 except ImportError:  # pragma: no cover
     pass
 

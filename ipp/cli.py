@@ -1,13 +1,13 @@
 """``aerohrl ipp``: lattice build, bench, show.
 
-    aerohrl ipp lattice build -o lattice.npz            # + lattice.png
+    aerohrl ipp lattice build --out lattice.npz         # + lattice.png
     aerohrl ipp bench --planner dp --envs 100
     aerohrl ipp bench --all --envs 100                  # Markdown + CSV + KL plot
     aerohrl ipp train --preset cpu                      # -> runs/<run>/
     aerohrl ipp train --resume runs/<run>               # continue from its checkpoint
     aerohrl ipp curve runs/<run>                        # -> runs/<run>/learning_curve.png
     aerohrl ipp bench --all --run runs/<run>            # baselines + learned policy
-    aerohrl ipp show --env 7 --planner dp -o path.png
+    aerohrl ipp show --env 7 --planner dp --out path.png
     aerohrl ipp bench --all --world semantic --envs 30  # Table 2.2 analogue
     aerohrl ipp bench --all --world semantic --raster campus.png   # a user's class raster
 
@@ -25,40 +25,60 @@ from pathlib import Path
 
 from aerohrl import atomic
 from aerohrl import cli_types as T
-from aerohrl.errors import UserError, run_cli
+from aerohrl.cli_common import add_common, add_run, run_name, set_threads
+from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl ipp"
 
 
-class _Parser(argparse.ArgumentParser):
+class _Parser(ArgumentParser):
     def error(self, message):  # one line, exit 2, like UserError
         raise UserError(message)
 
 
-def _parser() -> argparse.ArgumentParser:
-    from .baselines import PLANNERS, TEACHERS
-    from .bench import TEST_SEED
-    from .env import SEMANTIC_BUDGET, EnvConfig
-    from .lattice import LatticeConfig
+# What --help shows, without importing the modules that define it (scipy.ndimage, torch:
+# `--help` stays under a second); tests/test_cli_vocabulary.py checks each against its source.
+PLANNERS = ("greedy", "dp", "cmaes", "coverage", "prio_coverage")  # baselines.PLANNERS
+TEACHERS = ("detect",)  # baselines.TEACHERS
+TEST_SEED = 1000  # bench.TEST_SEED
+BUDGETS = {"default": 9250.0, "tight": 5000.0}  # env.BUDGETS
+SEMANTIC_BUDGET = 30000.0  # env.SEMANTIC_BUDGET
+ENV_DEFAULTS = {"map_size": 30, "budget": 9250.0, "start": "center"}  # env.EnvConfig()
+TRAIN_PRESETS = ("cpu", "thesis", "quick", "semantic", "test")  # train.PRESETS
+TEACHER_PLANNERS = ("detect", "dp", "prio_coverage", "coverage", "greedy")  # train.TEACHER_PLANNERS
+CPU_PRESET = {"n_envs": 64, "iterations": 0, "bc_iterations": 30, "teacher": "detect", "seed": 7, "threads": 1,
+              "lr": 3e-5, "bc_lr": 1e-3, "bc_anchor": 0.5, "entropy_coef": 0.001, "eval_every": 10}  # train.PRESETS["cpu"]
 
-    lc, ec = LatticeConfig(), EnvConfig()
+
+def _parser() -> argparse.ArgumentParser:
+    from types import SimpleNamespace
+
+    from .lattice import LatticeConfig  # numpy only
+
+    lc, ec = LatticeConfig(), SimpleNamespace(**ENV_DEFAULTS)
     p = _Parser(prog=PROG, description="Informative path planning on motion primitives.")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
 
     lat = sub.add_parser("lattice", help="motion-primitive lattices")
     lsub = lat.add_subparsers(dest="lcmd", required=True, parser_class=_Parser)
     b = lsub.add_parser("build", help="build a dispersion-minimising lattice")
-    b.add_argument("-o", "--output", required=True, help="lattice file to write (.npz)")
-    b.add_argument("--plot", help="figure path (default: <output>.png)")
-    b.add_argument("--no-plot", action="store_true")
-    b.add_argument("--vertices", type=T.positive_int, default=lc.n_vertices, dest="n_vertices")
-    b.add_argument("--v-max", type=T.positive_float, default=lc.v_max)
-    b.add_argument("--a-max", type=T.positive_float, default=lc.a_max)
-    b.add_argument("--rho", type=T.positive_float, default=lc.rho)
-    b.add_argument("--reach", type=T.positive_int, default=lc.reach)
-    b.add_argument("--max-edges", type=T.positive_int, default=lc.max_edges)
-    b.add_argument("--footprint-radius", type=T.nonneg_int, default=lc.footprint_radius)
-    b.add_argument("--sense-dt", type=T.positive_float, default=lc.sense_dt)
+    add_common(b, out={"required": True, "type": str, "help": "lattice file to write (.npz)"}, old_out=("--output",))
+    b.add_argument("--plot", metavar="PATH", help="figure path [OUT with .png]")
+    b.add_argument("--no-plot", action="store_true", help="no figure")
+    b.add_argument("--vertices", type=T.positive_int, default=lc.n_vertices, dest="n_vertices",
+                   help=f"lattice vertices (velocity states), hover included [{lc.n_vertices}]")
+    b.add_argument("--v-max", type=T.positive_float, default=lc.v_max, help=f"speed bound |v| (m/s) [{lc.v_max:g}]")
+    b.add_argument("--a-max", type=T.positive_float, default=lc.a_max, help=f"acceleration bound |a| (m/s^2) [{lc.a_max:g}]")
+    b.add_argument("--rho", type=T.positive_float, default=lc.rho,
+                   help=f"weight of time in the primitive cost rho*T + int |jerk|^2 (1/s) [{lc.rho:g}]")
+    b.add_argument("--reach", type=T.positive_int, default=lc.reach,
+                   help=f"displacement window |dx|, |dy| <= reach (cells) [{lc.reach}]")
+    b.add_argument("--max-edges", type=T.positive_int, default=lc.max_edges,
+                   help=f"primitives per vertex (action slots) [{lc.max_edges}]")
+    b.add_argument("--footprint-radius", type=T.nonneg_int, default=lc.footprint_radius,
+                   help=f"sensor footprint (2r+1)^2 (cells) [{lc.footprint_radius}]")
+    b.add_argument("--sense-dt", type=T.positive_float, default=lc.sense_dt,
+                   help=f"sampling of the trajectory for sensing (s) [{lc.sense_dt:g}]")
 
     def world_flags(q):
         q.add_argument("--world", choices=("targets", "semantic"), default=None,
@@ -67,20 +87,22 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--raster", help="semantic: class raster (.npy/.npz/.png) instead of "
                        "procedural campus maps (see aerohrl.ipp.semantic)")
         q.add_argument("--map-size", type=T.positive_int, default=None,
-                       help=f"cells per side (default {ec.map_size}; semantic 256)")
+                       help=f"map side (cells) (default {ec.map_size}; semantic 256)")
         q.add_argument("--budget", type=_budget, default=None,
-                       help=f"cost budget: a number > 0 or a name ({_budget_names()}; "
+                       help=f"cost budget in primitive-cost units (sum of rho*T + int |jerk|^2): a number > 0 "
+                       f"or a name ({_budget_names()}; "
                        f"default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
 
     def env_flags(q):
         q.add_argument("--lattice", help="lattice file (default: the shipped one)")
         world_flags(q)
-        q.add_argument("--start", choices=("center", "random"), default=ec.start)
-        q.add_argument("--seed", type=T.nonneg_int, default=TEST_SEED, help="test-suite seed")
-        q.add_argument("--depth", type=T.positive_int, default=None, help="tree depth (greedy/dp/coverage)")
-        q.add_argument("--horizon", type=T.positive_int, default=5, help="CMA-ES horizon")
-        q.add_argument("--popsize", type=T.positive_int, default=12)
-        q.add_argument("--generations", type=T.positive_int, default=15)
+        q.add_argument("--start", choices=("center", "random"), default=ec.start, help=f"start cell [{ec.start}]")
+        add_common(q, seed={"default": TEST_SEED, "help": f"test-suite seed (>= 0) [{TEST_SEED}]"})
+        q.add_argument("--depth", type=T.positive_int, default=None,
+                       help="tree depth in primitives (greedy/dp/coverage) [the planner's own]")
+        q.add_argument("--horizon", type=T.positive_int, default=5, help="CMA-ES horizon (primitives) [5]")
+        q.add_argument("--popsize", type=T.positive_int, default=12, help="CMA-ES population size [12]")
+        q.add_argument("--generations", type=T.positive_int, default=15, help="CMA-ES generations [15]")
         q.add_argument("--scoring", choices=("ratio", "additive"), default="ratio",
                        help="planners: utility per unit cost (default) or utility - "
                        "w * cost (the original's form)")
@@ -98,46 +120,55 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("--run", action="append", default=None,
                        help="trained policy run directory (planner rl); bench takes several")
 
-    from .train import PRESETS, TEACHER_PLANNERS
     tr = sub.add_parser("train", help="train the learned recurrent policy")
-    tr.add_argument("--preset", default=None,
-                    help=" | ".join(PRESETS) + " (default: cpu; with --world semantic: semantic)")
+    dt = SimpleNamespace(**CPU_PRESET)
+    tr.add_argument("--preset", default=None, choices=TRAIN_PRESETS,
+                    help="hyper-parameter preset [cpu; with --world semantic: semantic]")
     tr.add_argument("--resume", metavar="RUN",
                     help="continue RUN from its checkpoint.pt with its config.json "
-                    "(only --iterations, --lattice, --no-progress may be given)")
-    tr.add_argument("--envs", type=T.positive_int, default=None, dest="n_envs")
-    tr.add_argument("--iterations", type=T.nonneg_int, default=None, help="PPO iterations")
+                    "(only --iterations, --lattice, --quiet may be given)")
+    tr.add_argument("--envs", type=T.positive_int, default=None, dest="n_envs",
+                    help=f"environments stepped per iteration [cpu: {dt.n_envs}]")
+    tr.add_argument("--iterations", type=T.nonneg_int, default=None, help=f"PPO iterations [cpu: {dt.iterations}]")
     tr.add_argument("--bc-iterations", type=T.nonneg_int, default=None,
-                    help="DAgger warm-start iterations before PPO (0: none)")
-    tr.add_argument("--teacher", default=None, help=" | ".join(TEACHER_PLANNERS))
-    tr.add_argument("--teacher-depth", type=T.positive_int, default=None)
+                    help=f"DAgger warm-start iterations before PPO (0: none) [cpu: {dt.bc_iterations}]")
+    tr.add_argument("--teacher", default=None, choices=TEACHER_PLANNERS,
+                    help=f"DAgger teacher planner [cpu: {dt.teacher}]")
+    tr.add_argument("--teacher-depth", type=T.positive_int, default=None,
+                    help="teacher tree depth in primitives, 1..4 [the planner's own]")
     tr.add_argument("--adv-weights", type=_floats, default=None,
                     help="per-term advantage weights, comma-separated: entropy,coverage,"
                     "target,cost,invalid (thesis: 1,1,1,1,1)")
-    tr.add_argument("--seed", type=T.nonneg_int, default=None)
-    tr.add_argument("--threads", type=T.positive_int, default=None)
+    add_common(tr, seed={"default": None, "help": f"random seed (>= 0) [cpu: {dt.seed}]"},
+               threads={"help": f"torch threads [cpu: {dt.threads}]"})
     tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
     tr.add_argument("--no-features", action="store_true",
                     help="map observations only (thesis), no per-primitive features")
-    tr.add_argument("--lr", type=T.positive_float, default=None)
-    tr.add_argument("--bc-lr", type=T.positive_float, default=None)
+    tr.add_argument("--lr", type=T.positive_float, default=None, help=f"PPO learning rate (Adam) [cpu: {dt.lr:g}]")
+    tr.add_argument("--bc-lr", type=T.positive_float, default=None, help=f"DAgger learning rate (Adam) [cpu: {dt.bc_lr:g}]")
     tr.add_argument("--bc-anchor", type=T.nonneg_float, default=None,
-                    help="PPO: weight of a cross entropy to the teacher (0: off)")
-    tr.add_argument("--entropy-coef", type=T.nonneg_float, default=None)
+                    help=f"PPO: weight of a cross entropy to the teacher (0: off) [cpu: {dt.bc_anchor:g}]")
+    tr.add_argument("--entropy-coef", type=T.nonneg_float, default=None,
+                    help=f"PPO entropy bonus weight [cpu: {dt.entropy_coef:g}]")
     tr.add_argument("--eval-every", type=T.nonneg_int, default=None,
-                    help="validate the greedy policy every N iterations (0: never)")
-    tr.add_argument("--init", help="warm start from a trained run (fine-tuning)")
+                    help=f"validate the greedy policy every N iterations (0: never) [cpu: {dt.eval_every}]")
+    tr.add_argument("--init", metavar="RUN", help="warm start from a trained run (fine-tuning)")
     tr.add_argument("--start", choices=("center", "random"), default=None,
                     help="training start cells (default random; test suite: center)")
-    tr.add_argument("--run-dir", help="output directory, must be new (default runs/ipp-<preset>-<time>-<random>)")
+    add_common(tr, out={"default": "runs", "type": str, "help": "folder of runs: the run goes to OUT/NAME [runs]"},
+               quiet=True, old_quiet=("--no-progress",))
+    tr.add_argument("--name", default=None,
+                    help="run folder name, must be new [ipp-PRESET[-nornn]-sSEED-YYYYMMDD-HHMMSS-XXXXXX]")
+    # the old spelling: the whole run folder (OUT/NAME)
+    from aerohrl.cli_common import deprecated
+    deprecated(tr, "--run-dir", "--out DIR --name NAME", "run_dir")
     tr.add_argument("--lattice", help="lattice file (default: the shipped one)")
     world_flags(tr)
-    tr.add_argument("--no-progress", action="store_true")
     tr.set_defaults(_defaults={a.dest: a.default for a in tr._actions})
 
     cu = sub.add_parser("curve", help="learning curve of a training run (PNG)")
-    cu.add_argument("run", help="training run directory")
-    cu.add_argument("-o", "--output", help="figure path (default RUN/learning_curve.png)")
+    add_run(cu, help="training run directory", type=str)
+    add_common(cu, out={"type": str, "help": "figure path [RUN/learning_curve.png]"}, old_out=("--output",))
 
     be = sub.add_parser("bench", help="Table 2.1 analogue on the seeded test suite")
     g = be.add_mutually_exclusive_group()
@@ -145,8 +176,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--all", action="store_true", help="every baseline (+ rl with --run)")
     be.add_argument("--envs", type=T.positive_int, default=None,
                     help="test environments (default 100; semantic 30, as the thesis)")
-    be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together")
-    be.add_argument("--out-dir", default="runs/ipp-bench", help="Markdown, CSV and plot go here")
+    be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together [100]")
+    add_common(be, out={"default": "runs/ipp-bench", "type": str, "help": "Markdown, CSV and plot go here [runs/ipp-bench]"},
+               old_out=("--out-dir",), quiet=True, old_quiet=("--no-progress",),
+               threads={"help": "torch and OpenMP threads (policy rl, --execution skill) [their default]"})
     be.add_argument("--execution", type=_executions, default=("ideal",),
                     help="ideal (the lattice's sensing, default), flown (the 6-DoF "
                     "simulator and geometric controller fly each primitive; sensing along the "
@@ -159,13 +192,12 @@ def _parser() -> argparse.ArgumentParser:
     be.add_argument("--budgets", type=_budget_list, default=None,
                     help="sweep: comma-separated budgets (numbers or names); writes "
                     "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)")
-    be.add_argument("--no-progress", action="store_true")
     env_flags(be)
 
     sh = sub.add_parser("show", help="Fig. 2.3 analogue: truth, prior, path over the budget")
     sh.add_argument("--env", type=T.nonneg_int, default=0, help="test-suite world index")
-    sh.add_argument("--planner", default="dp")
-    sh.add_argument("-o", "--output", required=True)
+    sh.add_argument("--planner", default="dp", help=f"one of {', '.join(PLANNERS + TEACHERS)}, rl [dp]")
+    add_common(sh, out={"required": True, "type": str, "help": "figure file (.png)"}, old_out=("--output",))
     sh.add_argument("--gif", help="also write an animated episode (GIF): belief, path, found "
                     "and missed targets, one frame per primitive")
     sh.add_argument("--execution", type=_executions, default=("ideal",),
@@ -176,7 +208,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _budget_names() -> str:
-    from .env import BUDGETS
     return ", ".join(f"{k} = {v:g}" for k, v in BUDGETS.items())
 
 
@@ -263,11 +294,11 @@ def _lattice_build(a) -> int:
                   rho=a.rho, reach=a.reach, max_edges=a.max_edges,
                   footprint_radius=a.footprint_radius, sense_dt=a.sense_dt)
     lat = build_lattice(cfg)
-    out = save_lattice(lat, a.output)
+    out = save_lattice(lat, a.out)
     print(f"lattice: {lat.n_vertices} vertices, {lat.n_prims} primitives, "
           f"<= {lat.n_actions} per vertex, dispersion {lat.dispersion[-1]:.1f} -> {out}")
     if not a.no_plot:
-        fig = plot_lattice(lat, a.plot or Path(a.output).with_suffix(".png"))
+        fig = plot_lattice(lat, a.plot or Path(a.out).with_suffix(".png"))
         print(f"plot -> {fig}")
     return 0
 
@@ -302,6 +333,7 @@ def _bench(a) -> int:
     from .metrics import (markdown_table, paired_markdown, per_env_csv, plot_kl, summarise,
                           summary_csv, write_atomic)
 
+    set_threads(a.threads)
     env, pc = _configs(a)
     if a.envs is None:
         a.envs = 30 if env.kind == "semantic" else 100
@@ -336,7 +368,7 @@ def _bench(a) -> int:
         res = {}
         for name, model in rows:
             bar = tqdm(total=a.envs, desc=f"{name} ({mode})", file=sys.stderr,
-                       disable=a.no_progress or not sys.stderr.isatty(), leave=False)
+                       disable=a.quiet or not sys.stderr.isatty(), leave=False)
             r = run_episodes(name, lat, mcfg, progress=bar, model=model, skill=skill)
             bar.close()
             r["summary"] = summarise(r["per_env"])
@@ -353,7 +385,7 @@ def _bench(a) -> int:
         if len(by_mode) > 1 or mode != "ideal":
             md += f"\n**{mode} execution**\n\n"
         md += markdown_table(res, labels, env.kind) + paired_markdown(res, labels, PLANNERS)
-    out = Path(a.out_dir)
+    out = Path(a.out)
     if len(by_mode) > 1 or set(by_mode) & {"flown", "skill"}:
         from .metrics import execution_markdown
         ex = execution_markdown(by_mode, labels)
@@ -420,14 +452,14 @@ def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
         bc = dc_replace(cfg, env=dc_replace(cfg.env, budget=b))
         for name, model in rows:
             bar = tqdm(total=a.envs, desc=f"{name} @ {b:g}", file=sys.stderr,
-                       disable=a.no_progress or not sys.stderr.isatty(), leave=False)
+                       disable=a.quiet or not sys.stderr.isatty(), leave=False)
             r = run_episodes(name, lat, bc, progress=bar, model=model)
             bar.close()
             r["summary"] = summarise(r["per_env"])
             sweep[(name, b)] = r
     md = budget_markdown(sweep, labels, cfg.env.kind)
     print(md, end="")
-    out = Path(a.out_dir)
+    out = Path(a.out)
     write_atomic(out / "ipp_budgets.md", md)
     write_atomic(out / "ipp_budgets.csv", budget_csv(sweep))
     plot_budgets(sweep, labels, out / "ipp_budgets.png", cfg.env.kind)
@@ -436,21 +468,18 @@ def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
 
 
 def _train(a) -> int:
-    import secrets
-    import time
-
     from tqdm import tqdm
 
     from .lattice import get_lattice
     from .train import load_run_config, preset, train
 
     if a.resume:
-        allowed = {"resume", "iterations", "lattice", "no_progress", "cmd", "_defaults"}
+        allowed = {"resume", "iterations", "lattice", "quiet", "cmd", "_defaults"}
         given = sorted(k for k, v in a._defaults.items()
                        if k not in allowed and hasattr(a, k) and getattr(a, k) != v)
         if given:
             raise UserError("--resume continues a run with its own config.json; only "
-                            "--iterations, --lattice and --no-progress may be given (got "
+                            "--iterations, --lattice and --quiet may be given (got "
                             + ", ".join("--" + k.replace("_", "-") for k in given) + ")")
         run = Path(a.resume)
         cfg = load_run_config(run)
@@ -463,6 +492,9 @@ def _train(a) -> int:
         if saved is not None and saved != json.loads(json.dumps(asdict(lat.config))):
             raise UserError(f"{run}: trained on another lattice (pass the same --lattice)")
     else:
+        run_dir = getattr(a, "run_dir", None)  # the deprecated --run-dir: the whole folder
+        if run_dir is not None and (a.name is not None or a.out != "runs"):
+            raise UserError("--run-dir is --out DIR --name NAME; give those instead")
         if a.preset is None:
             a.preset = "semantic" if a.world == "semantic" else "cpu"
         if a.preset == "semantic":
@@ -477,8 +509,9 @@ def _train(a) -> int:
                      eval_every=a.eval_every,
                      features=False if a.no_features else None)
         cfg = replace(cfg, env=_env_config(a, a.start or "random"))
-        run = Path(a.run_dir or f"runs/ipp-{a.preset}{'-nornn' if a.no_rnn else ''}-"
-                   f"{time.strftime('%Y%m%d-%H%M%S')}-{secrets.token_hex(3)}")  # two runs in one second differ
+        # the shape of every command's run names (aerohrl.cli_common.run_name); two runs in one second differ
+        run = Path(run_dir) if run_dir else Path(a.out) / (a.name or run_name("ipp", a.preset, "nornn" if a.no_rnn else None,
+                                                                              seed=cfg.seed))
         lat = get_lattice(a.lattice, cfg.env.kind)
     if a.threads is not None and a.threads < 1:
         raise UserError(f"--threads must be >= 1, got {a.threads}")
@@ -488,8 +521,8 @@ def _train(a) -> int:
     from .factory import create_env
     create_env(cfg.env, lat)
     if not a.resume and not atomic.new_folder(run):  # exclusive: a second run never writes into the first's
-        raise UserError(f"run folder {run} exists; choose another --run-dir, or --resume {run}")
-    bar = tqdm(total=cfg.total_iterations, desc="train", file=sys.stderr, disable=a.no_progress)
+        raise UserError(f"run folder {run} exists; choose another --name, or --resume {run}")
+    bar = tqdm(total=cfg.total_iterations, desc="train", file=sys.stderr, disable=a.quiet)
     last = train(cfg, lat, run, progress=bar, resume=bool(a.resume))
     bar.close()
     print(f"trained {last['iteration']} iterations x {cfg.n_envs} envs "
@@ -501,7 +534,7 @@ def _train(a) -> int:
 
 def _curve(a) -> int:
     from .train import plot_learning_curve
-    out = plot_learning_curve(a.run, a.output)
+    out = plot_learning_curve(a.run, a.out)
     print(f"learning curve -> {out}")
     return 0
 
@@ -538,7 +571,7 @@ def _show(a) -> int:
     title = (f"{label} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
              f"entropy red. {m['entropy_reduction'][0]:.0f}%, "
              f"search eff. {m['search_efficiency'][0]:.0f}%")
-    out = render_episode(r["env"], 0, a.output, title)
+    out = render_episode(r["env"], 0, a.out, title)
     print(f"{title} -> {out}")
     if a.gif:
         from .bench import animate_episode

@@ -79,7 +79,7 @@ def test_licence_and_citation():
 @pytest.mark.slow  # ~50 s without a cache
 def test_public_modules_are_mypy_clean():
     pytest.importorskip("mypy")
-    files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py"]
+    files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/cli_common.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py"]
     p = subprocess.run([sys.executable, "-m", "mypy", *files, "--follow-imports=silent", "--ignore-missing-imports",
                         "--no-incremental"], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0 and "Success" in p.stdout, p.stdout + p.stderr

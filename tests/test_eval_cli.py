@@ -45,7 +45,7 @@ def _err(capsys, argv):
 
 def test_reach_desired_files_trace_to_episodes(setup, capsys):
     run = setup["run"]
-    assert main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "4", "--no-progress"]) == 0
+    assert main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "4", "--quiet"]) == 0
     assert "reach-desired: gcsl" in capsys.readouterr().out
     d = run / "eval" / "reach-desired"
     s = json.loads((d / "summary.json").read_text())
@@ -63,7 +63,7 @@ def test_reach_desired_files_trace_to_episodes(setup, capsys):
 
 def test_intermediate_ood_planners_table_and_plots(setup, capsys, tmp_path):
     run = setup["run"]
-    common = ["--run", str(run), "--checkpoints", "1", "--no-progress"]
+    common = ["--run", str(run), "--checkpoints", "1", "--quiet"]
     assert main(["eval", "--task", "reach-intermediate", "--episodes", "6", *common]) == 0
     s = json.loads((run / "eval" / "reach-intermediate" / "summary.json").read_text())
     assert set(s["checkpoints"][0]) >= {"success_desired", "success_intermediate"}
@@ -94,7 +94,7 @@ def test_intermediate_ood_planners_table_and_plots(setup, capsys, tmp_path):
 def test_bad_input_is_one_line(setup, capsys, case):
     run, empty = str(setup["run"]), str(setup["empty"])
     argv, match = {
-        "task": (["eval", "--task", "reach-far", "--run", run], "unknown task 'reach-far'"),
+        "task": (["eval", "--task", "reach-far", "--run", run], "invalid choice: 'reach-far'"),
         "no-ckpt": (["eval", "--task", "reach-desired", "--run", empty], "has no checkpoints"),
         "no-run": (["eval", "--task", "reach-desired", "--run", run + "-missing"], "no run at"),
         "mismatch": (["eval", "--task", "reach-desired", "--run", run, "--dataset", str(setup["other"])], "does not belong"),

@@ -136,7 +136,7 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
     assert json.loads((ring_dir / "summary.json").read_text())["episodes"] == 5
     solo = tmp_path / "solo"
     assert main(["eval", "--task", "ood", "--family", "velocity", "--ring", "2", "--run", str(run), "--episodes", "5",
-                 "--checkpoints", "1", "--out", str(solo), "--no-progress"]) == 0
+                 "--checkpoints", "1", "--out", str(solo), "--quiet"]) == 0
     assert _success(solo) == _success(ring_dir)
     # held-out goals are other goals
     held = reach.eval_root(run, 5) / "heldout" / "ood-velocity-3.5-5-none"
@@ -157,15 +157,18 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args, msg", [
-    (["--family", "speed"], "unknown goal family"),
+    (["--family", "speed"], "invalid choice: 'speed'"),
     (["--family", "velocity", "--ring", "9"], "rings 1..3"),
     (["--ring", "2"], "--ring needs --family"),
 ])
 def test_eval_cli_family_errors(run, capsys, args, msg):
-    code = main(["eval", "--task", "ood", "--run", str(run), "--no-progress", *args])
+    try:
+        code = main(["eval", "--task", "ood", "--run", str(run), "--quiet", *args])
+    except SystemExit as e:  # a usage error found while parsing (a choice): one line, exit 2
+        code = e.code
     err = capsys.readouterr().err.strip()
     assert code == 2 and msg in err and len(err.splitlines()) == 1
-    code = main(["eval", "--task", "reach-novel", "--family", "velocity", "--run", str(run), "--no-progress"])
+    code = main(["eval", "--task", "reach-novel", "--family", "velocity", "--run", str(run), "--quiet"])
     assert code == 2 and "apply to --task ood only" in capsys.readouterr().err
 
 
@@ -173,11 +176,11 @@ def test_oracle_on_a_family_ring_with_synthetic_candidates(run, tmp_path, capsys
     out = tmp_path / "oracle"
     assert main(["eval", "oracle", "--run", str(run), "--family", "velocity", "--ring", "2", "--candidate-source",
                  "synthetic", "--goals", "3", "--candidates", "4", "--leg-horizon", "20", "--out", str(out),
-                 "--no-progress"]) == 0
+                 "--quiet"]) == 0
     r = json.loads((out / "oracle.json").read_text())
     assert r["task"] == "ood-velocity-3.5-5-synth" and r["candidates"] == 4 and r["goals"] == 3
     assert 0.0 <= r["oracle"] <= 1.0 and r["planner"] <= r["oracle"]
-    code = main(["eval", "oracle", "--run", str(run), "--ring", "2", "--no-progress"])
+    code = main(["eval", "oracle", "--run", str(run), "--ring", "2", "--quiet"])
     assert code == 2 and "--ring needs --family" in capsys.readouterr().err
 
 

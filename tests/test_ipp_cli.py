@@ -18,7 +18,7 @@ def test_lattice_build(tmp_path, capsys):
 def test_bench_and_show(tmp_path, capsys):
     d = tmp_path / "b"
     assert main(["bench", "--planner", "greedy", "--envs", "3", "--budget", "1500",
-                 "--out-dir", str(d), "--no-progress"]) == 0
+                 "--out", str(d), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "Greedy-IPP" in out and "54.4" in out  # thesis column beside ours
     for f in ("ipp_bench.md", "ipp_bench.csv", "ipp_bench_envs.csv", "ipp_kl.png"):
@@ -45,7 +45,7 @@ def test_bench_and_show(tmp_path, capsys):
     (["frobnicate"], "invalid choice"),
     (["bench", "--planner", "rl", "--envs", "1"], "needs --run"),
     (["bench", "--planner", "rl", "--run", "nowhere"], "no trained policy"),
-    (["train", "--preset", "gpu-cluster"], "unknown preset"),
+    (["train", "--preset", "gpu-cluster"], "invalid choice: 'gpu-cluster'"),
     (["train", "--preset", "test", "--iterations", "-1"], "--iterations"),
     (["lattice", "build"], "required"),
     (["lattice", "build", "-o", "x.npz", "--vertices", "0"], "--vertices: must be >= 1"),
@@ -68,10 +68,10 @@ def test_malformed_lattice_file(tmp_path, capsys):
 
 def test_train_then_bench_rl(tmp_path, capsys):
     run = tmp_path / "run"
-    assert main(["train", "--preset", "test", "--run-dir", str(run), "--no-progress"]) == 0
+    assert main(["train", "--preset", "test", "--out", str(run.parent), "--name", run.name, "--quiet"]) == 0
     assert (run / "model.pt").is_file() and (run / "config.json").is_file()
     assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
-                 "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 0
+                 "--budget", "1500", "--out", str(tmp_path / "b"), "--quiet"]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if "(run)" in line)
     # the truthful name (issue 13): preset test = 2 DAgger iterations from detect + 1 PPO
@@ -82,7 +82,7 @@ def test_train_then_bench_rl(tmp_path, capsys):
     raw[len(raw) // 2] ^= 0x01  # a weight: torch alone would load it
     model.write_bytes(bytes(raw))
     assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2",
-                 "--budget", "1500", "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 2
+                 "--budget", "1500", "--out", str(tmp_path / "b"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"aerohrl ipp: error: checkpoint {model} is damaged: its SHA-256 differs from model.pt.sha256"
 
@@ -102,7 +102,7 @@ def test_show_writes_figure_and_animated_gif(tmp_path, capsys):
 
 def test_budget_sweep_and_named_budgets(tmp_path, capsys):
     assert main(["bench", "--planner", "greedy", "--envs", "2", "--budgets", "1500,tight",
-                 "--out-dir", str(tmp_path), "--no-progress"]) == 0
+                 "--out", str(tmp_path), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "| Greedy-IPP | 1500 |" in out and "| Greedy-IPP | 5000 |" in out
     for f in ("ipp_budgets.md", "ipp_budgets.csv", "ipp_budgets.png"):
@@ -120,7 +120,7 @@ def test_budget_sweep_and_named_budgets(tmp_path, capsys):
 
 def test_table_has_both_denominators_and_thesis_beside_padded(tmp_path, capsys):
     assert main(["bench", "--planner", "dp", "--envs", "2", "--budget", "1500",
-                 "--out-dir", str(tmp_path), "--no-progress"]) == 0
+                 "--out", str(tmp_path), "--quiet"]) == 0
     lines = capsys.readouterr().out.splitlines()
     head = [c.strip() for c in lines[0].split("|")]
     row = [c.strip() for c in lines[2].split("|")]

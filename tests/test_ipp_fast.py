@@ -177,19 +177,19 @@ def test_cli_semantic_train_preset_and_bench(tmp_path, capsys):
     run = tmp_path / "sem"
     assert main(["train", "--world", "semantic", "--map-size", str(SMALL), "--budget", "800",
                  "--envs", "2", "--bc-iterations", "1", "--eval-every", "0",
-                 "--run-dir", str(run), "--no-progress"]) == 0
+                 "--out", str(run.parent), "--name", run.name, "--quiet"]) == 0
     cfg = json.loads((run / "config.json").read_text())["train"]
     assert cfg["env"]["kind"] == "semantic" and cfg["bc_buffer"] == 4  # the semantic preset
     capsys.readouterr()
     out_dir = tmp_path / "b"
     assert main(["bench", "--planner", "rl", "--world", "semantic", "--run", str(run),
                  "--map-size", str(SMALL), "--budget", "800", "--envs", "2",
-                 "--out-dir", str(out_dir), "--no-progress"]) == 0
+                 "--out", str(out_dir), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "Imitation of detect planner" in out and "63.6" in out  # beside thesis Table 2.2
     assert "Ours-LSTM" not in out
     assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "1",
-                 "--out-dir", str(out_dir), "--no-progress"]) == 2
+                 "--out", str(out_dir), "--quiet"]) == 2
     assert "trained on semantic worlds" in capsys.readouterr().err
 
 

@@ -91,7 +91,7 @@ def test_execution_mode_errors(lat, capsys):
 
 def test_cli_ideal_vs_flown_table(tmp_path, capsys):
     assert main(["bench", "--planner", "greedy", "--envs", "2", "--budget", "1500",
-                 "--execution", "ideal,flown", "--out-dir", str(tmp_path), "--no-progress"]) == 0
+                 "--execution", "ideal,flown", "--out", str(tmp_path), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "flown − ideal" in out and "tracking max mm" in out
     assert (tmp_path / "ipp_execution.md").is_file()

@@ -201,7 +201,7 @@ def test_cli_semantic_bench_with_raster(tmp_path, capsys):
     d = tmp_path / "b"
     assert main(["bench", "--planner", "coverage", "--world", "semantic", "--raster", str(rast),
                  "--map-size", str(SMALL), "--budget", "1200", "--envs", "2",
-                 "--out-dir", str(d), "--no-progress"]) == 0
+                 "--out", str(d), "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "Coverage" in out and "88.7" in out  # Table 2.2 beside ours
     assert (d / "ipp_bench.csv").is_file() and (d / "ipp_kl.png").is_file()

@@ -206,13 +206,13 @@ def test_config_round_trip_and_curve(full_run, tmp_path):
 
 def test_cli_train_resume_and_curve(tmp_path, capsys):
     run = tmp_path / "run"
-    assert main(["train", "--preset", "test", "--iterations", "1", "--run-dir", str(run),
-                 "--no-progress"]) == 0
+    assert main(["train", "--preset", "test", "--iterations", "1", "--out", str(run.parent), "--name", run.name,
+                 "--quiet"]) == 0
     assert "learning_curve.png" in capsys.readouterr().out
     first = json.loads((run / "metrics.jsonl").read_text().splitlines()[-1])
     assert first["iteration"] == 3 and first["phase"] == "ppo"
     # extend the finished run by one PPO iteration
-    assert main(["train", "--resume", str(run), "--iterations", "2", "--no-progress"]) == 0
+    assert main(["train", "--resume", str(run), "--iterations", "2", "--quiet"]) == 0
     rows = (run / "metrics.jsonl").read_text().splitlines()
     assert [json.loads(x)["iteration"] for x in rows] == [1, 2, 3, 4]
     (run / "learning_curve.png").unlink()
@@ -225,8 +225,8 @@ def test_cli_train_resume_and_curve(tmp_path, capsys):
     (["train", "--resume", "nowhere"], "no config.json"),
     (["train", "--preset", "test", "--adv-weights", "1,2"], "--adv-weights"),
     (["train", "--preset", "test", "--adv-weights", "1,x,1,1,1"], "comma-separated"),
-    (["train", "--preset", "test", "--teacher", "astar"], "unknown teacher"),
-    (["train", "--preset", "test", "--teacher", "cmaes"], "unknown teacher"),
+    (["train", "--preset", "test", "--teacher", "astar"], "invalid choice: 'astar'"),
+    (["train", "--preset", "test", "--teacher", "cmaes"], "invalid choice: 'cmaes'"),
     (["train", "--preset", "test", "--teacher-depth", "9"], "teacher-depth"),
     (["train", "--preset", "test", "--seed", "1000"], "test suite"),
     (["train", "--preset", "test", "--lr", "-1"], "--lr"),
@@ -253,17 +253,17 @@ def test_resume_rejects_damaged_runs(full_run, tmp_path, capsys):
     assert "only --iterations" in capsys.readouterr().err
     good = (run / "metrics.jsonl").read_text()
     (run / "metrics.jsonl").write_text(good + "garbage\n")
-    assert main(["train", "--resume", str(run), "--no-progress"]) == 2
+    assert main(["train", "--resume", str(run), "--quiet"]) == 2
     assert "not a metrics line" in capsys.readouterr().err
     (run / "metrics.jsonl").write_text(good)
     assert main(["train", "--resume", str(run), "--iterations", "0", "--bc-iterations", "1"]) == 2
-    assert main(["train", "--resume", str(run), "--iterations", "0", "--no-progress"]) == 2
+    assert main(["train", "--resume", str(run), "--iterations", "0", "--quiet"]) == 2
     assert "already has 3 iterations" in capsys.readouterr().err
     (run / "checkpoint.pt").write_bytes(b"junk")
-    assert main(["train", "--resume", str(run), "--no-progress"]) == 2
+    assert main(["train", "--resume", str(run), "--quiet"]) == 2
     assert "checkpoint.pt is damaged: its SHA-256 differs" in capsys.readouterr().err  # the sidecar catches it
     (run / "checkpoint.pt.sha256").unlink()  # as written before checkpoints had checksums: torch cannot read it
-    assert main(["train", "--resume", str(run), "--no-progress"]) == 2
+    assert main(["train", "--resume", str(run), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "checkpoint.pt is damaged" in err and "no .sha256 file" in err
     (run / "config.json").write_text("{not json")

@@ -97,7 +97,7 @@ def test_progress_lines_by_time():
 
 
 def test_logger_errors(dataset_dir, tmp_path, capsys):
-    args = ["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(tmp_path), "--steps", "5", "--no-progress"]
+    args = ["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(tmp_path), "--steps", "5", "--quiet"]
     assert cli.main(args + ["--logger", "mlflow"]) == 2
     assert "unknown logger 'mlflow'" in capsys.readouterr().err
     if importlib.util.find_spec("wandb") is None:

@@ -22,7 +22,7 @@ from aerohrl.errors import UserError
 warnings.filterwarnings("ignore", category=UserWarning)
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)
 FLAGS = ["--hidden", "16", "16", "--critic-hidden", "16", "16", "--batch-size", "32", "--log-every", "10",
-         "--checkpoint-every", "20", "--eval-every", "0", "--no-progress"]
+         "--checkpoint-every", "20", "--eval-every", "0", "--quiet"]
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +87,7 @@ def test_a_run_being_trained_cannot_be_resumed_twice(trained, tmp_path, capsys):
     run = _copy(trained, tmp_path)
     lock = RunLock(run)
     try:
-        assert cli.main(["--resume", str(run), "--steps", "60", "--no-progress"]) == 2
+        assert cli.main(["--resume", str(run), "--steps", "60", "--quiet"]) == 2
         assert "being trained by another process" in _one_line(capsys.readouterr().err)
     finally:
         lock.release()
@@ -148,7 +148,7 @@ def test_damaged_newest_checkpoint(how, trained, data, tmp_path, capsys):
     run = _copy(trained, tmp_path)
     newest = run / "checkpoints" / "step-000000040.pt"
     _damage(newest, how)
-    assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2", "--no-progress"]) == 2
+    assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2", "--quiet"]) == 2
     err = _one_line(capsys.readouterr().err)
     assert err.startswith("aerohrl eval: error: checkpoint") and str(newest) in err and "damaged" in err
 
@@ -156,7 +156,7 @@ def test_damaged_newest_checkpoint(how, trained, data, tmp_path, capsys):
     shown = capsys.readouterr().out
     assert "checkpoint at step 20 / 40" in shown and "DAMAGED:   step-000000040.pt" in shown
 
-    assert cli.main(["--resume", str(run), "--no-progress"]) == 0
+    assert cli.main(["--resume", str(run), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert f"train: warning: checkpoint {newest} is damaged" in err and "set aside as step-000000040.pt.damaged" in err
     assert "at step 20 from" in err and "step-000000020.pt (the newest intact checkpoint)" in err
@@ -171,7 +171,7 @@ def test_checkpoints_from_before_checksums_load_with_one_warning(trained, tmp_pa
     run = _copy(trained, tmp_path)
     for side in (run / "checkpoints").glob("*.sha256"):
         side.unlink()
-    assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2", "--no-progress"]) == 0
+    assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2", "--quiet"]) == 0
     err = capsys.readouterr().err.strip()
     assert err == f"aerohrl eval: warning: the checkpoints in {run / 'checkpoints'} have no .sha256 files " \
                   "(written before checkpoints had checksums); loaded unverified"  # once for both checkpoints
@@ -187,7 +187,7 @@ def test_no_intact_checkpoint_is_one_line_with_a_hint(trained, tmp_path, capsys)
     run = _copy(trained, tmp_path)
     for p in checkpoint_paths(run):
         _damage(p, "flip")
-    assert cli.main(["--resume", str(run), "--no-progress"]) == 2
+    assert cli.main(["--resume", str(run), "--quiet"]) == 2
     err = _one_line(capsys.readouterr().err)
     assert "no intact checkpoint to resume from" in err and "step-000000040.pt is damaged" in err and "start the run over" in err
 
@@ -233,10 +233,10 @@ def test_runs_find_a_moved_dataset_by_version_or_say_dataset(dataset_dir, tmp_pa
     monkeypatch.chdir(tmp_path)
     capsys.readouterr()
     assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(moved / "runs" / "g"), "--episodes", "2",
-                         "--no-progress"]) == 0
+                         "--quiet"]) == 0
     assert "using " + str(moved / "datasets" / "synthetic" / "synthetic-1") in capsys.readouterr().err
     shutil.rmtree(moved / "datasets")
-    assert cli.main(["--resume", str(moved / "runs" / "g"), "--steps", "30", "--no-progress"]) == 2
+    assert cli.main(["--resume", str(moved / "runs" / "g"), "--steps", "30", "--quiet"]) == 2
     err = _one_line(capsys.readouterr().err)
     assert "is missing" in err and "pass --dataset PATH" in err
 

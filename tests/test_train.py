@@ -107,13 +107,17 @@ def _cli(args, cwd=None):
 
 def test_cli_bad_input(dataset_dir, tmp_path):
     for args, msg in [
-        (["--algo", "ppo", "--dataset", str(dataset_dir)], "unknown algorithm 'ppo'"),
-        (["--algo", "gcsl", "--dataset", str(dataset_dir), "--preset", "huge"], "unknown preset 'huge'"),
+        (["--algo", "ppo", "--dataset", str(dataset_dir)], "invalid choice: 'ppo'"),
+        (["--algo", "gcsl", "--dataset", str(dataset_dir), "--preset", "huge"], "invalid choice: 'huge'"),
         (["--algo", "gcsl", "--dataset", str(tmp_path / "nothing")], "no dataset at"),
         (["--algo", "gcsl"], "--dataset is required"),
         (["--resume", str(tmp_path / "norun")], "no run at"),
     ] + ([] if torch.cuda.is_available() else [(["--algo", "gcsl", "--dataset", str(dataset_dir), "--device", "cuda"], "CUDA")]):
-        assert cli.main(args + ["--out", str(tmp_path / "runs")]) == 2, args
+        try:
+            code = cli.main(args + ["--out", str(tmp_path / "runs")])
+        except SystemExit as e:  # a usage error found while parsing (a choice, a number): one line, exit 2
+            code = e.code
+        assert code == 2, args
     r = _cli(["--algo", "ppo", "--dataset", str(dataset_dir)])
     assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "train: error:" in r.stderr
 
@@ -127,21 +131,21 @@ def test_cli_damaged_dataset(dataset_dir, tmp_path, capsys):
     raw = bytearray(f.read_bytes())
     raw[len(raw) // 2] ^= 0xFF
     f.write_bytes(bytes(raw))
-    assert cli.main(["--algo", "gcsl", "--dataset", str(bad), "--out", str(tmp_path / "runs"), "--no-progress"]) == 2
+    assert cli.main(["--algo", "gcsl", "--dataset", str(bad), "--out", str(tmp_path / "runs"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert "is damaged" in err and "checksum mismatch" in err and err.count("\n") == 0
 
 
 def test_cli_train_show_and_resume_args(dataset_dir, tmp_path, capsys):
     out = tmp_path / "runs"
-    args = ["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(out), "--name", "g", "--no-progress",
+    args = ["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(out), "--name", "g", "--quiet",
             "--hidden", "8", "8", "--critic-hidden", "8", "--batch-size", "16", "--steps", "30", "--log-every", "10", "--checkpoint-every", "10",
             "--eval-every", "15", "--eval-episodes", "2", "--eval-horizon", "10"]
     assert cli.main(args) == 0
     assert cli.main(args) == 2  # the run exists
     assert "use --resume" in capsys.readouterr().err
     assert cli.main(["--resume", str(out / "g"), "--batch-size", "8"]) == 2
-    assert cli.main(["--resume", str(out / "g"), "--steps", "40", "--no-progress"]) == 0
+    assert cli.main(["--resume", str(out / "g"), "--steps", "40", "--quiet"]) == 0
     recs = read_metrics(out / "g")
     assert any("eval/reach_desired/success" in r for r in recs)
     assert max(r["step"] for r in recs) == 40
@@ -157,7 +161,7 @@ def test_cli_train_show_and_resume_args(dataset_dir, tmp_path, capsys):
 def test_kill9_then_resume_matches_uninterrupted(dataset_dir, tmp_path):
     """A run killed with SIGKILL resumes from its last checkpoint and ends with the same
     weights as a run that was never interrupted."""
-    common = ["--algo", "td3bc", "--dataset", str(dataset_dir), "--out", str(tmp_path), "--no-progress",
+    common = ["--algo", "td3bc", "--dataset", str(dataset_dir), "--out", str(tmp_path), "--quiet",
               "--hidden", "16", "16", "--critic-hidden", "16", "16", "--batch-size", "32", "--steps", "800", "--checkpoint-every", "50",
               "--log-every", "50", "--eval-every", "0", "--keep-checkpoints", "50"]
     assert _cli(common + ["--name", "full"]).returncode == 0
@@ -174,7 +178,7 @@ def test_kill9_then_resume_matches_uninterrupted(dataset_dir, tmp_path):
     assert done and int(done[-1].stem.split("-")[1]) < 800, "the run finished before it could be killed"
     for c in done:
         load_checkpoint(c)  # no checkpoint is half-written
-    r = _cli(["--resume", str(tmp_path / "killed"), "--no-progress"])
+    r = _cli(["--resume", str(tmp_path / "killed"), "--quiet"])
     assert r.returncode == 0, r.stderr
     a = load_checkpoint(checkpoint_paths(tmp_path / "full")[-1])
     b = load_checkpoint(checkpoint_paths(tmp_path / "killed")[-1])
@@ -211,7 +215,7 @@ def test_end_to_end_cpu_preset(tmp_path, capsys):
     ds = next((tmp_path / "datasets" / "quadrotor-reach").iterdir())
     assert cli.main(["--algo", "gcsl", "--dataset", str(ds), "--preset", "cpu", "--steps", "600", "--eval-every", "300",
                      "--eval-episodes", "5", "--checkpoint-every", "300", "--log-every", "100", "--out", str(tmp_path / "runs"),
-                     "--name", "e2e", "--no-progress"]) == 0
+                     "--name", "e2e", "--quiet"]) == 0
     assert runs.main(["show", str(tmp_path / "runs" / "e2e")]) == 0
     out = capsys.readouterr().out
     assert "600 / 600" in out and "eval @ 600" in out
@@ -269,7 +273,9 @@ def test_relabel_offset_flags_reach_the_sampler(data, tmp_path):
                      ({"relabel_mean_offset": 0.5}, "relabel mean offset")]:
         with pytest.raises(UserError, match=msg):
             make_config("cpu", **bad)
-    assert cli.main(["--algo", "gcsl", "--dataset", str(data.info["path"]), "--relabel-offset", "final"]) == 2
+    with pytest.raises(SystemExit) as e:  # a choice: refused when the command line is parsed
+        cli.main(["--algo", "gcsl", "--dataset", str(data.info["path"]), "--relabel-offset", "final"])
+    assert e.value.code == 2
 
 
 def test_learning_curve_reads_harness_results(tmp_path):
