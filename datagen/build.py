@@ -791,9 +791,10 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
         raise UserError(f"output directory {parent} is not writable")
     _remove_stale_temporaries(parent)
 
-    est = estimate(spec)
+    est = estimate(spec, workers=workers)
     mem, disk = available_memory(), available_disk(parent)
-    log(f"estimate: {est.episodes:,} episodes, {est.frames:,} frames, {human(est.disk)} on disk, "
+    log(f"estimate: {est.episodes:,} episodes, {est.frames:,} frames, {human(est.disk)} on disk "
+        f"(+{human(est.scratch)} scratch while building), "
         f"{human(est.memory)} of memory at peak ({human(disk)} disk free, {human(mem)} memory available)")
     short = shortfall(est, mem, disk)
     if short and not force:
