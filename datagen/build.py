@@ -9,9 +9,10 @@ The pipeline of thesis §3.4.1 with the readings of SPEC.md "Expert data":
    feasible reference within ``t_max`` are resampled and counted;
 3. the geometric expert (:mod:`aerohrl.datagen.expert`) tracks every reference at once
    in the batched simulator (:mod:`aerohrl.sim`), recording each 100 Hz step until T;
-4. the frames are written in bulk as a LeRobot v3.0 dataset
-   (:mod:`aerohrl.datagen.lerobot_format`) with our own metadata and checksums
-   (:mod:`aerohrl.datagen.manifest`) and a dataset card.
+4. the frames are streamed into a LeRobot v3.0 dataset block by block as the flights
+   land (:func:`stream_dataset`, :class:`aerohrl.datagen.lerobot_format.DatasetWriter`:
+   memory stays bounded by a block, the bytes are those of one bulk write), then our own
+   metadata and checksums (:mod:`aerohrl.datagen.manifest`) and a dataset card.
 
 Everything is written into a temporary directory beside the target and renamed into
 place at the end, so an interrupted build leaves no half-written version.
@@ -236,11 +237,12 @@ def _fly_block(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray
     rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, block]) if spec.noisy else None
     r = rollout_expert(spec, goals, T, coeffs, progress, start_state, rotor_speeds, record_rotors, rng)
     out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
-    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
     if r.expert_actions is not None:
         out["expert_action"] = r.expert_actions[kk, e]
     if record_rotors:
         out["rotors"] = r.rotors[kk, e]
+    del r  # the rollout's (steps, N, .) buffers, before the goal test's temporaries
+    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
     return out
 
 
@@ -495,15 +497,13 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
         e = np.repeat(np.arange(hi - lo), L)
         last = np.zeros(len(e), bool)
         last[ends - 1] = True
-        s = r["success"]
-        writer.append(_columns(r["state"], r["action"], goal_vec[lo:hi][e], r["next_state"], s, last,
-                               r.get("expert_action")), L)
-        hit = np.flatnonzero(s)
+        hit = np.flatnonzero(r["success"])
         eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
         first[lo + eps] = hit[at] - (ends - L)[eps]
         success[lo + eps] = True
         final[lo:hi] = r["next_state"][ends - 1]
-        del r, s
+        writer.append(_pop_columns(r, goal_vec[lo:hi].astype(np.float32)[e], last), L)
+        del r
     rate = float(success.mean())
     if rate < MIN_EXPERT_SUCCESS:
         raise UserError(f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
@@ -518,6 +518,18 @@ def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
     last = np.r_[data.episode_index[1:] != data.episode_index[:-1], True]
     return _columns(data.state, data.action, data.goal_vec[data.episode_index], data.next_state, data.success, last,
                     data.action_expert)
+
+
+def _pop_columns(r: dict, goal_rows: np.ndarray, last: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`_columns` of one block's frames (:func:`_fly_block`), each float64 array
+    dropped from ``r`` as soon as its float32 copy exists (the block's peak memory)."""
+    out = {"observation.state": r.pop("state").astype(np.float32), "action": r.pop("action").astype(np.float32),
+           "observation.desired_goal": goal_rows, "next.observation.state": r.pop("next_state").astype(np.float32)}
+    success = r.pop("success")
+    out.update({"next.reward": success.astype(np.float32), "next.done": last, "next.success": success})
+    if "expert_action" in r:
+        out["action.expert"] = r.pop("expert_action").astype(np.float32)
+    return out
 
 
 def _columns(state, action, goal_rows, next_state, success, last, action_expert) -> dict[str, np.ndarray]:
@@ -803,7 +815,14 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
     runner = BlockRunner(workers, ray_address) if workers > 1 or ray_address else None
     tmp = atomic.temp_path(final)
     try:
-        tmp.mkdir()
+        # the frames stream into the temporary as they are flown; another build of this
+        # version in this process (a thread, a test) takes the next free name
+        for i in range(1, 100):
+            try:
+                tmp.mkdir()
+                break
+            except FileExistsError:
+                tmp = atomic.temp_path(final).with_name(f"{atomic.temp_path(final).name}.{i}")
         try:
             summary = stream_dataset(spec, tmp, progress=progress, runner=runner)
         finally:

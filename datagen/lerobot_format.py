@@ -232,10 +232,7 @@ class DatasetWriter:
             if self._data_file != (chunk, fidx):
                 self._finish_data_file()
                 self._data_file = (chunk, fidx)
-            self._pending.append({k: arrays[k][a:b] for k in self.feats})
-            self._pending_rows += b - a
-            if self._pending_rows >= ROW_GROUP_SIZE:
-                self._flush_rows(final=False)
+            self._add_rows({k: arrays[k][a:b] for k in self.feats}, b - a)
 
         # episodes metadata rows
         gstarts = starts + self.F
@@ -263,17 +260,31 @@ class DatasetWriter:
     def _spill(self, k: str, j: int) -> Path:
         return self.root / self.SPILL_DIR / f"{k}.{j}.bin"
 
-    def _flush_rows(self, final: bool) -> None:
-        """Write the pending frames as full row groups (all of them when ``final``)."""
-        n = self._pending_rows
-        m = n if final else n - n % ROW_GROUP_SIZE
-        if m == 0:
-            return
+    def _add_rows(self, piece: dict, n: int) -> None:
+        """Rows of the open data file: full row groups are written straight from
+        ``piece`` (views of the appended arrays), and only the last partial row group is
+        kept, copied (< :data:`ROW_GROUP_SIZE` rows), for the next piece to complete."""
+        if self._pending_rows:
+            need = ROW_GROUP_SIZE - self._pending_rows
+            if n < need:
+                self._pending.append({k: v.copy() for k, v in piece.items()})
+                self._pending_rows += n
+                return
+            head = {k: np.concatenate([*(p[k] for p in self._pending), v[:need]]) for k, v in piece.items()}
+            self._pending, self._pending_rows = [], 0
+            self._write_rows(head)
+            piece, n = {k: v[need:] for k, v in piece.items()}, n - need
+        m = n - n % ROW_GROUP_SIZE
+        if m:
+            self._write_rows({k: v[:m] for k, v in piece.items()})
+        if n > m:
+            self._pending = [{k: v[m:].copy() for k, v in piece.items()}]
+            self._pending_rows = n - m
+
+    def _write_rows(self, rows: dict) -> None:
         keys = list(self.feats)
-        whole = {k: np.concatenate([p[k] for p in self._pending]) if len(self._pending) > 1 else self._pending[0][k]
-                 for k in keys}
         meta = {b"huggingface": json.dumps(_hf_features(self.feats)).encode()}
-        table = pa.table([_arrow_column(np.ascontiguousarray(whole[k][:m])) for k in keys], names=keys)
+        table = pa.table([_arrow_column(np.ascontiguousarray(rows[k])) for k in keys], names=keys)
         if self._schema is None:
             self._schema = table.schema.with_metadata(meta)
         table = table.replace_schema_metadata(meta)
@@ -284,14 +295,14 @@ class DatasetWriter:
             self._writer = pq.ParquetWriter(path, self._schema, compression=COMPRESSION,
                                             use_dictionary=["episode_index", "task_index"])
         self._writer.write_table(table, row_group_size=ROW_GROUP_SIZE)
-        rest = n - m
-        self._pending = [{k: whole[k][m:] for k in keys}] if rest else []
-        self._pending_rows = rest
 
     def _finish_data_file(self) -> None:
         if self._data_file is None:
             return
-        self._flush_rows(final=True)
+        if self._pending_rows:
+            keys = list(self.feats)
+            self._write_rows({k: np.concatenate([p[k] for p in self._pending]) for k in keys})
+            self._pending, self._pending_rows = [], 0
         if self._writer is not None:
             self._writer.close()
             self._writer = None
