@@ -14,7 +14,9 @@ frame were measured on this project's builds (README "Speed"):
   per worker with ``--workers``; plus :data:`EPISODE_BYTES` per episode (goals, references
   and per-episode results, measured on 50,000 and 200,000 goals), 4 bytes per frame for
   the dataset statistics (one feature dimension sorted at a time) and the interpreter's
-  ~200 MB. Measured (README "Speed"): peak RSS flat in the number of goals. A spec with
+  ~200 MB. Measured with noise (README "Speed", `bench/bench_datagen.py`): peak RSS
+  0.99 / 1.40 / 1.56 GB at 10,000 / 25,000 / 50,000 goals (blocks of 5,000 / 6,250 /
+  7,143 episodes; the estimate says 1.2 / 1.5 / 1.7 GB). A spec with
   continuations keeps every frame of its rest-start flights (their starts are drawn from
   them): :data:`MEMORY_BYTES_PER_FRAME` per frame, as before streaming (100,000 goals with
   noise: 20.66 M frames, peak RSS 13.98 GB);
@@ -35,7 +37,7 @@ DISK_BYTES_PER_FRAME = 195
 MEMORY_BYTES_PER_FRAME = 650
 MEMORY_BASE = 200e6
 BLOCK_BYTES_PER_EPISODE_STEP = 26 * 8  # states (18) + actions (4) + expert actions (4), float64
-STREAM_BYTES_PER_FRAME = 1150  # a block's recorded frames in flight (float64 gathers, float32 columns, stats temporaries)
+STREAM_BYTES_PER_FRAME = 550  # a block's recorded frames in flight (float64 gathers, float32 columns, stats temporaries; 350-500 measured)
 EPISODE_BYTES = 800  # per episode for the whole build (goals, coefficients, per-episode results)
 STATS_BYTES_PER_FRAME = 4  # one float32 feature dimension sorted at a time
 SPILL_DIMS = 58  # feature dimensions of a clean dataset (+4 with action.expert): the statistics spill
