@@ -2,8 +2,10 @@
 
 ``LeRobotDataset(repo_id, root=path)`` (lerobot 0.6.1) loads what :func:`write_dataset`
 writes. The layout mirrors lerobot's own recorder (``lerobot/datasets/utils.py``,
-``dataset_writer.py``, ``dataset_metadata.py``), written in bulk with pyarrow instead of
-one ``save_episode`` per episode (~66 ms each)::
+``dataset_writer.py``, ``dataset_metadata.py``), written with pyarrow in pieces of many
+episodes (:class:`DatasetWriter`, streamed: memory bounded by a piece; the bytes do not
+depend on how the episodes are cut into pieces) instead of one ``save_episode`` per
+episode (~66 ms each)::
 
     meta/info.json                               codebase_version "v3.0", features, totals
     meta/stats.json                              per-feature min/max/mean/std/count/q01..q99
@@ -473,11 +475,6 @@ class _FileRoller:
         return out
 
 
-def _assign_files(sizes: np.ndarray, limit_mb: int, chunks_size: int) -> np.ndarray:
-    """(chunk, file) per item (:class:`_FileRoller` over all items)."""
-    return _FileRoller(limit_mb, chunks_size).assign(sizes)
-
-
 def _arrow_column(a: np.ndarray) -> pa.Array:
     if a.ndim == 1:
         return pa.array(a)
@@ -548,7 +545,9 @@ def _expand(idx, arr: np.ndarray, axis: int):
 
 
 def _global_stats(a: np.ndarray) -> dict:
-    """Stats of one feature over all frames, shapes as lerobot's compute_episode_stats."""
+    """Stats of one feature over all frames, shapes as lerobot's compute_episode_stats:
+    the in-memory definition (the bulk writer's before streaming), which the streamed
+    :func:`_sorted_stats` / :func:`_index_stats` reproduce bit for bit (tested)."""
     cols = a.reshape(len(a), -1)
     d = cols.shape[1]
     res = {k: np.empty(d) for k in STAT_KEYS if k != "count"}
