@@ -20,8 +20,9 @@ frame were measured on this project's builds (README "Speed"):
   continuations keeps every frame of its rest-start flights (their starts are drawn from
   them): :data:`MEMORY_BYTES_PER_FRAME` per frame, as before streaming (100,000 goals with
   noise: 20.66 M frames, peak RSS 13.98 GB);
-* scratch disk: the statistics spill, 4 bytes per frame and feature dimension, deleted
-  when the build ends (on the same file system as the output).
+* scratch disk: the statistics spill, one feature at a time read back from the data
+  files (the widest, 18 dimensions x 4 bytes per frame), deleted as used (on the same
+  file system as the output).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ BLOCK_BYTES_PER_EPISODE_STEP = 26 * 8  # states (18) + actions (4) + expert acti
 STREAM_BYTES_PER_FRAME = 550  # a block's recorded frames in flight (float64 gathers, float32 columns, stats temporaries; 350-500 measured)
 EPISODE_BYTES = 800  # per episode for the whole build (goals, coefficients, per-episode results)
 STATS_BYTES_PER_FRAME = 4  # one float32 feature dimension sorted at a time
-SPILL_DIMS = 58  # feature dimensions of a clean dataset (+4 with action.expert): the statistics spill
+SPILL_DIMS = 18  # the widest feature (observation.state): the statistics spill holds one feature at a time
 SAMPLE_GOALS = 128
 
 
@@ -67,7 +68,7 @@ def estimate(spec, workers: int = 1) -> Estimate:
     if episodes > ROLLOUT_BLOCK:
         block_eps = int(np.diff(block_bounds(episodes)).max())
     block = block_eps * (spec.t_max * spec.fps + 1) * BLOCK_BYTES_PER_EPISODE_STEP
-    spill = frames * 4 * (SPILL_DIMS + (4 if spec.noisy else 0))
+    spill = frames * 4 * SPILL_DIMS
     if spec.continuations:  # the rest-start flights' frames stay in memory
         memory = MEMORY_BASE + block + frames * MEMORY_BYTES_PER_FRAME
     else:

@@ -137,8 +137,9 @@ class DatasetWriter:
     (:data:`ROW_GROUP_SIZE` rows, the same row groups as one bulk write), per-episode
     statistics are computed per piece (they depend on their own episode only), and the
     dataset-level statistics, which need every frame of a dimension in sorted order,
-    come from a spill file per feature dimension (the values in their statistics dtype,
-    ``<root>/.stats-spill/``, deleted by :meth:`close`), sorted one dimension at a time
+    are computed at :meth:`close`: one feature at a time is read back from the data files
+    into a spill file per dimension (the values in their statistics dtype,
+    ``<root>/.stats-spill/``, deleted as used), and each dimension is sorted in memory
     (``F`` x 4 bytes for a float32 feature; the index columns follow from the episode
     lengths). The bytes are those of :func:`write_dataset` on all the frames at once.
     """
@@ -168,6 +169,7 @@ class DatasetWriter:
         self._pending_rows = 0
         self._meta_file = None
         self._meta_pending: list[dict] = []
+        self._paths: list[Path] = []  # data files in order
         self._closed = False
 
     # -- frames
@@ -215,17 +217,8 @@ class DatasetWriter:
         if self._frame_bytes is None:
             self._frame_bytes = sum(_row_bytes(a) for a in arrays.values())
 
-        # statistics: per episode now, dataset-level from the spill files at close
+        # statistics: per episode now, dataset-level at close (from the written files)
         ep_stats = {k: _episode_stats(arrays[k], starts, lengths) for k in self.feats} if self.episode_stats else {}
-        for k in self.feats:
-            if k in INDEX_FEATURES:
-                continue
-            a = arrays[k]
-            cols = a.reshape(len(a), -1)
-            sdt = _stats_dtype(a.dtype)
-            for j in range(cols.shape[1]):
-                with open(self._spill(k, j), "ab") as f:
-                    cols[:, j].astype(sdt).tofile(f)
 
         # data files: whole episodes, lerobot's size rule on uncompressed bytes
         data_file = self._data_roller.assign(lengths * self._frame_bytes)
@@ -262,6 +255,26 @@ class DatasetWriter:
     def _spill(self, k: str, j: int) -> Path:
         return self.root / self.SPILL_DIR / f"{k}.{j}.bin"
 
+    def _spill_feature(self, k: str, ft: dict, sdt) -> None:
+        """Feature ``k`` read back from the data files (one row group at a time), each
+        dimension's values in ``sdt`` to its own spill file: scratch disk for one
+        feature at a time (``F`` x dims x 4 bytes)."""
+        d = ft["shape"][0]
+        files = [open(self._spill(k, j), "wb") for j in range(d)]
+        try:
+            for path in self._paths:
+                pf = pq.ParquetFile(path)
+                for i in range(pf.num_row_groups):
+                    col = pf.read_row_group(i, columns=[k]).column(0)
+                    v = _column_to_numpy(col, ft["shape"])
+                    v = v.reshape(len(v), -1)
+                    for j in range(d):
+                        v[:, j].astype(sdt).tofile(files[j])
+                    del v, col
+        finally:
+            for f in files:
+                f.close()
+
     def _add_rows(self, piece: dict, n: int) -> None:
         """Rows of the open data file: full row groups are written straight from
         ``piece`` (views of the appended arrays), and only the last partial row group is
@@ -296,6 +309,7 @@ class DatasetWriter:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._writer = pq.ParquetWriter(path, self._schema, compression=COMPRESSION,
                                             use_dictionary=["episode_index", "task_index"])
+            self._paths.append(path)
         self._writer.write_table(table, row_group_size=ROW_GROUP_SIZE)
 
     def _finish_data_file(self) -> None:
@@ -352,8 +366,9 @@ class DatasetWriter:
                 g = _index_stats(k, lengths, self.fps)
             else:
                 g = {s: [] for s in STAT_KEYS}
+                sdt = _stats_dtype(np.dtype(ft["dtype"]))
+                self._spill_feature(k, ft, sdt)
                 for j in range(ft["shape"][0]):
-                    sdt = _stats_dtype(np.dtype(ft["dtype"]))
                     c = np.fromfile(self._spill(k, j), dtype=sdt)
                     self._spill(k, j).unlink()
                     c.sort()
