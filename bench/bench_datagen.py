@@ -6,8 +6,9 @@
 
 Each size runs the real command (`python -m aerohrl.datagen.cli build`) in a fresh
 output directory, so interpreter start-up, imports and writing are all counted; the
-peak resident memory is the child's (``resource.getrusage(RUSAGE_CHILDREN)``, one
-child at a time, so each row's maximum is its own: rows run smallest first); ``cpu s`` is
+peak resident memory is the children's (``resource.getrusage(RUSAGE_CHILDREN)``: the
+maximum over the builds so far, rows smallest first; now that a build's peak no longer
+grows with the goals, run one size per invocation to see each size's own); ``cpu s`` is
 the child's user + system time, steadier than the wall time on a loaded machine.
 
 Targets (issue 2): 250 goals <= 10 s; 10,000 goals <= 3 min, cost linear in goals.
