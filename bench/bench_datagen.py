@@ -6,8 +6,10 @@
 
 Each size runs the real command (`python -m aerohrl.datagen.cli build`) in a fresh
 output directory, so interpreter start-up, imports and writing are all counted; the
-peak resident memory is the child's (``resource.getrusage(RUSAGE_CHILDREN)``, one
-child at a time, so each row's maximum is its own: rows run smallest first).
+peak resident memory is the children's (``resource.getrusage(RUSAGE_CHILDREN)``: the
+maximum over the builds so far, rows smallest first; now that a build's peak no longer
+grows with the goals, run one size per invocation to see each size's own); ``cpu s`` is
+the child's user + system time, steadier than the wall time on a loaded machine.
 
 Targets (issue 2): 250 goals <= 10 s; 10,000 goals <= 3 min, cost linear in goals.
 
@@ -79,10 +81,12 @@ def main():
     if a.workers:
         return sharded(a)
     print(f"cores: {os.cpu_count()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}")
-    print(f"{'goals':>7} {'wall s':>8} {'ms/goal':>8} {'peak RSS GB':>12}  frames")
+    print(f"{'goals':>7} {'wall s':>8} {'ms/goal':>8} {'cpu s':>8} {'peak RSS GB':>12}  frames")
     rows = []
     for n in sorted(a.goals):
         with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_TMP")) as d:
+            ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu0 = ru.ru_utime + ru.ru_stime
             t0 = time.perf_counter()
             p = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", str(n), "--out", d, "--quiet",
                                 *a.recipe], capture_output=True, text=True)
@@ -90,9 +94,11 @@ def main():
             if p.returncode != 0:
                 sys.exit(f"build failed: {p.stderr.strip()}")
             frames = p.stdout.split(" frames")[0].rsplit(" ", 1)[-1]
-        rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1e6  # KB -> GB, max over children so far
+        ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+        rss = ru.ru_maxrss / 1e6  # KB -> GB, max over children so far
+        cpu = ru.ru_utime + ru.ru_stime - cpu0  # user + system seconds of this build (less sensitive to load than wall)
         rows.append((n, wall))
-        print(f"{n:>7} {wall:>8.2f} {1000 * wall / n:>8.2f} {rss:>12.2f}  {frames}", flush=True)
+        print(f"{n:>7} {wall:>8.2f} {1000 * wall / n:>8.2f} {cpu:>8.1f} {rss:>12.2f}  {frames}", flush=True)
     if len(rows) >= 2:
         (n0, w0), (n1, w1) = rows[0], rows[-1]
         print(f"marginal cost {1000 * (w1 - w0) / (n1 - n0):.2f} ms/goal between {n0} and {n1} goals")

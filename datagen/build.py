@@ -9,9 +9,10 @@ The pipeline of thesis §3.4.1 with the readings of SPEC.md "Expert data":
    feasible reference within ``t_max`` are resampled and counted;
 3. the geometric expert (:mod:`aerohrl.datagen.expert`) tracks every reference at once
    in the batched simulator (:mod:`aerohrl.sim`), recording each 100 Hz step until T;
-4. the frames are written in bulk as a LeRobot v3.0 dataset
-   (:mod:`aerohrl.datagen.lerobot_format`) with our own metadata and checksums
-   (:mod:`aerohrl.datagen.manifest`) and a dataset card.
+4. the frames are streamed into a LeRobot v3.0 dataset block by block as the flights
+   land (:func:`stream_dataset`, :class:`aerohrl.datagen.lerobot_format.DatasetWriter`:
+   memory stays bounded by a block, the bytes are those of one bulk write), then our own
+   metadata and checksums (:mod:`aerohrl.datagen.manifest`) and a dataset card.
 
 Everything is written into a temporary directory beside the target and renamed into
 place at the end, so an interrupted build leaves no half-written version.
@@ -37,7 +38,7 @@ from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
 from aerohrl.datagen import recipes, reference
 from aerohrl.datagen.expert import GeometricController
-from aerohrl.datagen.lerobot_format import read_info, write_dataset
+from aerohrl.datagen.lerobot_format import DatasetWriter, read_info
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
 from aerohrl.datagen.spec import GENERATOR_VERSION, TASK, DatasetSpec, spec_hash, version_name
 from aerohrl.sim import BatchedQuadrotor, get_preset
@@ -236,11 +237,12 @@ def _fly_block(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray
     rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, block]) if spec.noisy else None
     r = rollout_expert(spec, goals, T, coeffs, progress, start_state, rotor_speeds, record_rotors, rng)
     out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
-    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
     if r.expert_actions is not None:
         out["expert_action"] = r.expert_actions[kk, e]
     if record_rotors:
         out["rotors"] = r.rotors[kk, e]
+    del r  # the rollout's (steps, N, .) buffers, before the goal test's temporaries
+    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
     return out
 
 
@@ -252,24 +254,15 @@ def block_bounds(n: int, block: int | None = None) -> np.ndarray:
     return np.linspace(0, n, -(-n // block) + 1).round().astype(np.int64)
 
 
-def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-        start_state=None, rotor_speeds=None, record_rotors: bool = False, runner=None) -> _Frames:
-    """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes, recorded frames
-    written into arrays allocated once (their size is known from T): memory stays bounded
-    by the frames plus the buffers of the blocks in flight. ``part`` separates the noise
-    streams of the goal episodes (0) and the continuations (1). ``runner``
-    (:class:`BlockRunner`) flies the blocks in worker processes or Ray tasks; they come
-    back in block order and fill the same arrays, so the result is byte-identical to
-    flying them here."""
+def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
+               start_state=None, rotor_speeds=None, record_rotors: bool = False, runner=None):
+    """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
+    ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
+    episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of
+    the goal episodes (0) and the continuations (1). ``runner`` (:class:`BlockRunner`)
+    flies the blocks in worker processes or Ray tasks; they come back in block order, so
+    the frames are byte-identical to flying them here."""
     n = len(T)
-    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
-    F = int(length.sum())
-    first = np.concatenate([[0], np.cumsum(length)[:-1]])
-    ep = np.repeat(np.arange(n), length)
-    k = np.arange(F) - np.repeat(first, length)
-    fr = _Frames(ep, k, np.empty((F, task.STATE_DIM)), np.empty((F, task.ACTION_DIM)), np.empty((F, task.STATE_DIM)),
-                 np.empty((F, task.ACTION_DIM)) if spec.noisy else None, np.empty((F, 4)) if record_rotors else None,
-                 np.empty(F, bool))
     bounds = block_bounds(n)
     nb = len(bounds) - 1
 
@@ -285,7 +278,26 @@ def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progr
         results = runner.map(_fly_block, (args(b) for b in range(nb)))
     for b, r in enumerate(tqdm(results, total=nb, desc="expert blocks", unit="block", disable=None if progress and nb >= 3 else True,
                                leave=False)):
-        lo, hi = int(bounds[b]), int(bounds[b + 1])
+        yield int(bounds[b]), int(bounds[b + 1]), r
+        del r
+
+
+def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
+        start_state=None, rotor_speeds=None, record_rotors: bool = False, runner=None) -> _Frames:
+    """All frames of :func:`fly_blocks` in arrays allocated once (their size is known from
+    T): what :func:`generate` keeps in memory. ``datagen build`` streams the blocks to
+    disk instead (:func:`stream_dataset`)."""
+    n = len(T)
+    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
+    F = int(length.sum())
+    first = np.concatenate([[0], np.cumsum(length)[:-1]])
+    ep = np.repeat(np.arange(n), length)
+    k = np.arange(F) - np.repeat(first, length)
+    fr = _Frames(ep, k, np.empty((F, task.STATE_DIM)), np.empty((F, task.ACTION_DIM)), np.empty((F, task.STATE_DIM)),
+                 np.empty((F, task.ACTION_DIM)) if spec.noisy else None, np.empty((F, 4)) if record_rotors else None,
+                 np.empty(F, bool))
+    for lo, hi, r in fly_blocks(spec, goals, T, coeffs, progress, part=part, start_state=start_state,
+                                rotor_speeds=rotor_speeds, record_rotors=record_rotors, runner=runner):
         f0, f1 = first[lo], first[hi - 1] + length[hi - 1]
         fr.state[f0:f1] = r["state"]
         fr.action[f0:f1] = r["action"]
@@ -446,19 +458,91 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
     return data
 
 
+def stream_dataset(spec: DatasetSpec, root: Path, progress: bool = True, runner: "BlockRunner | None" = None) -> EpisodeSummary:
+    """Fly ``spec`` and write its LeRobot files into ``root`` block by block (the same
+    bytes as :func:`generate` + :func:`write_dataset`): each block of
+    :data:`ROLLOUT_BLOCK` flights is appended to the data files as it lands
+    (:class:`DatasetWriter`), and only per-episode results stay in memory, so the peak
+    is a few blocks' frames whatever the number of goals. With continuations the
+    rest-start flights are kept whole (their starts are drawn from those frames)."""
+    writer = DatasetWriter(root, fps=spec.fps, task=TASK, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
+    try:
+        if spec.continuations:
+            data = generate(spec, progress=progress, runner=runner)
+            writer.append(frame_columns(data), data.length)
+            summary = summarize(data)
+            del data
+        else:
+            summary = _stream_flights(spec, writer, progress, runner)
+        writer.close()
+    except BaseException:
+        writer.abort()
+        raise
+    return summary
+
+
+def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, runner) -> EpisodeSummary:
+    rng = np.random.default_rng(spec.seed)
+    goals, T, coeffs, resampled, _ = plan_references(spec, rng)
+    goals, T, coeffs, start, goal_index = episode_starts(spec, goals, T, coeffs)
+    goal_vec = goals_mod.goal_vectors(goals)
+    n = len(T)
+    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
+    success = np.zeros(n, bool)
+    first = np.full(n, -1, np.int64)
+    final = np.empty((n, task.STATE_DIM))
+    for lo, hi, r in fly_blocks(spec, goals, T, coeffs, progress, part=0, start_state=start, runner=runner):
+        L = length[lo:hi]
+        ends = np.cumsum(L)
+        e = np.repeat(np.arange(hi - lo), L)
+        last = np.zeros(len(e), bool)
+        last[ends - 1] = True
+        hit = np.flatnonzero(r["success"])
+        eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
+        first[lo + eps] = hit[at] - (ends - L)[eps]
+        success[lo + eps] = True
+        final[lo:hi] = r["next_state"][ends - 1]
+        writer.append(_pop_columns(r, goal_vec[lo:hi].astype(np.float32)[e], last), L)
+        del r
+    rate = float(success.mean())
+    if rate < MIN_EXPERT_SUCCESS:
+        raise UserError(f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
+                        f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges")
+    return EpisodeSummary(goals, goal_vec, T, length, success, first, final, resampled,
+                          np.full(n, -1, np.int64), np.full(n, -1, np.int64),
+                          goal_index if spec.rollouts_per_goal > 1 else None)
+
+
 def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
     """The LeRobot per-frame features (float32 / bool), SPEC.md "Expert data"."""
     last = np.r_[data.episode_index[1:] != data.episode_index[:-1], True]
+    return _columns(data.state, data.action, data.goal_vec[data.episode_index], data.next_state, data.success, last,
+                    data.action_expert)
+
+
+def _pop_columns(r: dict, goal_rows: np.ndarray, last: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`_columns` of one block's frames (:func:`_fly_block`), each float64 array
+    dropped from ``r`` as soon as its float32 copy exists (the block's peak memory)."""
+    out = {"observation.state": r.pop("state").astype(np.float32), "action": r.pop("action").astype(np.float32),
+           "observation.desired_goal": goal_rows, "next.observation.state": r.pop("next_state").astype(np.float32)}
+    success = r.pop("success")
+    out.update({"next.reward": success.astype(np.float32), "next.done": last, "next.success": success})
+    if "expert_action" in r:
+        out["action.expert"] = r.pop("expert_action").astype(np.float32)
+    return out
+
+
+def _columns(state, action, goal_rows, next_state, success, last, action_expert) -> dict[str, np.ndarray]:
     return {
-        "observation.state": data.state.astype(np.float32),
-        "action": data.action.astype(np.float32),
-        "observation.desired_goal": data.goal_vec[data.episode_index].astype(np.float32),
-        "next.observation.state": data.next_state.astype(np.float32),
-        "next.reward": data.success.astype(np.float32),
+        "observation.state": state.astype(np.float32),
+        "action": action.astype(np.float32),
+        "observation.desired_goal": goal_rows.astype(np.float32),
+        "next.observation.state": next_state.astype(np.float32),
+        "next.reward": success.astype(np.float32),
         "next.done": last,
-        "next.success": data.success.copy(),
+        "next.success": success.copy(),
         # action noise only: ``action`` is what was flown, this the clean expert command
-        **({"action.expert": data.action_expert.astype(np.float32)} if data.action_expert is not None else {}),
+        **({"action.expert": action_expert.astype(np.float32)} if action_expert is not None else {}),
     }
 
 
@@ -471,15 +555,47 @@ FEATURE_NAMES = {
 }
 
 
-def episode_table(data: ExpertData) -> pa.Table:
-    """Per-episode summary: goal, reference duration, expert outcome and final errors."""
+@dataclass
+class EpisodeSummary:
+    """What the metadata need of a build once its frames are written: per episode the
+    goal, reference duration, length, outcome and final state (no frames)."""
+
+    goals: dict
+    goal_vec: np.ndarray
+    T: np.ndarray
+    length: np.ndarray
+    episode_success: np.ndarray  # (N,) bool
+    first_success: np.ndarray  # (N,) first frame whose next state meets the goal test (-1: never)
+    final_next_state: np.ndarray  # (N, 18) the state after each episode's last action
+    resampled: int = 0
+    source_episode: np.ndarray | None = None
+    source_frame: np.ndarray | None = None
+    goal_index: np.ndarray | None = None
+
+    @property
+    def frames(self) -> int:
+        return int(self.length.sum())
+
+
+def summarize(data: ExpertData) -> EpisodeSummary:
+    """The :class:`EpisodeSummary` of frames held in memory."""
     n = len(data.T)
-    last = np.cumsum(data.length) - 1
-    dp, dv, dr = task.goal_errors(task.achieved_goal(data.next_state[last]), data.goal_vec)
     succ = data.success
     first = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
     np.minimum.at(first, data.episode_index[succ], data.frame_index[succ])
     first[first == np.iinfo(np.int64).max] = -1  # never reached
+    return EpisodeSummary(data.goals, data.goal_vec, data.T, data.length, data.episode_success, first,
+                          data.next_state[np.cumsum(data.length) - 1], data.resampled, data.source_episode,
+                          data.source_frame, data.goal_index)
+
+
+def episode_table(data: "EpisodeSummary | ExpertData") -> pa.Table:
+    """Per-episode summary: goal, reference duration, expert outcome and final errors."""
+    if isinstance(data, ExpertData):
+        data = summarize(data)
+    n = len(data.T)
+    dp, dv, dr = task.goal_errors(task.achieved_goal(data.final_next_state), data.goal_vec)
+    first = data.first_success
 
     def fsl(a):
         a = np.ascontiguousarray(a, dtype=np.float64)
@@ -506,7 +622,9 @@ def episode_table(data: ExpertData) -> pa.Table:
     return pa.table(cols)
 
 
-def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
+def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: str) -> dict:
+    if isinstance(data, ExpertData):
+        data = summarize(data)
     params = get_preset(spec.vehicle)
     ctrl = GeometricController(params)
     succ = data.episode_success
@@ -535,7 +653,7 @@ def metadata(spec: DatasetSpec, data: ExpertData, version: str) -> dict:
         "goal_tolerance": {"pos_m": task.TOLERANCE.pos, "vel_mps": task.TOLERANCE.vel, "rot_rad": task.TOLERANCE.rot},
         "resampled_goals": int(data.resampled),
         "episodes": int(len(data.T)),
-        "frames": int(len(data.episode_index)),
+        "frames": data.frames,
         "expert_success_rate": float(succ.mean()),
         "reference_duration_s": {"min": float(data.T.min()), "mean": float(data.T.mean()), "max": float(data.T.max())},
         "layouts": {
@@ -685,28 +803,33 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
         raise UserError(f"output directory {parent} is not writable")
     _remove_stale_temporaries(parent)
 
-    est = estimate(spec)
+    est = estimate(spec, workers=workers)
     mem, disk = available_memory(), available_disk(parent)
-    log(f"estimate: {est.episodes:,} episodes, {est.frames:,} frames, {human(est.disk)} on disk, "
+    log(f"estimate: {est.episodes:,} episodes, {est.frames:,} frames, {human(est.disk)} on disk "
+        f"(+{human(est.scratch)} scratch while building), "
         f"{human(est.memory)} of memory at peak ({human(disk)} disk free, {human(mem)} memory available)")
     short = shortfall(est, mem, disk)
     if short and not force:
         raise UserError(f"this build needs about {short}; build fewer goals, or pass --force to try anyway")
 
     runner = BlockRunner(workers, ray_address) if workers > 1 or ray_address else None
-    try:
-        data = generate(spec, progress=progress, **({"runner": runner} if runner is not None else {}))
-    finally:
-        if runner is not None:
-            runner.close()
     tmp = atomic.temp_path(final)
     try:
-        tmp.mkdir()
-        columns = frame_columns(data)
-        write_dataset(tmp, columns, data.episode_index, fps=spec.fps, task=TASK,
-                      robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
-        pq.write_table(episode_table(data), tmp / EPISODES_FILE)
-        meta = metadata(spec, data, version)
+        # the frames stream into the temporary as they are flown; another build of this
+        # version in this process (a thread, a test) takes the next free name
+        for i in range(1, 100):
+            try:
+                tmp.mkdir()
+                break
+            except FileExistsError:
+                tmp = atomic.temp_path(final).with_name(f"{atomic.temp_path(final).name}.{i}")
+        try:
+            summary = stream_dataset(spec, tmp, progress=progress, runner=runner)
+        finally:
+            if runner is not None:
+                runner.close()
+        pq.write_table(episode_table(summary), tmp / EPISODES_FILE)
+        meta = metadata(spec, summary, version)
         (tmp / "README.md").write_text(dataset_card(meta, read_info(tmp)["features"]))
         write_manifest(tmp, meta)
         os.rename(tmp, final)
@@ -718,7 +841,7 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
-    return BuildResult(final, True, len(data.T), len(data.episode_index), float(data.episode_success.mean()), data.resampled,
+    return BuildResult(final, True, len(summary.T), summary.frames, float(summary.episode_success.mean()), summary.resampled,
                        time.perf_counter() - t0)
 
 

@@ -7,11 +7,22 @@ references solved for a sample of the spec's own goals (milliseconds); the bytes
 frame were measured on this project's builds (README "Speed"):
 
 * disk: 190 bytes per frame (zstd parquet + metadata; 250 to 10,000 goals);
-* memory: the recorded frames (float64 while flown, then the float32 columns and
-  pyarrow's buffers), 650 bytes per frame with the action-noise column (measured
-  100,000 goals with noise: 20.66 M frames, peak RSS 13.98 GB, `bench/bench_datagen.py`),
-  plus one rollout block's buffers (``build.ROLLOUT_BLOCK`` episodes x the longest
-  episode x 26 float64) and the interpreter's ~200 MB.
+* memory: ``datagen build`` streams (``build.stream_dataset``): each rollout block's
+  frames are written as the block lands, so the peak is one block's working set
+  (``build.ROLLOUT_BLOCK`` episodes: the rollout buffers, episodes x the longest episode x
+  26 float64, plus the block's recorded frames at :data:`STREAM_BYTES_PER_FRAME`, measured),
+  per worker with ``--workers``; plus :data:`EPISODE_BYTES` per episode (goals, references
+  and per-episode results, measured on 50,000 and 200,000 goals), 4 bytes per frame for
+  the dataset statistics (one feature dimension sorted at a time) and the interpreter's
+  ~200 MB. Measured with noise (README "Speed", `bench/bench_datagen.py`): peak RSS
+  0.99 / 1.40 / 1.56 GB at 10,000 / 25,000 / 50,000 goals (blocks of 5,000 / 6,250 /
+  7,143 episodes; the estimate says 1.2 / 1.5 / 1.7 GB). A spec with
+  continuations keeps every frame of its rest-start flights (their starts are drawn from
+  them): :data:`MEMORY_BYTES_PER_FRAME` per frame, as before streaming (100,000 goals with
+  noise: 20.66 M frames, peak RSS 13.98 GB);
+* scratch disk: the statistics spill, one feature at a time read back from the data
+  files (the widest, 18 dimensions x 4 bytes per frame), deleted as used (on the same
+  file system as the output).
 """
 
 from __future__ import annotations
@@ -27,6 +38,10 @@ DISK_BYTES_PER_FRAME = 195
 MEMORY_BYTES_PER_FRAME = 650
 MEMORY_BASE = 200e6
 BLOCK_BYTES_PER_EPISODE_STEP = 26 * 8  # states (18) + actions (4) + expert actions (4), float64
+STREAM_BYTES_PER_FRAME = 550  # a block's recorded frames in flight (float64 gathers, float32 columns, stats temporaries; 350-500 measured)
+EPISODE_BYTES = 800  # per episode for the whole build (goals, coefficients, per-episode results)
+STATS_BYTES_PER_FRAME = 4  # one float32 feature dimension sorted at a time
+SPILL_DIMS = 18  # the widest feature (observation.state): the statistics spill holds one feature at a time
 SAMPLE_GOALS = 128
 
 
@@ -36,21 +51,31 @@ class Estimate:
     frames: int
     disk: float  # bytes
     memory: float  # bytes
+    scratch: float = 0.0  # temporary disk bytes during the build (the statistics spill)
 
 
-def estimate(spec) -> Estimate:
-    """Expected frames, disk and peak memory of building ``spec`` (from a sample of its goals)."""
-    from aerohrl.datagen.build import plan_references
+def estimate(spec, workers: int = 1) -> Estimate:
+    """Expected frames, disk and peak memory of building ``spec`` (from a sample of its
+    goals) with ``workers`` processes flying the blocks."""
+    from aerohrl.datagen.build import ROLLOUT_BLOCK, block_bounds, plan_references
 
     n = min(spec.goals, SAMPLE_GOALS)
     _, T, _, _, _ = plan_references(spec, np.random.default_rng([spec.seed, 99]), n)
-    from aerohrl.datagen.build import ROLLOUT_BLOCK
-
     steps = np.ceil(T * spec.fps - 1e-9)
     episodes = spec.goals * spec.rollouts_per_goal + spec.continuations
     frames = int(round(episodes * float(steps.mean())))
-    block = min(episodes, ROLLOUT_BLOCK) * (spec.t_max * spec.fps + 1) * BLOCK_BYTES_PER_EPISODE_STEP
-    return Estimate(episodes, frames, frames * DISK_BYTES_PER_FRAME, MEMORY_BASE + block + frames * MEMORY_BYTES_PER_FRAME)
+    block_eps = min(episodes, ROLLOUT_BLOCK)
+    if episodes > ROLLOUT_BLOCK:
+        block_eps = int(np.diff(block_bounds(episodes)).max())
+    block = block_eps * (spec.t_max * spec.fps + 1) * BLOCK_BYTES_PER_EPISODE_STEP
+    spill = frames * 4 * SPILL_DIMS
+    if spec.continuations:  # the rest-start flights' frames stay in memory
+        memory = MEMORY_BASE + block + frames * MEMORY_BYTES_PER_FRAME
+    else:
+        in_flight = max(1, int(workers))
+        memory = (MEMORY_BASE + in_flight * (block + block_eps * float(steps.mean()) * STREAM_BYTES_PER_FRAME)
+                  + episodes * EPISODE_BYTES + frames * STATS_BYTES_PER_FRAME)
+    return Estimate(episodes, frames, frames * DISK_BYTES_PER_FRAME, memory, spill)
 
 
 def available_memory() -> float:
@@ -91,7 +116,7 @@ def human(n: float) -> str:
 def shortfall(est: Estimate, memory: float, disk: float) -> str | None:
     """Why ``est`` does not fit in ``memory`` and ``disk`` bytes, or None."""
     short = [f"{human(need)} of {what} ({human(free)} {verb})" for what, need, free, verb in
-             (("memory", est.memory, memory, "available"), ("disk", est.disk, disk, "free")) if need > free]
+             (("memory", est.memory, memory, "available"), ("disk", est.disk + est.scratch, disk, "free")) if need > free]
     return " and ".join(short) or None
 
 

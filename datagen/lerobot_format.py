@@ -2,8 +2,10 @@
 
 ``LeRobotDataset(repo_id, root=path)`` (lerobot 0.6.1) loads what :func:`write_dataset`
 writes. The layout mirrors lerobot's own recorder (``lerobot/datasets/utils.py``,
-``dataset_writer.py``, ``dataset_metadata.py``), written in bulk with pyarrow instead of
-one ``save_episode`` per episode (~66 ms each)::
+``dataset_writer.py``, ``dataset_metadata.py``), written with pyarrow in pieces of many
+episodes (:class:`DatasetWriter`, streamed: memory bounded by a piece; the bytes do not
+depend on how the episodes are cut into pieces) instead of one ``save_episode`` per
+episode (~66 ms each)::
 
     meta/info.json                               codebase_version "v3.0", features, totals
     meta/stats.json                              per-feature min/max/mean/std/count/q01..q99
@@ -117,84 +119,296 @@ def write_dataset(
     per-dimension names of vector features (defaults: :data:`DEFAULT_NAMES`).
     ``episode_stats=False`` leaves the per-episode ``stats/*`` columns out.
     Bad inputs raise ``ValueError`` (a caller bug); a non-empty ``root`` raises UserError.
+    The same bytes as :class:`DatasetWriter` fed the episodes in any number of pieces.
     """
-    root = Path(root)
-    fps = _check_positive_int(fps, "fps")
-    chunks_size = _check_positive_int(chunks_size, "chunks_size")
-    data_files_size_in_mb = _check_positive_int(data_files_size_in_mb, "data_files_size_in_mb")
-    if not isinstance(task, str) or not task:
-        raise ValueError("task must be a non-empty string")
-    ep, starts, lengths = _check_episode_index(episode_index)
-    F, E = len(ep), len(lengths)
-    feats, arrays = _check_columns(columns, F, {**DEFAULT_NAMES, **(names or {})})
+    w = DatasetWriter(root, fps=fps, task=task, robot_type=robot_type, names=names, chunks_size=chunks_size,
+                      data_files_size_in_mb=data_files_size_in_mb, episode_stats=episode_stats)
+    _, _, lengths = _check_episode_index(episode_index)
+    w.append(columns, lengths)
+    w.close()
 
-    if root.exists():
-        if not root.is_dir():
-            raise UserError(f"{root} exists and is not a directory")
-        if any(root.iterdir()):
-            raise UserError(f"refusing to write a dataset into the non-empty directory {root}")
 
-    # the index columns lerobot expects
-    frame_index = np.arange(F, dtype=np.int64) - np.repeat(starts, lengths)
-    arrays["timestamp"] = (frame_index / float(fps)).astype(np.float32)  # lerobot: frame_index / fps
-    arrays["frame_index"] = frame_index
-    arrays["episode_index"] = ep
-    arrays["index"] = np.arange(F, dtype=np.int64)
-    arrays["task_index"] = np.zeros(F, dtype=np.int64)
-    for k, dt in INDEX_FEATURES.items():
-        feats[k] = {"dtype": dt, "shape": [1], "names": None}
+class DatasetWriter:
+    """A LeRobot v3.0 dataset written as it comes: :meth:`append` takes the frames of whole
+    episodes (any number at a time, in episode order), :meth:`close` writes ``meta/``.
 
-    # files: whole episodes, lerobot's size rule on uncompressed bytes
-    frame_bytes = sum(_row_bytes(a) for a in arrays.values())
-    data_file = _assign_files(lengths * frame_bytes, data_files_size_in_mb, chunks_size)
+    Memory stays bounded by the piece being appended plus one row group of frames and
+    one episodes-metadata file's rows: data files are written row group by row group
+    (:data:`ROW_GROUP_SIZE` rows, the same row groups as one bulk write), per-episode
+    statistics are computed per piece (they depend on their own episode only), and the
+    dataset-level statistics, which need every frame of a dimension in sorted order,
+    are computed at :meth:`close`: one feature at a time is read back from the data files
+    into a spill file per dimension (the values in their statistics dtype,
+    ``<root>/.stats-spill/``, deleted as used), and each dimension is sorted in memory
+    (``F`` x 4 bytes for a float32 feature; the index columns follow from the episode
+    lengths). The bytes are those of :func:`write_dataset` on all the frames at once.
+    """
 
-    stats, ep_stats = _compute_stats(arrays, feats, starts, lengths, episode_stats)
+    SPILL_DIR = ".stats-spill"
 
-    ends = starts + lengths
-    ep_cols = {
-        "episode_index": np.arange(E, dtype=np.int64),
-        "tasks": pa.ListArray.from_arrays(pa.array(np.arange(E + 1, dtype=np.int32)), pa.array([task] * E, pa.string())),
-        "length": lengths,
-        "data/chunk_index": data_file[:, 0],
-        "data/file_index": data_file[:, 1],
-        "dataset_from_index": starts,
-        "dataset_to_index": ends,
-    }
-    ep_row_bytes = 7 * 8 + len(task.encode()) + 8
-    for feat, st in ep_stats.items():
-        for key in STAT_KEYS:
-            v = st[key]
-            ep_row_bytes += v.shape[1] * 8 + 4
-            flat = pa.array(v.reshape(-1))
-            offsets = pa.array(np.arange(0, v.size + 1, v.shape[1], dtype=np.int32))
-            ep_cols[f"stats/{feat}/{key}"] = pa.ListArray.from_arrays(offsets, flat)
-    meta_file = _assign_files(np.full(E, ep_row_bytes), data_files_size_in_mb, chunks_size)
-    ep_cols["meta/episodes/chunk_index"] = meta_file[:, 0]
-    ep_cols["meta/episodes/file_index"] = meta_file[:, 1]
+    def __init__(self, root, *, fps: int = 100, task: str = DEFAULT_TASK, robot_type: str | None = DEFAULT_ROBOT_TYPE,
+                 names: dict[str, list[str]] | None = None, chunks_size: int = DEFAULT_CHUNK_SIZE,
+                 data_files_size_in_mb: int = DEFAULT_DATA_FILE_SIZE_IN_MB, episode_stats: bool = True):
+        self.root = Path(root)
+        self.fps = _check_positive_int(fps, "fps")
+        self.chunks_size = _check_positive_int(chunks_size, "chunks_size")
+        self.size_mb = _check_positive_int(data_files_size_in_mb, "data_files_size_in_mb")
+        if not isinstance(task, str) or not task:
+            raise ValueError("task must be a non-empty string")
+        self.task, self.robot_type, self.episode_stats = task, robot_type, episode_stats
+        self.names = {**DEFAULT_NAMES, **(names or {})}
+        self.feats: dict | None = None  # set by the first append
+        self.E = self.F = 0
+        self.lengths: list[np.ndarray] = []
+        self._data_roller = _FileRoller(self.size_mb, self.chunks_size)
+        self._meta_roller = _FileRoller(self.size_mb, self.chunks_size)
+        self._data_file = None  # (chunk, file) open
+        self._writer = None
+        self._schema = None
+        self._pending: list[dict] = []  # frames not yet in a row group
+        self._pending_rows = 0
+        self._meta_file = None
+        self._meta_pending: list[dict] = []
+        self._paths: list[Path] = []  # data files in order
+        self._closed = False
 
-    info = {
-        "codebase_version": CODEBASE_VERSION,
-        "fps": fps,
-        "features": feats,
-        "total_episodes": E,
-        "total_frames": F,
-        "total_tasks": 1,
-        "chunks_size": chunks_size,
-        "data_files_size_in_mb": data_files_size_in_mb,
-        "video_files_size_in_mb": DEFAULT_VIDEO_FILE_SIZE_IN_MB,
-        "data_path": DATA_PATH,
-        "video_path": None,
-        "robot_type": robot_type,
-        "splits": {"train": f"0:{E}"},
-    }
+    # -- frames
+    def append(self, columns: dict[str, np.ndarray], lengths) -> None:
+        """Append whole episodes: ``columns`` as for :func:`write_dataset`, ``lengths``
+        the frames of each (their sum is the columns' length)."""
+        if self._closed:
+            raise ValueError("the writer is closed")
+        lengths = np.asarray(lengths)
+        if lengths.ndim != 1 or lengths.size == 0 or lengths.dtype.kind not in "iu" or np.any(lengths <= 0):
+            raise ValueError("lengths must be a non-empty 1-D array of positive integers")
+        lengths = lengths.astype(np.int64)
+        Fb, Eb = int(lengths.sum()), len(lengths)
+        feats, arrays = _check_columns(columns, Fb, self.names)
+        if self.feats is None:
+            if self.root.exists():
+                if not self.root.is_dir():
+                    raise UserError(f"{self.root} exists and is not a directory")
+                if any(self.root.iterdir()):
+                    raise UserError(f"refusing to write a dataset into the non-empty directory {self.root}")
+            for k, dt in INDEX_FEATURES.items():
+                feats[k] = {"dtype": dt, "shape": [1], "names": None}
+            self.feats = feats
+            self.root.mkdir(parents=True, exist_ok=True)
+            (self.root / "meta").mkdir(exist_ok=True)
+            (self.root / self.SPILL_DIR).mkdir(exist_ok=True)
+            self._frame_bytes = None
+            self._ep_row_bytes = 7 * 8 + len(self.task.encode()) + 8
+            if self.episode_stats:
+                for k, ft in feats.items():
+                    for key in STAT_KEYS:
+                        self._ep_row_bytes += (1 if key == "count" else ft["shape"][0]) * 8 + 4
+        else:
+            got = {k: v for k, v in feats.items()}
+            want = {k: v for k, v in self.feats.items() if k not in INDEX_FEATURES}
+            if list(got) != list(want) or got != want:
+                raise ValueError("appended columns differ from the first piece's (names, dtypes or shapes)")
+        starts = np.concatenate(([0], np.cumsum(lengths)[:-1])).astype(np.int64)
+        frame_index = np.arange(Fb, dtype=np.int64) - np.repeat(starts, lengths)
+        arrays["timestamp"] = (frame_index / float(self.fps)).astype(np.float32)  # lerobot: frame_index / fps
+        arrays["frame_index"] = frame_index
+        arrays["episode_index"] = np.repeat(np.arange(self.E, self.E + Eb, dtype=np.int64), lengths)
+        arrays["index"] = np.arange(self.F, self.F + Fb, dtype=np.int64)
+        arrays["task_index"] = np.zeros(Fb, dtype=np.int64)
+        if self._frame_bytes is None:
+            self._frame_bytes = sum(_row_bytes(a) for a in arrays.values())
 
-    root.mkdir(parents=True, exist_ok=True)
-    (root / "meta").mkdir(exist_ok=True)
-    _write_data_files(root, arrays, feats, starts, ends, data_file)
-    _write_episode_files(root, ep_cols, meta_file)
-    _write_tasks(root, [task])
-    _write_json(root / STATS_PATH, stats)
-    _write_json(root / INFO_PATH, info)
+        # statistics: per episode now, dataset-level at close (from the written files)
+        ep_stats = {k: _episode_stats(arrays[k], starts, lengths) for k in self.feats} if self.episode_stats else {}
+
+        # data files: whole episodes, lerobot's size rule on uncompressed bytes
+        data_file = self._data_roller.assign(lengths * self._frame_bytes)
+        for chunk, fidx, e0, e1 in _groups(data_file):
+            a, b = int(starts[e0]), int(starts[e1 - 1] + lengths[e1 - 1])
+            if self._data_file != (chunk, fidx):
+                self._finish_data_file()
+                self._data_file = (chunk, fidx)
+            self._add_rows({k: arrays[k][a:b] for k in self.feats}, b - a)
+
+        # episodes metadata rows
+        gstarts = starts + self.F
+        ep = {
+            "episode_index": np.arange(self.E, self.E + Eb, dtype=np.int64),
+            "length": lengths,
+            "data/chunk_index": data_file[:, 0].copy(),
+            "data/file_index": data_file[:, 1].copy(),
+            "dataset_from_index": gstarts,
+            "dataset_to_index": gstarts + lengths,
+        }
+        for feat, st in ep_stats.items():
+            for key in STAT_KEYS:
+                ep[f"stats/{feat}/{key}"] = st[key]
+        meta_file = self._meta_roller.assign(np.full(Eb, self._ep_row_bytes))
+        for chunk, fidx, e0, e1 in _groups(meta_file):
+            if self._meta_file != (chunk, fidx):
+                self._finish_meta_file()
+                self._meta_file = (chunk, fidx)
+            self._meta_pending.append({k: v[e0:e1] for k, v in ep.items()})
+        self.lengths.append(lengths)
+        self.E += Eb
+        self.F += Fb
+
+    def _spill(self, k: str, j: int) -> Path:
+        return self.root / self.SPILL_DIR / f"{k}.{j}.bin"
+
+    def _spill_feature(self, k: str, ft: dict, sdt) -> None:
+        """Feature ``k`` read back from the data files (one row group at a time), each
+        dimension's values in ``sdt`` to its own spill file: scratch disk for one
+        feature at a time (``F`` x dims x 4 bytes)."""
+        d = ft["shape"][0]
+        files = [open(self._spill(k, j), "wb") for j in range(d)]
+        try:
+            for path in self._paths:
+                pf = pq.ParquetFile(path)
+                for i in range(pf.num_row_groups):
+                    col = pf.read_row_group(i, columns=[k]).column(0)
+                    v = _column_to_numpy(col, ft["shape"])
+                    v = v.reshape(len(v), -1)
+                    for j in range(d):
+                        v[:, j].astype(sdt).tofile(files[j])
+                    del v, col
+        finally:
+            for f in files:
+                f.close()
+
+    def _add_rows(self, piece: dict, n: int) -> None:
+        """Rows of the open data file: full row groups are written straight from
+        ``piece`` (views of the appended arrays), and only the last partial row group is
+        kept, copied (< :data:`ROW_GROUP_SIZE` rows), for the next piece to complete."""
+        if self._pending_rows:
+            need = ROW_GROUP_SIZE - self._pending_rows
+            if n < need:
+                self._pending.append({k: v.copy() for k, v in piece.items()})
+                self._pending_rows += n
+                return
+            head = {k: np.concatenate([*(p[k] for p in self._pending), v[:need]]) for k, v in piece.items()}
+            self._pending, self._pending_rows = [], 0
+            self._write_rows(head)
+            piece, n = {k: v[need:] for k, v in piece.items()}, n - need
+        m = n - n % ROW_GROUP_SIZE
+        if m:
+            self._write_rows({k: v[:m] for k, v in piece.items()})
+        if n > m:
+            self._pending = [{k: v[m:].copy() for k, v in piece.items()}]
+            self._pending_rows = n - m
+
+    def _write_rows(self, rows: dict) -> None:
+        keys = list(self.feats)
+        meta = {b"huggingface": json.dumps(_hf_features(self.feats)).encode()}
+        table = pa.table([_arrow_column(np.ascontiguousarray(rows[k])) for k in keys], names=keys)
+        if self._schema is None:
+            self._schema = table.schema.with_metadata(meta)
+        table = table.replace_schema_metadata(meta)
+        if self._writer is None:
+            chunk, fidx = self._data_file
+            path = self.root / DATA_PATH.format(chunk_index=chunk, file_index=fidx)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = pq.ParquetWriter(path, self._schema, compression=COMPRESSION,
+                                            use_dictionary=["episode_index", "task_index"])
+            self._paths.append(path)
+        self._writer.write_table(table, row_group_size=ROW_GROUP_SIZE)
+
+    def _finish_data_file(self) -> None:
+        if self._data_file is None:
+            return
+        if self._pending_rows:
+            keys = list(self.feats)
+            self._write_rows({k: np.concatenate([p[k] for p in self._pending]) for k in keys})
+            self._pending, self._pending_rows = [], 0
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    def _finish_meta_file(self) -> None:
+        if self._meta_file is None or not self._meta_pending:
+            return
+        chunk, fidx = self._meta_file
+        parts = self._meta_pending
+        ep = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        n = len(ep["episode_index"])
+        cols = {}
+        for k in ("episode_index",):
+            cols[k] = pa.array(ep[k])
+        cols["tasks"] = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32)),
+                                                 pa.array([self.task] * n, pa.string()))
+        for k in ("length", "data/chunk_index", "data/file_index", "dataset_from_index", "dataset_to_index"):
+            cols[k] = pa.array(ep[k])
+        for k, v in ep.items():
+            if k.startswith("stats/"):
+                offsets = pa.array(np.arange(0, v.size + 1, v.shape[1], dtype=np.int32))
+                cols[k] = pa.ListArray.from_arrays(offsets, pa.array(v.reshape(-1)))
+        cols["meta/episodes/chunk_index"] = pa.array(np.full(n, chunk, dtype=np.int64))
+        cols["meta/episodes/file_index"] = pa.array(np.full(n, fidx, dtype=np.int64))
+        table = pa.table(list(cols.values()), names=list(cols))
+        path = self.root / EPISODES_PATH.format(chunk_index=chunk, file_index=fidx)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(table, path, compression=COMPRESSION, row_group_size=max(n, 1))
+        self._meta_pending = []
+
+    # -- meta
+    def close(self) -> None:
+        """Finish the data files and write ``meta/`` (episodes, tasks, stats, info)."""
+        if self._closed:
+            return
+        if self.feats is None:
+            raise ValueError("episode_index must be a non-empty 1-D array")
+        self._finish_data_file()
+        self._finish_meta_file()
+        _write_tasks(self.root, [self.task])
+        lengths = np.concatenate(self.lengths)
+        stats = {}
+        for k, ft in self.feats.items():
+            if k in INDEX_FEATURES:
+                g = _index_stats(k, lengths, self.fps)
+            else:
+                g = {s: [] for s in STAT_KEYS}
+                sdt = _stats_dtype(np.dtype(ft["dtype"]))
+                self._spill_feature(k, ft, sdt)
+                for j in range(ft["shape"][0]):
+                    c = np.fromfile(self._spill(k, j), dtype=sdt)
+                    self._spill(k, j).unlink()
+                    c.sort()
+                    one = _sorted_stats(lambda i0, i1, c=c: c[i0:i1], len(c))
+                    del c
+                    for s in STAT_KEYS[:4] + QUANTILE_KEYS:
+                        g[s].append(one[s])
+                g["count"] = [self.F]
+            stats[k] = {s: [float(x) for x in g[s]] if s != "count" else [int(g[s][0])] for s in STAT_KEYS}
+        _write_json(self.root / STATS_PATH, stats)
+        info = {
+            "codebase_version": CODEBASE_VERSION,
+            "fps": self.fps,
+            "features": self.feats,
+            "total_episodes": self.E,
+            "total_frames": self.F,
+            "total_tasks": 1,
+            "chunks_size": self.chunks_size,
+            "data_files_size_in_mb": self.size_mb,
+            "video_files_size_in_mb": DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+            "data_path": DATA_PATH,
+            "video_path": None,
+            "robot_type": self.robot_type,
+            "splits": {"train": f"0:{self.E}"},
+        }
+        _write_json(self.root / INFO_PATH, info)
+        import shutil
+
+        shutil.rmtree(self.root / self.SPILL_DIR, ignore_errors=True)
+        self._closed = True
+
+    def abort(self) -> None:
+        """Close the open data file (an interrupted build: the caller removes ``root``)."""
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except Exception:  # noqa: BLE001 - best effort on the way out
+                pass
+            self._writer = None
+        self._closed = True
 
 
 def _check_positive_int(v, what: str) -> int:
@@ -253,24 +467,27 @@ def _row_bytes(a: np.ndarray) -> int:
     return a.dtype.itemsize * (1 if a.ndim == 1 else a.shape[1])
 
 
-def _assign_files(sizes: np.ndarray, limit_mb: int, chunks_size: int) -> np.ndarray:
-    """(chunk, file) per item: items never split; a new file starts when the current one
-    would reach ``limit_mb`` (lerobot: ``size + new >= limit``), files roll into the next
-    chunk every ``chunks_size`` files."""
-    limit = limit_mb * 1024**2
-    out = np.empty((len(sizes), 2), dtype=np.int64)
-    chunk = fidx = 0
-    cur = 0
-    for i, s in enumerate(sizes.tolist()):
-        if cur > 0 and cur + s >= limit:
-            if fidx == chunks_size - 1:
-                chunk, fidx = chunk + 1, 0
-            else:
-                fidx += 1
-            cur = 0
-        cur += s
-        out[i] = chunk, fidx
-    return out
+class _FileRoller:
+    """lerobot's file rule, one item at a time: items never split; a new file starts when
+    the current one would reach ``limit_mb`` (``size + new >= limit``), and files roll into
+    the next chunk every ``chunks_size`` files."""
+
+    def __init__(self, limit_mb: int, chunks_size: int):
+        self.limit, self.chunks_size = limit_mb * 1024**2, chunks_size
+        self.chunk = self.fidx = self.cur = 0
+
+    def assign(self, sizes) -> np.ndarray:
+        out = np.empty((len(sizes), 2), dtype=np.int64)
+        for i, s in enumerate(np.asarray(sizes).tolist()):
+            if self.cur > 0 and self.cur + s >= self.limit:
+                if self.fidx == self.chunks_size - 1:
+                    self.chunk, self.fidx = self.chunk + 1, 0
+                else:
+                    self.fidx += 1
+                self.cur = 0
+            self.cur += s
+            out[i] = self.chunk, self.fidx
+        return out
 
 
 def _arrow_column(a: np.ndarray) -> pa.Array:
@@ -293,30 +510,6 @@ def _groups(file_of: np.ndarray):
     change = np.flatnonzero(np.any(file_of[1:] != file_of[:-1], axis=1)) + 1
     bounds = np.concatenate(([0], change, [len(file_of)]))
     return [(int(file_of[a, 0]), int(file_of[a, 1]), int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-
-
-def _write_data_files(root: Path, arrays: dict, feats: dict, starts, ends, data_file) -> None:
-    schema = None
-    meta = {b"huggingface": json.dumps(_hf_features(feats)).encode()}
-    for chunk, fidx, e0, e1 in _groups(data_file):
-        a, b = int(starts[e0]), int(ends[e1 - 1])
-        table = pa.table([_arrow_column(arrays[k][a:b]) for k in feats], names=list(feats))
-        if schema is None:
-            schema = table.schema.with_metadata(meta)
-        table = table.replace_schema_metadata(meta)
-        path = root / DATA_PATH.format(chunk_index=chunk, file_index=fidx)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with pq.ParquetWriter(path, schema, compression=COMPRESSION, use_dictionary=["episode_index", "task_index"]) as w:
-            w.write_table(table, row_group_size=ROW_GROUP_SIZE)
-
-
-def _write_episode_files(root: Path, ep_cols: dict, meta_file) -> None:
-    names = list(ep_cols)
-    full = pa.table([pa.array(v) if isinstance(v, np.ndarray) else v for v in ep_cols.values()], names=names)
-    for chunk, fidx, a, b in _groups(meta_file):
-        path = root / EPISODES_PATH.format(chunk_index=chunk, file_index=fidx)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        pq.write_table(full.slice(a, b - a), path, compression=COMPRESSION, row_group_size=max(b - a, 1))
 
 
 def _write_tasks(root: Path, tasks: list[str]) -> None:
@@ -367,7 +560,9 @@ def _expand(idx, arr: np.ndarray, axis: int):
 
 
 def _global_stats(a: np.ndarray) -> dict:
-    """Stats of one feature over all frames, shapes as lerobot's compute_episode_stats."""
+    """Stats of one feature over all frames, shapes as lerobot's compute_episode_stats:
+    the in-memory definition (the bulk writer's before streaming), which the streamed
+    :func:`_sorted_stats` / :func:`_index_stats` reproduce bit for bit (tested)."""
     cols = a.reshape(len(a), -1)
     d = cols.shape[1]
     res = {k: np.empty(d) for k in STAT_KEYS if k != "count"}
@@ -420,15 +615,61 @@ def _episode_stats(a: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> di
     return out
 
 
-def _compute_stats(arrays: dict, feats: dict, starts, lengths, per_episode: bool):
-    stats = {}
-    ep_stats = {}
-    for k in feats:
-        g = _global_stats(arrays[k])
-        stats[k] = {s: g[s].tolist() for s in STAT_KEYS}
-        if per_episode:
-            ep_stats[k] = _episode_stats(arrays[k], starts, lengths)
-    return stats, ep_stats
+def _sorted_stats(get, n: int) -> dict:
+    """min/max/mean/std/quantiles of one dimension from its ``n`` values in ascending
+    order, read in pieces (``get(i0, i1)`` -> the values in their statistics dtype), bit
+    for bit what :func:`_global_stats` computes on the whole sorted column: NumPy's
+    float64 sum of a contiguous array adds pairwise within buffers of ``np.getbufsize()``
+    elements and sequentially across them (checked in tests/test_lerobot_format.py), so
+    adding the buffers' sums in order gives the same float."""
+    step = np.getbufsize()
+    total = 0.0
+    for i in range(0, n, step):
+        total += np.add.reduce(get(i, min(i + step, n)).astype(np.float64))
+    m = np.float64(total) / n
+    sq = 0.0
+    for i in range(0, n, step):
+        d = get(i, min(i + step, n)).astype(np.float64) - m
+        sq += np.add.reduce(d ** 2)
+    out = {"min": np.float64(get(0, 1)[0]), "max": np.float64(get(n - 1, n)[0]), "mean": m,
+           "std": np.sqrt(np.float64(sq) / n)}
+    nn = np.asarray(n)
+    for key, q in zip(QUANTILE_KEYS, QUANTILES):  # as _interp_quantiles
+        pos = q * (nn - 1)
+        lo = np.floor(pos).astype(np.int64)
+        hi = np.minimum(lo + 1, nn - 1)
+        frac = pos - lo
+        vlo = np.asarray(get(int(lo), int(lo) + 1)[:1]).astype(np.float64)
+        vhi = np.asarray(get(int(hi), int(hi) + 1)[:1]).astype(np.float64)
+        out[key] = (vlo + (vhi - vlo) * frac)[0]
+    return out
+
+
+def _index_stats(k: str, lengths: np.ndarray, fps: int) -> dict:
+    """Dataset-level stats of one of lerobot's index columns, from the episode lengths
+    alone (their sorted values are known without the frames)."""
+    F = int(lengths.sum())
+    if k == "index":
+        get = lambda i0, i1: np.arange(i0, i1, dtype=np.float64)  # noqa: E731
+    elif k == "task_index":
+        get = lambda i0, i1: np.zeros(i1 - i0)  # noqa: E731
+    else:
+        if k == "episode_index":  # sorted already: episode e repeated length[e] times
+            ends = np.cumsum(lengths)
+        else:  # frame_index / timestamp: value v occurs once per episode longer than v
+            ends = np.cumsum(np.bincount(lengths, minlength=int(lengths.max()) + 1)[::-1])[::-1][1:]
+            ends = np.cumsum(ends)
+
+        def rank(i0, i1):
+            return np.searchsorted(ends, np.arange(i0, i1), side="right")
+
+        if k == "timestamp":
+            get = lambda i0, i1: (rank(i0, i1) / float(fps)).astype(np.float32)  # noqa: E731
+        else:
+            get = lambda i0, i1: rank(i0, i1).astype(np.float64)  # noqa: E731
+    out = _sorted_stats(get, F)
+    out["count"] = F
+    return {s: [out[s]] for s in STAT_KEYS}
 
 
 # ----------------------------------------------------------------------------- reading
@@ -736,4 +977,4 @@ def _stray_files(root: Path, sub: str) -> list[str]:
     return out
 
 
-__all__ = ["write_dataset", "read_columns", "read_info", "check_structure", "DEFAULT_TASK", "DEFAULT_NAMES"]
+__all__ = ["write_dataset", "DatasetWriter", "read_columns", "read_info", "check_structure", "DEFAULT_TASK", "DEFAULT_NAMES"]

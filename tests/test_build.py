@@ -109,7 +109,7 @@ def test_estimate_is_logged_and_a_build_that_does_not_fit_refused(tmp_path, monk
     frames = int(line.split(" episodes, ")[1].split(" frames")[0].replace(",", ""))
     assert abs(frames - res.frames) < 0.15 * res.frames and "40 episodes" in line and "on disk" in line
     monkeypatch.setattr(est_mod, "available_memory", lambda: 50e6)  # less than the 200 MB base
-    monkeypatch.setattr(build_mod, "generate", lambda *a, **k: pytest.fail("started a build that cannot fit"))
+    monkeypatch.setattr(build_mod, "stream_dataset", lambda *a, **k: pytest.fail("started a build that cannot fit"))
     with pytest.raises(UserError, match=r"needs about 2\d\d\.\d MB of memory \(50\.0 MB available\).*--force"):
         build(DatasetSpec(goals=40, seed=4), tmp_path, progress=False, log=lambda *a: None)
     monkeypatch.undo()
@@ -121,16 +121,16 @@ def test_two_builds_of_one_version_at_once_both_succeed(tmp_path, monkeypatch):
     """The second to finish finds the first's result in place (rename fails: ENOTEMPTY),
     verifies it and keeps it instead of failing with 'Directory not empty'."""
     spec = DatasetSpec(goals=3, seed=5)
-    real = build_mod.generate
+    real = build_mod.stream_dataset
     first = []
 
-    def racing(s, progress=True):
-        data = real(s, progress)
-        monkeypatch.setattr(build_mod, "generate", real)
+    def racing(s, root, progress=True, runner=None):
+        data = real(s, root, progress, runner)
+        monkeypatch.setattr(build_mod, "stream_dataset", real)
         first.append(build(s, tmp_path, progress=False, log=lambda *a: None))  # the other process, finishing first
         return data
 
-    monkeypatch.setattr(build_mod, "generate", racing)
+    monkeypatch.setattr(build_mod, "stream_dataset", racing)
     said = []
     second = build(spec, tmp_path, progress=False, log=said.append)
     assert first[0].created and not second.created and second.path == first[0].path

@@ -45,6 +45,12 @@ def test_three_workers_give_the_single_process_bytes(tmp_path):
     _same_bytes(DatasetSpec(goals=120, seed=4), tmp_path, block=40)
 
 
+def test_three_workers_stream_a_noisy_recipe_byte_identically(tmp_path):
+    """Action noise (per-block noise streams), no continuations: the streamed path, each
+    block written as it comes back from its worker."""
+    _same_bytes(DatasetSpec(goals=90, seed=3, action_noise=(1.0, 0.5)), tmp_path, block=30)
+
+
 @pytest.mark.slow
 def test_sharded_recipe_with_continuations_is_byte_identical_and_validates(tmp_path):
     """Action noise (per-block noise streams) and continuation episodes (a second part
