@@ -64,6 +64,7 @@ COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp, "e
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``aerohrl`` command: dispatch ``argv[0]`` to its subcommand; returns the exit code."""
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help"):
         print(USAGE)

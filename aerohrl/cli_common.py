@@ -29,7 +29,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from aerohrl import cli_types as T
 
@@ -49,7 +49,7 @@ class _Deprecated(argparse.Action):
         setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
 
 
-def deprecated(p: argparse.ArgumentParser, old: str, new: str, dest: str, *, flag: bool = False, type=None) -> None:
+def deprecated(p: argparse.ArgumentParser, old: str, new: str, dest: str, *, flag: bool = False, type: Callable[[str], Any] | None = None) -> None:
     """``old`` as a hidden alias of ``new`` (same ``dest``): it works and prints a deprecation note.
     ``flag``: a switch (no value; stores True)."""
     kw: dict[str, Any] = {"nargs": 0, "const": True} if flag else {"type": type}
@@ -99,7 +99,7 @@ def add_common(p: argparse.ArgumentParser, *, out: dict | None = None, quiet: bo
     return p
 
 
-def add_run(p: argparse.ArgumentParser, *, help: str, type=Path) -> None:
+def add_run(p: argparse.ArgumentParser, *, help: str, type: Callable[[str], Any] = Path) -> None:
     """The run a command reads, as ``RUN`` or ``--run RUN`` (``aerohrl eval``'s spelling), either one;
     checked by :class:`aerohrl.errors.ArgumentParser` (``p`` must be one)."""
     p.add_argument("run", nargs="?", type=type, default=None, metavar="RUN", help=f"{help} (or --run RUN)")

@@ -43,6 +43,7 @@ nonneg_float = _bounded(float, 0.0, False, "nonneg_float")
 
 
 def finite_float(text: str) -> float:
+    """A finite float (argparse type): ``nan`` and ``inf`` are refused with a one-line error."""
     return _number(float, text)
 
 

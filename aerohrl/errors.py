@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Callable
+from typing import Any, Callable, NoReturn, Sequence
 
 
 class UserError(Exception):
@@ -66,11 +66,14 @@ class ArgumentParser(argparse.ArgumentParser):
     declared not required to argparse, which cannot see the old spelling as the same
     flag, and listed in ``required_dests``: checked here after parsing."""
 
-    def error(self, message: str):  # noqa: D401 - argparse API
+    def error(self, message: str) -> NoReturn:  # noqa: D401 - argparse API
+        """Print ``PROG: error: MESSAGE (see --help)`` and exit with status 2."""
         print(f"{self.prog}: error: {message} (see --help)", file=sys.stderr)
         sys.exit(2)
 
-    def parse_known_args(self, args=None, namespace=None):
+    def parse_known_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> tuple[Any, list[str]]:  # type: ignore[override]
+        """``argparse``'s parse, then the run given as ``RUN`` or ``--run RUN`` merged into
+        ``namespace.run`` (two different runs -> error)."""
         namespace, extras = super().parse_known_args(args, namespace)
         if getattr(self, "run_positional", False):  # RUN or --run RUN (aerohrl.cli_common.add_run)
             flag = namespace.__dict__.pop("run_flag", None)

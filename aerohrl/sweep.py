@@ -28,6 +28,7 @@ the runs that differ only in their seed are aggregated (eval/results.py: mean ±
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import itertools
 import os
@@ -38,6 +39,7 @@ import time
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, Callable
 
 from aerohrl import atomic
 from aerohrl import cli_types as T
@@ -53,7 +55,7 @@ EVAL_TASKS = ("reach-desired", "reach-intermediate")
 # ----------------------------------------------------------------------------- Ray
 
 
-def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpus: int | None = None):
+def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpus: int | None = None) -> Any:
     """``ray`` initialised: joined to the cluster at ``address`` (``host:port`` or
     ``auto``; unreachable -> UserError), or a local Ray of ``num_cpus`` cores, no
     dashboard, a 500 MB object store."""
@@ -119,6 +121,7 @@ class SweepSpec:
     checkpoints: int = 10
 
     def to_toml(self) -> str:
+        """The grid as TOML (what ``--config`` reads back), saved as ``OUT/sweep.toml``."""
         lines = ["# aerohrl sweep grid (written by `aerohrl sweep`; rerun with --config this file)"]
         for k in ("algos", "seeds", "datasets", "preset", "tasks", "episodes", "checkpoints"):
             lines.append(f"{k} = {_toml_value(getattr(self, k))}")
@@ -198,7 +201,7 @@ def check_spec(sp: SweepSpec) -> SweepSpec:
     return sp
 
 
-def load_spec(path: Path | None, a) -> SweepSpec:
+def load_spec(path: Path | None, a: argparse.Namespace) -> SweepSpec:
     """The grid: ``--config`` TOML, with the flags given on top."""
     d: dict = {}
     if path is not None:
@@ -258,6 +261,7 @@ class Point:
     overrides: tuple  # ((key, value), ...) of the [grid]
 
     def name(self) -> str:
+        """The run's folder name: ``ALGO-DATASET[-KEYVALUE...]-sSEED``."""
         ov = "".join(f"-{k}{_label(v)}" for k, v in self.overrides)
         return f"{self.algo}-{Path(self.dataset).name}{ov}-s{self.seed}"
 
@@ -268,6 +272,7 @@ def _label(v) -> str:
 
 
 def points(sp: SweepSpec) -> list[Point]:
+    """Every grid point of ``sp``: datasets x grid combinations x algorithms x seeds."""
     keys = sorted(sp.grid)
     combos = list(itertools.product(*(sp.grid[k] for k in keys))) or [()]
     return [Point(a, s, d, tuple(zip(keys, (tuple(v) if isinstance(v, list) else v for v in combo))))
@@ -386,7 +391,10 @@ def write_tables(out: Path, names: list[str]) -> str:
 
 
 def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus: int | None = None, cpus_per_run: int = 1,
-              gpus_per_run: float | None = None, max_retries: int = 3, evaluate: bool = True, log=print) -> dict:
+              gpus_per_run: float | None = None, max_retries: int = 3, evaluate: bool = True, log: Callable[[str], Any] = print) -> dict:
+    """Train every grid point of ``sp`` on Ray into ``out/runs``, evaluate each as soon as it
+    is trained (unless ``evaluate=False``) and write ``sweep-report.json`` and the tables;
+    returns the report (``{"runs": ..., "errors": ...}``, as ``train_on_ray``)."""
     out = Path(out)
     _check_saved(out, sp, write=False)  # before Ray starts; nothing is written until it runs
     pts = points(sp)
@@ -438,8 +446,8 @@ def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus:
     return report
 
 
-def train_on_ray(ray, items: list[tuple[str, str, dict]], *, cpus_per_run: int = 1, gpus: float = 0, max_retries: int = 3,
-                 log=print, on_trained=None) -> dict:
+def train_on_ray(ray: Any, items: list[tuple[str, str, dict]], *, cpus_per_run: int = 1, gpus: float = 0, max_retries: int = 3,
+                 log: Callable[[str], Any] = print, on_trained: Callable[[str, dict], Any] | None = None) -> dict:
     """Train every ``(label, run folder, config dict)`` as one Ray task (``train_task``)
     declaring ``cpus_per_run`` CPUs and ``gpus`` GPUs, retried ``max_retries`` times when
     its worker dies; ``on_trained(label, result)`` as each one ends. The longest-first
@@ -466,7 +474,7 @@ def train_on_ray(ray, items: list[tuple[str, str, dict]], *, cpus_per_run: int =
 
 
 def train_runs(items: list[tuple[str, str, dict]], *, address: str | None = None, num_cpus: int | None = None,
-               log=print) -> dict[str, dict]:
+               log: Callable[[str], Any] = print) -> dict[str, dict]:
     """``train_on_ray`` on a local Ray of ``num_cpus`` cores (started and stopped here) or
     the cluster at ``address``, one CPU per run: what ``make results`` trains through
     (eval/reproduce.py). The result of each run by label; UserError when any failed."""
@@ -499,6 +507,7 @@ def _one_line(e: BaseException) -> str:
 
 
 def parser() -> ArgumentParser:
+    """The ``aerohrl sweep`` argument parser."""
     ap = ArgumentParser(prog=PROG, description="Train a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, "
                         "evaluate them and write seed-aggregated tables.")
     ap.add_argument("--config", type=Path, default=None, help="sweep grid, TOML or .yaml (keys: algos, seeds, datasets, "
@@ -528,6 +537,7 @@ def parser() -> ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``aerohrl sweep``: train, evaluate and tabulate a grid; returns the exit code."""
     a = parser().parse_args(argv)
 
     def go() -> int:

@@ -25,6 +25,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+    import torch
+
+    Array = np.ndarray | torch.Tensor  # every function takes either (module docstring)
 
 STATE_DIM = 18
 GOAL_DIM = 15
@@ -52,6 +59,7 @@ class GoalTolerance:
     rot: float = 0.15
 
     def scaled(self, k: float) -> "GoalTolerance":
+        """Every tolerance multiplied by ``k`` (near success: ``k = 2.5``)."""
         return GoalTolerance(self.pos * k, self.vel * k, self.rot * k)
 
 
@@ -72,30 +80,30 @@ def _cat(parts, axis=-1):
     return np.concatenate(parts, axis=axis)
 
 
-def achieved_goal(state):
+def achieved_goal(state: Array) -> Array:
     """``[p, v, R]`` of a state (18) -> goal (15)."""
     return state[..., :GOAL_DIM]
 
 
-def policy_inputs(state, goal):
+def policy_inputs(state: Array, goal: Array) -> tuple[Array, Array]:
     """Translation-invariant network inputs: ``([v, R, w], [p_g - p, v_g, R_g])``."""
     obs = state[..., 3:STATE_DIM]
     rel = _cat([goal[..., POS] - state[..., POS], goal[..., 3:GOAL_DIM]])
     return obs, rel
 
 
-def rotation_cosine(R_flat, Rg_flat):
+def rotation_cosine(R_flat: Array, Rg_flat: Array) -> Array:
     """cos of the geodesic angle between two flattened rotations: (tr(R^T R_g) - 1) / 2."""
     return (((R_flat * Rg_flat).sum(-1)) - 1.0) * 0.5
 
 
-def goal_errors(achieved, goal):
+def goal_errors(achieved: Array, goal: Array) -> tuple[Array, Array, Array]:
     """Position error (m), velocity error (m/s) and geodesic rotation angle (rad)."""
     dp = ((achieved[..., POS] - goal[..., POS]) ** 2).sum(-1) ** 0.5
     dv = ((achieved[..., VEL] - goal[..., VEL]) ** 2).sum(-1) ** 0.5
     c = rotation_cosine(achieved[..., ROT], goal[..., ROT]).clip(-1.0, 1.0)
     if _is_torch(c):
-        ang = c.arccos()
+        ang = c.arccos()  # type: ignore[union-attr]
     else:
         import numpy as np
 
@@ -103,7 +111,7 @@ def goal_errors(achieved, goal):
     return dp, dv, ang
 
 
-def goal_reached(achieved, goal, tol: GoalTolerance = TOLERANCE):
+def goal_reached(achieved: Array, goal: Array, tol: GoalTolerance = TOLERANCE) -> Array:
     """The goal-reached test (boolean per leading index).
 
     The rotation condition is checked as ``cos(angle) >= cos(eps_r)``, equivalent to
@@ -115,6 +123,6 @@ def goal_reached(achieved, goal, tol: GoalTolerance = TOLERANCE):
     return (dp2 <= tol.pos**2) & (dv2 <= tol.vel**2) & (c >= math.cos(tol.rot))
 
 
-def near_success(achieved, goal, tol: GoalTolerance = TOLERANCE):
+def near_success(achieved: Array, goal: Array, tol: GoalTolerance = TOLERANCE) -> Array:
     """The goal-reached test with every tolerance x 2.5 (thesis §3.5)."""
     return goal_reached(achieved, goal, tol.scaled(NEAR_SUCCESS_SCALE))
