@@ -26,6 +26,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -71,6 +72,7 @@ class ExpertData:
 
     @property
     def episode_success(self) -> np.ndarray:
+        """Per episode (``len(T)``): True when any of its steps reached the goal."""
         return np.bincount(self.episode_index, weights=self.success, minlength=len(self.T)) > 0
 
 
@@ -85,7 +87,7 @@ class BuildResult:
     seconds: float
 
 
-def plan_references(spec: DatasetSpec, rng: np.random.Generator, n: int | None = None, sample_starts=None):
+def plan_references(spec: DatasetSpec, rng: np.random.Generator, n: int | None = None, sample_starts: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Sample rho_D and solve each goal's minimum-time reference; resample infeasible goals.
 
     Returns (goals, T, coeffs, resampled, sources). Replacement goals come from the same
@@ -140,7 +142,7 @@ class Rollout:
 
 
 def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool = True,
-                   start_state=None, rotor_speeds=None, record_rotors: bool = False,
+                   start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False,
                    noise_rng: np.random.Generator | None = None) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
 
@@ -255,7 +257,7 @@ def block_bounds(n: int, block: int | None = None) -> np.ndarray:
 
 
 def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-               start_state=None, rotor_speeds=None, record_rotors: bool = False, runner=None):
+               start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False, runner: BlockRunner | None = None) -> Iterator[tuple[int, int, _Frames]]:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
     ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
     episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of
@@ -283,7 +285,7 @@ def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray
 
 
 def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-        start_state=None, rotor_speeds=None, record_rotors: bool = False, runner=None) -> _Frames:
+        start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False, runner: BlockRunner | None = None) -> _Frames:
     """All frames of :func:`fly_blocks` in arrays allocated once (their size is known from
     T): what :func:`generate` keeps in memory. ``datagen build`` streams the blocks to
     disk instead (:func:`stream_dataset`)."""
@@ -333,7 +335,9 @@ class BlockRunner:
             # spawn: a clean interpreter per worker (no forked threads or locks)
             self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"))
 
-    def map(self, fn, arg_iter):
+    def map(self, fn: Callable[..., Any], arg_iter: Iterable[tuple]) -> Iterator[Any]:
+        """``fn(*args)`` for each ``args`` of ``arg_iter`` in the workers, at most ``workers`` in flight;
+        the results in the order of ``arg_iter``."""
         from collections import deque
 
         window = deque()
@@ -347,13 +351,14 @@ class BlockRunner:
             yield get(window.popleft())
 
     def close(self) -> None:
+        """Stop the worker processes (pending blocks are cancelled)."""
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
 
 
 def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.ndarray, ep: np.ndarray, k: np.ndarray,
-                       state: np.ndarray):
+                       state: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Starts and references of the continuation episodes (``spec.continuations``).
 
     A start is a recorded frame of a rest-start flight, drawn uniformly (``ep``, ``k``,
@@ -375,7 +380,7 @@ def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.n
     return plan_references(spec, rng, spec.continuations, sample_starts)
 
 
-def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray):
+def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
     """The goal episodes of the recipe: each goal flown ``rollouts_per_goal`` times
     (goal-major), from rest or from perturbed starts. Returns (goals, T, coeffs,
     start_state or None, goal_index). A perturbed start whose reference to its goal is
@@ -574,6 +579,7 @@ class EpisodeSummary:
 
     @property
     def frames(self) -> int:
+        """The number of recorded frames (sum of the episode lengths)."""
         return int(self.length.sum())
 
 
@@ -623,6 +629,8 @@ def episode_table(data: "EpisodeSummary | ExpertData") -> pa.Table:
 
 
 def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: str) -> dict:
+    """The dataset's ``aerohrl`` metadata: spec, hash, versions, vehicle and controller
+    parameters, task layout and the episode statistics of ``data``."""
     if isinstance(data, ExpertData):
         data = summarize(data)
     params = get_preset(spec.vehicle)
@@ -771,7 +779,7 @@ def _continuation_note(meta: dict) -> str:
             "state one of the rest-start flights passes through, moved to the origin)")
 
 
-def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log=print, force: bool = False,
+def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log: Callable[[str], Any] = print, force: bool = False,
           workers: int = 1, ray_address: str | None = None) -> BuildResult:
     """Build ``<out>/<name>/<version>/`` for ``spec``; verify instead if it exists.
 

@@ -66,6 +66,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
 
 
 def parser() -> argparse.ArgumentParser:
+    """The ``datagen`` argument parser (build, info, validate, export, push, plot)."""
     ap = ArgumentParser(prog=PROG, description="Expert quadrotor data as versioned LeRobot v3.0 datasets (thesis §3.4.1).")
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
 
@@ -118,7 +119,8 @@ def parser() -> argparse.ArgumentParser:
     return ap
 
 
-def cmd_build(a) -> int:
+def cmd_build(a: argparse.Namespace) -> int:
+    """``datagen build``: build (or verify) the dataset of the spec given; exit code."""
     set_threads(a.threads, torch=False)  # before numpy loads: the simulator is numpy, and so are the workers
     from aerohrl.datagen.build import build
     from aerohrl.datagen.spec import load_spec
@@ -140,7 +142,8 @@ def cmd_build(a) -> int:
     return 0
 
 
-def cmd_info(a) -> int:
+def cmd_info(a: argparse.Namespace) -> int:
+    """``datagen info``: print a dataset's manifest (``--json``: as JSON); exit code."""
     from aerohrl.datagen.manifest import read_manifest
 
     meta = read_manifest(a.path)
@@ -168,7 +171,8 @@ def cmd_info(a) -> int:
     return 0
 
 
-def cmd_validate(a) -> int:
+def cmd_validate(a: argparse.Namespace) -> int:
+    """``datagen validate``: check a dataset against its manifest; exit code 1 on problems."""
     from aerohrl.datagen.manifest import validate
 
     if not a.path.is_dir():
@@ -196,7 +200,8 @@ def warn_if_damaged(path: Path) -> list[str]:
     return problems
 
 
-def cmd_export_mcap(a) -> int:
+def cmd_export_mcap(a: argparse.Namespace) -> int:
+    """``datagen export-mcap``: episodes as MCAP files for Foxglove; exit code."""
     from aerohrl.datagen.mcap_export import export_mcap
 
     warn_if_damaged(a.path)
@@ -205,7 +210,8 @@ def cmd_export_mcap(a) -> int:
     return 0
 
 
-def cmd_export(a) -> int:
+def cmd_export(a: argparse.Namespace) -> int:
+    """``datagen export --format mcap|minari|ogbench``: convert a dataset; exit code."""
     from aerohrl.datagen import exchange
 
     warn_if_damaged(a.path)
@@ -232,7 +238,8 @@ def cmd_export(a) -> int:
     return 0
 
 
-def cmd_push(a) -> int:
+def cmd_push(a: argparse.Namespace) -> int:
+    """``datagen push``: stage a dataset with our card and licence and upload it to the Hub; exit code."""
     import tempfile
 
     from aerohrl.datagen import exchange
@@ -257,7 +264,8 @@ def cmd_push(a) -> int:
     return 0
 
 
-def cmd_plot(a) -> int:
+def cmd_plot(a: argparse.Namespace) -> int:
+    """``datagen plot``: overview figures of a dataset; exit code."""
     from aerohrl.datagen.plots import plot_dataset
 
     warn_if_damaged(a.path)
@@ -271,6 +279,7 @@ COMMANDS = {"build": cmd_build, "info": cmd_info, "validate": cmd_validate, "exp
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``datagen`` command; returns the exit code."""
     args = parser().parse_args(argv)
     return run_cli(PROG, lambda: COMMANDS[args.cmd](args))
 

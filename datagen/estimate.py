@@ -31,8 +31,12 @@ import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from aerohrl.datagen.spec import DatasetSpec
 
 DISK_BYTES_PER_FRAME = 195
 MEMORY_BYTES_PER_FRAME = 650
@@ -54,7 +58,7 @@ class Estimate:
     scratch: float = 0.0  # temporary disk bytes during the build (the statistics spill)
 
 
-def estimate(spec, workers: int = 1) -> Estimate:
+def estimate(spec: DatasetSpec, workers: int = 1) -> Estimate:
     """Expected frames, disk and peak memory of building ``spec`` (from a sample of its
     goals) with ``workers`` processes flying the blocks."""
     from aerohrl.datagen.build import ROLLOUT_BLOCK, block_bounds, plan_references
@@ -97,7 +101,7 @@ def available_memory() -> float:
     return float(avail)
 
 
-def available_disk(folder) -> float:
+def available_disk(folder: str | Path) -> float:
     """Free bytes on the file system of ``folder`` (its nearest existing ancestor)."""
     p = Path(folder).absolute()
     while not p.exists():
@@ -106,6 +110,7 @@ def available_disk(folder) -> float:
 
 
 def human(n: float) -> str:
+    """``n`` bytes as a short decimal size (``12.3 MB``)."""
     for unit in ("B", "kB", "MB", "GB", "TB", "PB"):
         if abs(n) < 1000 or unit == "PB":
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"

@@ -75,7 +75,7 @@ def minari_id(meta: dict) -> str:
     return f"aerohrl/{meta.get('name', 'quadrotor-reach')}/{meta['version']}-v0"
 
 
-def export_minari(root, dataset_id: str | None = None, out: str | Path | None = None) -> Path:
+def export_minari(root: str | Path, dataset_id: str | None = None, out: str | Path | None = None) -> Path:
     """Write dataset ``root`` as the Minari dataset ``dataset_id`` and return its folder.
 
     ``out`` is the Minari datasets root (default: ``$MINARI_DATASETS_PATH``, else
@@ -159,7 +159,7 @@ def _minari_buffers(cols: dict, EpisodeBuffer) -> list:
 # ----------------------------------------------------------------------------- OGBench
 
 
-def export_ogbench(root, out) -> Path:
+def export_ogbench(root: str | Path, out: str | Path) -> Path:
     """Write dataset ``root`` as an OGBench ``.npz`` at ``out`` (see the module docstring)."""
     root, out = Path(root), Path(out)
     if out.suffix != ".npz":
@@ -196,7 +196,7 @@ def export_ogbench(root, out) -> Path:
 
 # ----------------------------------------------------------------------------- the Hub
 
-def stage_push(root, staging, license_file: str | Path | None = None) -> Path:
+def stage_push(root: str | Path, staging: str | Path, license_file: str | Path | None = None) -> Path:
     """Copy dataset ``root`` to ``staging`` as it will be uploaded and return the folder.
 
     lerobot 0.6's ``LeRobotDataset.push_to_hub`` uploads the folder, then always pushes
@@ -242,7 +242,7 @@ def _project_license() -> Path:
     raise UserError("the project's LICENSE file was not found")
 
 
-def push(staging, repo_id: str, private: bool = False) -> str:  # pragma: no cover - needs the network
+def push(staging: str | Path, repo_id: str, private: bool = False) -> str:  # pragma: no cover - needs the network
     """Upload a folder made by :func:`stage_push` to the Hub dataset repo ``repo_id``:
     the calls of lerobot's ``push_to_hub`` (create the repo, upload the folder, tag the
     revision with lerobot's ``CODEBASE_VERSION``, which its loader asks for) without

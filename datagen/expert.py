@@ -66,6 +66,7 @@ class ControllerGains:
     yaw_rate_max: float = 5.0  # rad/s
 
     def to_dict(self) -> dict:
+        """The gains as a JSON-ready dict (the gain vectors as lists)."""
         d = asdict(self)
         for k in ("k_p", "k_v", "k_R"):
             d[k] = list(d[k])
@@ -105,7 +106,7 @@ class GeometricController:
         hi = np.concatenate([[self._c_max], self._rate_lim])
         return lo, hi
 
-    def desired(self, state, ref_pos, ref_vel, ref_acc, yaw=0.0):
+    def desired(self, state: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray, ref_acc: np.ndarray, yaw: float | np.ndarray = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """``(a_des, e_v)`` (N, 3) each: desired acceleration incl. gravity, and velocity error."""
         s = np.asarray(state, dtype=np.float64)
         e_p = s[:, 0:3] - ref_pos

@@ -55,7 +55,7 @@ def _check_range(name: str, r, *, non_negative: bool = False) -> tuple[float, fl
     return lo, hi
 
 
-def flat_attitude(acc, yaw=0.0) -> np.ndarray:
+def flat_attitude(acc: np.ndarray, yaw: float | np.ndarray = 0.0) -> np.ndarray:
     """Attitude that produces acceleration ``acc`` at yaw ``yaw`` (differential flatness).
 
     ``acc``: (..., 3) world-frame acceleration (m/s^2, gravity *not* included: the map
@@ -91,9 +91,9 @@ def sample_goals(
     rng: np.random.Generator,
     n: int,
     *,
-    pos_range=(1.0, 2.0),
-    vel_range=(-2.5, 2.5),
-    acc_range=(-5.0, 5.0),
+    pos_range: tuple[float, float] = (1.0, 2.0),
+    vel_range: tuple[float, float] = (-2.5, 2.5),
+    acc_range: tuple[float, float] = (-5.0, 5.0),
     yaw: float = 0.0,
 ) -> dict[str, np.ndarray]:
     """Sample ``n`` desired goals: ``{"pos", "vel", "acc"}`` (n, 3) and ``"R"`` (n, 3, 3).

@@ -98,9 +98,9 @@ _STATS_BLOCK_CELLS = 1 << 18
 
 
 def write_dataset(
-    root,
+    root: str | Path,
     columns: dict[str, np.ndarray],
-    episode_index,
+    episode_index: np.ndarray,
     *,
     fps: int = 100,
     task: str = DEFAULT_TASK,
@@ -173,7 +173,7 @@ class DatasetWriter:
         self._closed = False
 
     # -- frames
-    def append(self, columns: dict[str, np.ndarray], lengths) -> None:
+    def append(self, columns: dict[str, np.ndarray], lengths: np.ndarray | list[int]) -> None:
         """Append whole episodes: ``columns`` as for :func:`write_dataset`, ``lengths``
         the frames of each (their sum is the columns' length)."""
         if self._closed:
@@ -675,7 +675,7 @@ def _index_stats(k: str, lengths: np.ndarray, fps: int) -> dict:
 # ----------------------------------------------------------------------------- reading
 
 
-def read_info(root) -> dict:
+def read_info(root: str | Path) -> dict:
     """``meta/info.json`` as a dict; UserError if missing, unreadable or not v3.0."""
     path = Path(root) / INFO_PATH
     try:
@@ -720,7 +720,7 @@ def _column_to_numpy(col: pa.ChunkedArray, shape) -> np.ndarray:
     return arr.to_numpy(zero_copy_only=False)
 
 
-def read_columns(root) -> dict[str, np.ndarray]:
+def read_columns(root: str | Path) -> dict[str, np.ndarray]:
     """Every feature of the dataset at ``root`` as numpy arrays, without torch or lerobot:
     vector features ``(F, n)``, scalar features (shape ``(1,)``, including
     ``episode_index``, ``frame_index``, ``index``, ``timestamp``, ``task_index``) ``(F,)``,
@@ -774,7 +774,7 @@ def _expected_arrow_type(ft: dict) -> pa.DataType | None:
     return None
 
 
-def check_structure(root) -> list[str]:
+def check_structure(root: str | Path) -> list[str]:
     """Structural problems of the LeRobot v3.0 dataset at ``root`` (empty: none found).
 
     Checks the files lerobot needs, info.json totals against the data and episodes

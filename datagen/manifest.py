@@ -19,6 +19,7 @@ import json
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +60,7 @@ def _jsonable(obj, where: str = "metadata"):
     raise ValueError(f"{where}: {type(obj).__name__} is not JSON-serialisable")
 
 
-def canonical_json(obj) -> bytes:
+def canonical_json(obj: Any) -> bytes:
     """The one serialisation of a manifest: sorted keys, indent 2, UTF-8, newline."""
     return (json.dumps(obj, sort_keys=True, indent=2, ensure_ascii=False, allow_nan=False) + "\n").encode("utf-8")
 
@@ -79,7 +80,7 @@ def _dataset_files(root: Path) -> list[str]:
     return sorted(out)
 
 
-def write_manifest(root, metadata: dict) -> dict:
+def write_manifest(root: str | Path, metadata: dict) -> dict:
     """Write ``meta/aerohrl.json`` = ``metadata`` + checksums of every other file under
     ``root`` + the self-hash; return the manifest written. Call it last."""
     root = Path(root)
@@ -124,7 +125,7 @@ def _load(root: Path) -> tuple[dict | None, list[str]]:
     return m, problems
 
 
-def read_manifest(root) -> dict:
+def read_manifest(root: str | Path) -> dict:
     """The manifest of the dataset at ``root``; UserError if missing or corrupt."""
     root = Path(root)
     m, problems = _load(root)
@@ -133,7 +134,7 @@ def read_manifest(root) -> dict:
     return m
 
 
-def validate(root) -> list[str]:
+def validate(root: str | Path) -> list[str]:
     """Every integrity problem of the dataset at ``root`` (empty list: intact): the
     manifest itself, each file's SHA-256, missing and unexpected files, and the LeRobot
     structure (:func:`aerohrl.datagen.lerobot_format.check_structure`)."""

@@ -190,7 +190,7 @@ def _q(q) -> dict:
     return {"x": float(q[0]), "y": float(q[1]), "z": float(q[2]), "w": float(q[3])}
 
 
-def export_mcap(root, episode: int, out_path) -> dict[str, int]:
+def export_mcap(root: str | Path, episode: int, out_path: str | Path) -> dict[str, int]:
     """Write episode ``episode`` of the dataset at ``root`` to ``out_path`` (MCAP, zstd
     chunks, JSON messages); return the number of messages per topic."""
     from mcap.writer import CompressionType, Writer

@@ -243,7 +243,7 @@ def _max_acc_quintic_tau(d: np.ndarray) -> np.ndarray:
     return best
 
 
-def min_jerk_closed_form(x0, xf, T) -> np.ndarray:
+def min_jerk_closed_form(x0: np.ndarray, xf: np.ndarray, T: float | np.ndarray) -> np.ndarray:
     """Unconstrained minimum-jerk quintics (MHD 2015), batched over N and the 3 axes.
 
     ``x0, xf``: (N, 3, 3) ``[n, axis, (p, v, a)]``; ``T``: scalar or (N,) seconds (> 0).
@@ -261,7 +261,7 @@ def min_jerk_closed_form(x0, xf, T) -> np.ndarray:
     return _to_power(_quintic_tau(x0, xf, T), T)
 
 
-def max_acceleration(coeffs, T) -> np.ndarray:
+def max_acceleration(coeffs: np.ndarray, T: float | np.ndarray) -> np.ndarray:
     """Exact ``max_{t in [0, T]} |a_i(t)|`` per reference and axis -> (N, 3).
 
     Degree <= 5: analytic (end points and the real roots of the quadratic jerk).
@@ -296,7 +296,7 @@ def max_acceleration(coeffs, T) -> np.ndarray:
     return out / (T * T)[:, None]
 
 
-def jerk_cost(coeffs, T) -> np.ndarray:
+def jerk_cost(coeffs: np.ndarray, T: float | np.ndarray) -> np.ndarray:
     """``int_0^T x'''(t)^2 dt`` per reference and axis -> (N, 3) (exact, via the Gram matrix)."""
     c = _coeffs(coeffs)
     T = _durations(T, c.shape[0])
@@ -305,7 +305,7 @@ def jerk_cost(coeffs, T) -> np.ndarray:
     return np.einsum("naj,jk,nak->na", d, H, d) / T[:, None] ** 5
 
 
-def evaluate(coeffs, t, order: int = 0) -> np.ndarray:
+def evaluate(coeffs: np.ndarray, t: float | np.ndarray, order: int = 0) -> np.ndarray:
     """Derivative ``order`` of the polynomials at times ``t`` (s, from the start).
 
     ``coeffs`` (N, 3, D). ``t``: scalar or (N,) -> (N, 3); (N, K) -> (N, K, 3).
@@ -483,7 +483,7 @@ def _padded_quintic(x0, xf, T, degree) -> np.ndarray:
     return c
 
 
-def min_jerk_qp(x0, xf, T, *, degree: int = DEGREE, a_max: float = A_MAX, n_samples: int | None = None):
+def min_jerk_qp(x0: np.ndarray, xf: np.ndarray, T: float | np.ndarray, *, degree: int = DEGREE, a_max: float = A_MAX, n_samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Acceleration-bounded minimum-jerk polynomials by QP (OSQP), one per reference and axis.
 
     Returns ``(coeffs (N, 3, degree + 1), feasible (N,))``. A reference is feasible iff
@@ -526,8 +526,8 @@ def _cf_feasible(x0, xf, T, a_max) -> np.ndarray:
 
 
 def min_time(
-    x0,
-    xf,
+    x0: np.ndarray,
+    xf: np.ndarray,
     *,
     a_max: float = A_MAX,
     t_lo: float = T_LO,
@@ -536,7 +536,7 @@ def min_time(
     solver: str = "closed-form",
     degree: int = DEGREE,
     n_samples: int | None = None,
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimum duration by bisection (thesis Alg. 1) -> ``(T (N,), coeffs (N, 3, degree+1), feasible (N,))``.
 
     ``T`` is the feasible end ``t_max`` of the final bracket (width < ``tol``); one ``T``

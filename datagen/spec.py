@@ -16,6 +16,7 @@ import math
 import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 from aerohrl.errors import UserError
 
@@ -155,9 +156,12 @@ class DatasetSpec:
 
     @property
     def noisy(self) -> bool:
+        """True when any action-noise standard deviation is positive."""
         return any(x > 0 for x in self.action_noise)
 
     def to_dict(self) -> dict:
+        """The spec as a JSON-ready dict (tuples as lists); fields added after datasets were
+        published are left out at their defaults, so the hashes of those datasets hold."""
         d = dataclasses.asdict(self)
         for f in ("pos_range", "vel_range", "acc_range", "action_noise"):
             d[f] = list(d[f])
@@ -177,6 +181,7 @@ class DatasetSpec:
 
     @property
     def dt(self) -> float:
+        """The control period ``1 / fps`` (s)."""
         return 1.0 / self.fps
 
 
@@ -192,7 +197,7 @@ def _four_floats(x) -> tuple[float, float, float, float]:
     return t
 
 
-def load_spec(path: str | Path | None = None, **overrides) -> DatasetSpec:
+def load_spec(path: str | Path | None = None, **overrides: Any) -> DatasetSpec:
     """Spec from a TOML file (or the defaults), with non-None overrides applied."""
     values: dict = {}
     if path is not None:
@@ -215,6 +220,8 @@ def load_spec(path: str | Path | None = None, **overrides) -> DatasetSpec:
 
 
 def spec_hash(spec: DatasetSpec) -> str:
+    """SHA-256 (hex) of the canonical JSON of the spec and ``GENERATOR_VERSION``: the
+    dataset's identity."""
     blob = json.dumps({"spec": spec.to_dict(), "generator": GENERATOR_VERSION}, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()
 
