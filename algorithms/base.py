@@ -15,10 +15,17 @@ the dataset normaliser.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 from torch import nn
 
 from aerohrl.algorithms.networks import Normalizer, ensemble_values
+
+if TYPE_CHECKING:
+    from tensordict import TensorDict
+
+    from aerohrl.algorithms.config import TrainConfig
 
 
 class Algorithm(nn.Module):
@@ -31,10 +38,12 @@ class Algorithm(nn.Module):
         self.num_updates = 0
 
     # --- to implement -------------------------------------------------------------
-    def update(self, batch) -> dict[str, torch.Tensor]:  # pragma: no cover - interface
+    def update(self, batch: TensorDict) -> dict[str, torch.Tensor]:  # pragma: no cover - interface
+        """One gradient step of every network on ``batch``; the losses (detached) by name."""
         raise NotImplementedError
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:  # pragma: no cover - interface
+        """The optimisers by name (checkpointed with the weights)."""
         raise NotImplementedError
 
     def policy_net(self) -> nn.Module:  # pragma: no cover - interface
@@ -57,13 +66,13 @@ class Algorithm(nn.Module):
             self.policy_ema = AveragedModel(self.policy_net(), multi_avg_fn=get_ema_multi_avg_fn(self.cfg.ema_decay))
 
     @staticmethod
-    def critic_batch(batch):
+    def critic_batch(batch: TensorDict) -> TensorDict:
         """The batch the critic ensemble learns from: its own goals when the sampler drew
         them (``--critic-random-goal-prob``, key ``"critic"``), else the actor's batch."""
         return batch.get("critic") if "critic" in batch.keys() else batch
 
     @staticmethod
-    def actor_batch(batch):
+    def actor_batch(batch: TensorDict) -> TensorDict:
         """The batch the policy imitates: the flown ``action`` replaced by the BC target
         (``"bc_action"``: the clean expert command of a noisy dataset, ``--bc-target
         expert``) when the sampler provides one. The critics keep the flown action."""
@@ -83,22 +92,28 @@ class Algorithm(nn.Module):
 
     @torch.no_grad()
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The action (B, 4), in physical units, for states (B, 18) and goals (B, 15)."""
         x = self.normalizer.inputs(state, goal)
         return self.normalizer.action_from_unit(self.policy_unit(x))
 
     @torch.no_grad()
     def critics(self, state: torch.Tensor, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Every critic's value ``Q_j(o, g, a)`` -> (num_critics, B), for states (B, 18),
+        goals (B, 15) and physical actions (B, 4)."""
         x = self.normalizer.inputs(state, goal)
         return ensemble_values(self.critic_loss, x, self.normalizer.action_to_unit(action))
 
     def extra_state(self) -> dict:
+        """What a checkpoint keeps beyond the state dict (the update count)."""
         return {"num_updates": self.num_updates}
 
     def load_extra_state(self, d: dict) -> None:
+        """Restore :meth:`extra_state` from a checkpoint."""
         self.num_updates = int(d.get("num_updates", 0))
 
 
-def algorithm_class(name: str):
+def algorithm_class(name: str) -> type[Algorithm]:
+    """The :class:`Algorithm` subclass named ``name`` (gcsl, td3bc, td3awbc, cql)."""
     from aerohrl.algorithms.cql import CQL
     from aerohrl.algorithms.gcsl import GCSL
     from aerohrl.algorithms.td3awbc import TD3AWBC
@@ -107,7 +122,7 @@ def algorithm_class(name: str):
     return {"gcsl": GCSL, "td3bc": TD3BC, "td3awbc": TD3AWBC, "cql": CQL}[name]
 
 
-def build_algorithm(cfg, normalizer: Normalizer) -> Algorithm:
+def build_algorithm(cfg: TrainConfig, normalizer: Normalizer) -> Algorithm:
     """The algorithm ``cfg.algo`` with fresh weights (seed the RNG before calling)."""
     return algorithm_class(cfg.algo)(cfg, normalizer)
 

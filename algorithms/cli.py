@@ -19,6 +19,7 @@ import argparse
 import sys
 from dataclasses import fields
 from pathlib import Path
+from typing import Any, Callable
 
 from aerohrl import cli_types as T
 from aerohrl.algorithms import config as C
@@ -83,7 +84,7 @@ POSITIVE = {"steps", "batch_size", "hidden", "critic_hidden", "lr_actor", "lr_cr
             "checkpoint_every", "keep_checkpoints", "eval_episodes", "eval_horizon"}
 
 
-def flag_type(name: str, default):
+def flag_type(name: str, default: Any) -> Callable[[str], Any]:
     """The parse-time check of a TrainConfig field's flag (aerohrl.cli_types); ranges that
     depend on other fields stay in config.check."""
     kind = int if isinstance(default, (int, tuple)) else float
@@ -93,6 +94,7 @@ def flag_type(name: str, default):
 
 
 def parser() -> ArgumentParser:
+    """The ``train`` argument parser (flags generated from :class:`TrainConfig`'s fields)."""
     # argparse rather than draccus or tyro: the flags are already generated from TrainConfig's
     # fields (below), so a library would remove little code here but would change the flag
     # spellings users have (draccus: --batch_size), bypass the one-line parse-time errors of
@@ -140,7 +142,7 @@ def _overrides(a) -> dict:
     return {f.name: getattr(a, f.name) for f in fields(C.TrainConfig) if f.name not in C.INTERNAL and getattr(a, f.name) is not None}
 
 
-def config_from_args(a) -> C.TrainConfig:
+def config_from_args(a: argparse.Namespace) -> C.TrainConfig:
     """The config of a new run: the preset (``--preset``, else the ``--config`` file's,
     else cpu), the ``--config`` file's values over it, the flags given over those.
     UserError (one line) on an unknown key, a bad value or a missing ``--dataset``."""
@@ -154,7 +156,8 @@ def config_from_args(a) -> C.TrainConfig:
     return cfg
 
 
-def run(a) -> int:
+def run(a: argparse.Namespace) -> int:
+    """``train``: start a new run (or resume one) and train it to the end; exit code."""
     from aerohrl.algorithms.trainer import new_run_dir, resolve_device, resume_run, start_run
 
     ov = _overrides(a)
@@ -187,6 +190,7 @@ def run(a) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``train`` command; returns the exit code."""
     args = parser().parse_args(argv)
     return run_cli(PROG, lambda: run(args))  # every UserError (bad --config, values) is one line, exit 2
 

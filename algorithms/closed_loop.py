@@ -10,12 +10,19 @@ step (the episode ends there), near success = the same with every tolerance x 2.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Callable
+
 import numpy as np
 
 from aerohrl.eval.rollout import rollout_reach
 
+if TYPE_CHECKING:
+    from aerohrl.algorithms.base import Algorithm
+    from aerohrl.algorithms.config import TrainConfig
+    from aerohrl.algorithms.data import Dataset
 
-def make_reach_desired_evaluator(data, cfg):
+
+def make_reach_desired_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[Algorithm, int], dict[str, float]]:
     """Reach-Desired on ``cfg.eval_episodes`` of the dataset's desired goals (a fixed,
     seeded subset of those flown from rest at the origin), with the dataset's vehicle and rates."""
     goals = data.desired_goals()[data.rest_start_episodes()].cpu().numpy()
@@ -32,7 +39,7 @@ def make_reach_desired_evaluator(data, cfg):
     return evaluate
 
 
-def make_reach_intermediate_evaluator(data, cfg, episodes: int | None = None):
+def make_reach_intermediate_evaluator(data: Dataset, cfg: TrainConfig, episodes: int | None = None) -> Callable[[Algorithm, int], dict[str, float]]:
     """Reach-Intermediate (SPEC.md; thesis Fig. 3.4: 75 episodes, a third to the desired
     goal with 500 steps, two thirds to an achieved goal <= 45 steps ahead with 100 steps)
     on a fixed, seeded episode set; default ``3 * cfg.eval_episodes`` episodes."""

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
 
 from aerohrl.errors import UserError
 
@@ -124,7 +126,7 @@ PRESETS: dict[str, dict] = {
 INTERNAL = ("preset",)
 
 
-def make_config(preset: str = "cpu", **overrides) -> TrainConfig:
+def make_config(preset: str = "cpu", **overrides: Any) -> TrainConfig:
     """The preset with ``overrides`` (None values ignored) applied; UserError on bad values."""
     if preset not in PRESETS:
         raise UserError(f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
@@ -143,6 +145,7 @@ def make_config(preset: str = "cpu", **overrides) -> TrainConfig:
 
 
 def check(cfg: TrainConfig) -> None:
+    """Raise a one-line UserError for a value out of range or fields that contradict each other."""
     import math
 
     if cfg.algo not in ALGORITHMS:
@@ -192,6 +195,7 @@ def check(cfg: TrainConfig) -> None:
 
 
 def to_dict(cfg: TrainConfig) -> dict:
+    """The config as a JSON-ready dict (tuples as lists)."""
     d = dataclasses.asdict(cfg)
     d["hidden"] = list(cfg.hidden)
     d["critic_hidden"] = list(cfg.critic_hidden)
@@ -199,6 +203,8 @@ def to_dict(cfg: TrainConfig) -> dict:
 
 
 def from_dict(d: dict) -> TrainConfig:
+    """A :class:`TrainConfig` from :func:`to_dict`'s output; unknown keys are dropped and
+    the defaults of runs saved before a field existed are filled in."""
     names = {f.name for f in fields(TrainConfig)}
     d = {k: v for k, v in d.items() if k in names}
     if "relabel_prob" in d:  # a run saved before relabel_offset existed drew uniformly over the rest of the episode
@@ -226,6 +232,7 @@ def lr_factor(cfg: TrainConfig, step: int) -> float:
 
 
 def critic_sizes(cfg: TrainConfig) -> tuple[int, ...]:
+    """The critics' hidden sizes: ``critic_hidden``, else the policy's ``hidden``."""
     return cfg.critic_hidden or cfg.hidden
 
 
@@ -276,7 +283,7 @@ def _coerce(name: str, default, value, where: str):
     return value
 
 
-def load_toml(path) -> dict:
+def load_toml(path: str | Path) -> dict:
     """The values of a ``--config`` TOML file, by field name, typed as the fields (preset
     included when the file has it). UserError (one line) on a missing or malformed file,
     an unknown key or a value of the wrong type; ranges are checked by :func:`make_config`."""

@@ -23,9 +23,14 @@ from torchrl.data import Bounded
 from torchrl.modules import ProbabilisticActor, TanhNormal
 from torchrl.objectives import CQLLoss
 
+from typing import TYPE_CHECKING
+
 from aerohrl.algorithms.config import critic_sizes
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.networks import EnsembleSoftUpdate, ACT_DIM, IN_DIM, make_critic, make_critic_loss, mlp, use_clipped_td0
+
+if TYPE_CHECKING:
+    from tensordict import TensorDict
 
 
 class _TanhLoc(nn.Module):
@@ -81,16 +86,21 @@ class CQL(Algorithm):
         object.__setattr__(self, "_det_net", _TanhLoc(net))
         self.setup_ema()
 
-    def optimizers(self):
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """The optimisers by name: actor, conservative critics, temperature (and its Lagrange
+        multiplier when tuned), and the TD3BC-style critic ensemble."""
         opts = {"actor": self.actor_opt, "cql_critic": self.cql_critic_opt, "alpha": self.alpha_opt, "critic": self.critic_opt}
         if self.alpha_prime_opt is not None:
             opts["alpha_prime"] = self.alpha_prime_opt
         return opts
 
-    def policy_net(self):
+    def policy_net(self) -> nn.Module:
+        """The deterministic policy: the mean of the tanh-Gaussian actor."""
         return self._det_net
 
-    def update(self, batch):
+    def update(self, batch: TensorDict) -> dict[str, torch.Tensor]:
+        """One CQL step (actor, conservative critics, temperature) and one step of the evaluation
+        critic ensemble; the losses by name."""
         # 1. CQL: actor, conservative critics, entropy temperature (disjoint gradients)
         out = self.cql_loss(batch.clone(False))
         loss = out["loss_actor"] + out["loss_qvalue"] + out["loss_cql"] + out["loss_alpha"]

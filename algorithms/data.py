@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -24,6 +25,11 @@ from tensordict import TensorDict
 
 from aerohrl import task
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    from torchrl.data import TensorDictReplayBuffer
+
+    from aerohrl.algorithms.networks import Normalizer
 
 REQUIRED = {
     "observation.state": (task.STATE_DIM,),
@@ -57,6 +63,7 @@ class Dataset:
 
     @property
     def num_episodes(self) -> int:
+        """The number of episodes (distinct episode ends)."""
         return int(self.episode_end.unique().numel())
 
     def episode_first_frames(self) -> torch.Tensor:
@@ -86,6 +93,7 @@ class Dataset:
         return torch.arange(0, self.num_episodes - m, k)
 
     def as_tensordict(self) -> TensorDict:
+        """The per-frame tensors as one TensorDict of batch size ``(frames,)`` (no copy)."""
         return TensorDict(
             {
                 "state": self.state,
@@ -109,7 +117,7 @@ def _columns_checksum(cols: dict) -> str:
     return h.hexdigest()
 
 
-def read_dataset_columns(root) -> tuple[dict, dict]:
+def read_dataset_columns(root: str | Path) -> tuple[dict, dict]:
     """(columns, info) of a dataset folder; UserError when missing or damaged."""
     from aerohrl.datagen import manifest
     from aerohrl.datagen.lerobot_format import read_columns
@@ -132,7 +140,7 @@ def read_dataset_columns(root) -> tuple[dict, dict]:
     return cols, info
 
 
-def load_dataset(source) -> Dataset:
+def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
     """A :class:`Dataset` from a dataset folder or from a column dict (same keys as
     ``read_columns``); UserError on a missing/damaged dataset or wrong feature shapes."""
     if isinstance(source, dict):
@@ -187,7 +195,7 @@ def load_dataset(source) -> Dataset:
     )
 
 
-def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator, device="cpu"):
+def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator, device: str | torch.device = "cpu") -> TensorDictReplayBuffer:
     """A torchrl ``TensorDictReplayBuffer`` over the whole dataset, sampling uniformly
     with replacement (thesis Alg. 2, line 3). Its ``TensorStorage`` wraps the dataset's
     own tensors (no copy: one copy of a multi-GB dataset in memory, not two)."""
@@ -248,6 +256,8 @@ class GoalBatchSampler:
         self.bc_expert = bc_target == "expert" and data.action_expert is not None
 
     def sample(self) -> TensorDict:
+        """One training batch: uniform frames with hindsight-relabelled goals and their
+        recomputed rewards and done flags (and the critic's own goals when configured)."""
         b = self.buffer.sample()
         index = b.get("index")
         state, next_state = b.get("state"), b.get("next_state")
@@ -329,7 +339,7 @@ class GoalBatchSampler:
         )
 
 
-def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None, bc_target: str = "expert"):
+def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None, bc_target: str = "expert") -> Normalizer:
     """Input statistics over every frame with its desired goal and with a relabelled
     (strictly later achieved, drawn as in training: ``future``) goal, action bounds over
     every frame's BC target (what the policy's [-1, 1] output must span; flown noisy

@@ -13,12 +13,18 @@ from __future__ import annotations
 
 import warnings
 
+from typing import TYPE_CHECKING
+
 import torch
+from torch import nn
 from torchrl.objectives import BCLoss
 
 from aerohrl.algorithms.config import critic_sizes
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.networks import EnsembleSoftUpdate, make_actor, make_critic_loss
+
+if TYPE_CHECKING:
+    from tensordict import TensorDict
 
 
 class GCSL(Algorithm):
@@ -39,13 +45,17 @@ class GCSL(Algorithm):
         self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         self.setup_ema()
 
-    def optimizers(self):
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """The optimisers by name: the actor's and the critic ensemble's."""
         return {"actor": self.actor_opt, "critic": self.critic_opt}
 
-    def policy_net(self):
+    def policy_net(self) -> nn.Module:
+        """The deterministic actor network."""
         return self.actor.module
 
-    def update(self, batch):
+    def update(self, batch: TensorDict) -> dict[str, torch.Tensor]:
+        """One behaviour-cloning step on the relabelled goals (Eq. 3.1) and one step of the
+        evaluation critic ensemble; the losses by name."""
         # 1. behaviour cloning on the (relabelled) goals, Eq. 3.1
         loss_bc = self.bc_loss(self.actor_batch(batch))["loss_bc"]
         self.actor_opt.zero_grad(set_to_none=True)

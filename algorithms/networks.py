@@ -10,6 +10,7 @@ Key names (torchrl conventions, so torchrl's losses read the batches directly):
 from __future__ import annotations
 
 import warnings
+from typing import TYPE_CHECKING, Any, Sequence
 
 import torch
 from tensordict import TensorDict
@@ -21,6 +22,9 @@ from torchrl.objectives.value import TD0Estimator
 
 from aerohrl import task
 from aerohrl.algorithms import quiet_torchrl
+
+if TYPE_CHECKING:
+    from torchrl.objectives import LossModule
 
 quiet_torchrl()  # every algorithm imports this module, right after torchrl
 
@@ -48,6 +52,8 @@ class Normalizer(nn.Module):
 
     @torch.no_grad()
     def fit(self, inputs: torch.Tensor, actions: torch.Tensor) -> "Normalizer":
+        """Fit the input mean/std over ``inputs`` (F, 30) and the action bounds over
+        ``actions`` (F, 4); returns ``self``."""
         self.in_mean.copy_(inputs.mean(0))
         self.in_std.copy_(inputs.std(0).clamp_min(STD_FLOOR))
         lo, hi = actions.min(0).values, actions.max(0).values
@@ -58,26 +64,31 @@ class Normalizer(nn.Module):
         return self
 
     def inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Standardised network inputs ``([v, R, w], [p_g - p, v_g, R_g])`` (B, 30) from
+        states (B, 18) and goals (B, 15)."""
         o, rel = task.policy_inputs(state, goal)
         return (torch.cat([o, rel], -1) - self.in_mean) / self.in_std
 
     def action_to_unit(self, a: torch.Tensor) -> torch.Tensor:
+        """Physical actions (B, 4) -> [-1, 1] (affine map of the fitted bounds)."""
         return (a - self.act_center) / self.act_half
 
     def action_from_unit(self, u: torch.Tensor) -> torch.Tensor:
+        """[-1, 1] actions (B, 4) -> physical units (inverse of :meth:`action_to_unit`)."""
         return self.act_center + self.act_half * u
 
 
-def mlp(in_features: int, out_features: int, hidden) -> MLP:
+def mlp(in_features: int, out_features: int, hidden: Sequence[int]) -> MLP:
+    """A ReLU MLP ``in_features -> hidden... -> out_features``."""
     return MLP(in_features=in_features, out_features=out_features, num_cells=list(hidden), activation_class=nn.ReLU)
 
 
-def make_actor(hidden) -> TensorDictModule:
+def make_actor(hidden: Sequence[int]) -> TensorDictModule:
     """Deterministic actor: observation -> tanh(MLP) = action in [-1, 1]."""
     return TensorDictModule(nn.Sequential(mlp(IN_DIM, ACT_DIM, hidden), nn.Tanh()), in_keys=["observation"], out_keys=["action"])
 
 
-def make_critic(hidden) -> ValueOperator:
+def make_critic(hidden: Sequence[int]) -> ValueOperator:
     """One goal-conditioned critic Q(o, g, a) (the MLP concatenates its inputs)."""
     return ValueOperator(mlp(IN_DIM + ACT_DIM, 1, hidden), in_keys=["observation", "action"])
 
@@ -95,7 +106,9 @@ class ClippedTD0Estimator(TD0Estimator):
     before a goal; the bound gives every step of an expert trajectory its value at once,
     and on expert data it is close to the value itself. Off in the ``thesis`` preset."""
 
-    def value_estimate(self, tensordict, target_params=None, next_value=None, **kwargs):
+    def value_estimate(self, tensordict: TensorDict, target_params: TensorDict | None = None, next_value: torch.Tensor | None = None, **kwargs: Any) -> torch.Tensor:
+        """The TD(0) target ``r + gamma (1 - done) V'`` clipped to [0, 1], raised to the
+        Monte-Carlo lower bound ``mc_lower_bound`` where the batch has one."""
         v = super().value_estimate(tensordict, target_params=target_params, next_value=next_value, **kwargs).clamp(0.0, 1.0)
         lb = tensordict.get("mc_lower_bound", None)
         return v if lb is None else torch.maximum(v, lb.to(v.dtype))
@@ -103,7 +116,7 @@ class ClippedTD0Estimator(TD0Estimator):
 
 def make_critic_loss(
     actor: TensorDictModule,
-    hidden,
+    hidden: Sequence[int],
     *,
     num_critics: int,
     gamma: float,
@@ -111,7 +124,7 @@ def make_critic_loss(
     policy_noise: float,
     noise_clip: float,
     alpha: float = 2.5,
-    loss_cls=TD3BCLoss,
+    loss_cls: type[TD3BCLoss] = TD3BCLoss,
 ) -> TD3BCLoss:
     """torchrl's ``TD3BCLoss`` over an ensemble of ``num_critics`` critics, each with its
     own initialisation and target network, targets ``clip(r + gamma (1 - done)
@@ -144,7 +157,7 @@ def _make_td3bc(loss_cls, actor, critics, num_critics, policy_noise, noise_clip,
     )
 
 
-def use_clipped_td0(loss, gamma: float, value_key):
+def use_clipped_td0(loss: LossModule, gamma: float, value_key: Any) -> LossModule:
     """Give a torchrl loss the [0, 1]-clipped TD(0) target (keys: ("next", reward|done|terminated))."""
     est = ClippedTD0Estimator(gamma=gamma, value_network=None)
     est.set_keys(value=value_key, reward="reward", done="done", terminated="terminated")
@@ -167,6 +180,8 @@ class EnsembleSoftUpdate(SoftUpdate):
     """
 
     def init_(self) -> None:
+        """Copy each source's weights to its target group (the start of the Polyak averaging);
+        target groups that share the source's storage are skipped (class docstring)."""
         keep = []
         for t, s in zip(self._target_names, self._source_names):
             src, tgt = getattr(self.loss_module, s), getattr(self.loss_module, t)
@@ -183,7 +198,7 @@ class EnsembleSoftUpdate(SoftUpdate):
         self.initialized = True
 
 
-def ensemble_values(loss, observation: torch.Tensor, action: torch.Tensor, params=None) -> torch.Tensor:
+def ensemble_values(loss: LossModule, observation: torch.Tensor, action: torch.Tensor, params: TensorDict | None = None) -> torch.Tensor:
     """(num_critics, B) values of every critic of a torchrl loss's vmapped ensemble."""
     params = loss.qvalue_network_params if params is None else params
     n = params.batch_size[0]

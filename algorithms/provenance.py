@@ -40,6 +40,7 @@ def git_state(where: Path | None = None) -> dict:
 
 
 def package_versions() -> dict:
+    """Python's and every package of ``PACKAGES``'s installed version (None when absent)."""
     out = {"python": platform.python_version()}
     for name in PACKAGES:
         try:
@@ -50,6 +51,7 @@ def package_versions() -> dict:
 
 
 def cpu_model() -> str | None:
+    """The CPU's model name (``/proc/cpuinfo``, else ``platform.processor()``); None if unknown."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
@@ -60,6 +62,8 @@ def cpu_model() -> str | None:
 
 
 def device_info(device: str = "cpu") -> dict:
+    """The training device, CPU model and count, torch and OpenMP threads, and the GPU's name
+    when ``device`` is CUDA: what a run records for its timings."""
     import torch
 
     info = {"device": str(device), "cpu": cpu_model(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),

@@ -18,6 +18,7 @@ per-transition version, which is three tensor ops here.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 
@@ -27,7 +28,7 @@ from aerohrl import task
 FUTURE_STRATEGIES = ("uniform", "geometric")
 
 
-def sample_future_index(index: torch.Tensor, episode_end: torch.Tensor, generator=None, *,
+def sample_future_index(index: torch.Tensor, episode_end: torch.Tensor, generator: torch.Generator | None = None, *,
                         strategy: str = "uniform", window: int = 0, mean: float = 30.0) -> torch.Tensor:
     """A strictly later step ``k in (j, end]`` of the same episode for each ``j``
     (``k = j`` where ``j`` is the last step of its episode). The offset ``k - j >= 1`` is
@@ -62,10 +63,10 @@ def relabel_goals(
     episode_end: torch.Tensor,
     achieved_goals: torch.Tensor,
     delta: float,
-    generator=None,
+    generator: torch.Generator | None = None,
     return_index: bool = False,
-    **future,
-):
+    **future: Any,
+) -> tuple[torch.Tensor, torch.Tensor] | tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(new goals (B, 15), relabelled mask (B,)) -- and, with ``return_index``, the
     drawn later step ``k`` (B,) whose achieved goal a relabelled transition got.
 
@@ -94,7 +95,7 @@ def first_hit_index(next_state: torch.Tensor, goal: torch.Tensor, episode_end: t
     return torch.where((t >= j) & (t <= episode_end), t, torch.full_like(t, -1))
 
 
-def mc_lower_bound(index, k, relabelled, first_hit, gamma: float) -> torch.Tensor:
+def mc_lower_bound(index: torch.Tensor, k: torch.Tensor, relabelled: torch.Tensor, first_hit: torch.Tensor, gamma: float) -> torch.Tensor:
     """A lower bound on the discounted return of the data's own continuation (MCAC,
     Wilcox et al. 2022), per transition ``j`` with sparse reward and termination at the
     first success: ``gamma^(k - j)`` for a goal relabelled with the achieved goal of step

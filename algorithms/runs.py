@@ -8,6 +8,7 @@ every evaluated checkpoint), with the training losses beside it.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from aerohrl.errors import ArgumentParser, UserError, run_cli
 PROG = "aerohrl runs"
 
 
-def summary(run_dir) -> dict:
+def summary(run_dir: str | Path) -> dict:
     """What ``runs show`` reports; every checkpoint is checked against its SHA-256 and the
     progress counts the newest intact one."""
     from aerohrl.algorithms.trainer import CKPT_DIR, checkpoint_paths, checkpoint_problem, checkpoint_step, read_json, read_metrics
@@ -80,7 +81,9 @@ def _harness_curves(run_dir) -> dict[str, list[tuple[int, float, float]]]:
     return out
 
 
-def plot_learning_curve(run_dir, out=None) -> Path:
+def plot_learning_curve(run_dir: str | Path, out: str | Path | None = None) -> Path:
+    """Plot a run's closed-loop success (training-time and ``aerohrl eval`` checkpoints) and
+    training losses against the step to ``out`` (default ``RUN/learning_curve.png``); returns it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -130,7 +133,7 @@ def plot_learning_curve(run_dir, out=None) -> Path:
     return out
 
 
-def eval_results(run_dir) -> list[dict]:
+def eval_results(run_dir: str | Path) -> list[dict]:
     """The ``aerohrl eval`` summaries of a run (``RUN/eval/*/summary.json``), by name."""
     import json
 
@@ -156,7 +159,7 @@ def _print_eval_results(run_dir) -> None:
                   f"({e['checkpoints']} checkpoints x {e['episodes']} episodes, steps {e['steps'][0]:,}..{e['steps'][1]:,}; aerohrl eval)")
 
 
-def is_ipp_run(run_dir) -> bool:
+def is_ipp_run(run_dir: str | Path) -> bool:
     """An ``aerohrl ipp train`` run (its config.json holds ``train`` and ``lattice``)."""
     import json
 
@@ -167,7 +170,7 @@ def is_ipp_run(run_dir) -> bool:
     return isinstance(meta, dict) and "lattice" in meta and "train" in meta and "config" not in meta
 
 
-def cmd_show_ipp(a) -> int:
+def cmd_show_ipp(a: argparse.Namespace) -> int:
     """``runs show`` of an IPP run: its config, progress in iterations, the last metrics and the curve."""
     from aerohrl.ipp.train import load_run_config, plot_learning_curve as ipp_curve, read_metrics as ipp_metrics
 
@@ -189,7 +192,9 @@ def cmd_show_ipp(a) -> int:
     return 0
 
 
-def cmd_show(a) -> int:
+def cmd_show(a: argparse.Namespace) -> int:
+    """``runs show``: config, dataset version, progress, last metrics, evaluations and the
+    learning-curve plot of a training run (an IPP run: :func:`cmd_show_ipp`); exit code."""
     if is_ipp_run(a.run):
         return cmd_show_ipp(a)
     s = summary(a.run)
@@ -219,6 +224,7 @@ def cmd_show(a) -> int:
 
 
 def parser() -> ArgumentParser:
+    """The ``aerohrl runs`` argument parser."""
     ap = ArgumentParser(prog=PROG, description="Inspect training runs.")
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
     s = sub.add_parser("show", help="config, dataset version, progress and learning-curve plot of a run")
@@ -229,6 +235,7 @@ def parser() -> ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``aerohrl runs`` command; returns the exit code."""
     args = parser().parse_args(argv)
     return run_cli(PROG, lambda: {"show": cmd_show}[args.cmd](args))
 

@@ -20,6 +20,8 @@ the vmapped critic calls are torchrl's.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 from torchrl.objectives import TD3BCLoss
 
@@ -27,13 +29,19 @@ from aerohrl.algorithms.config import critic_sizes
 from aerohrl.algorithms.networks import make_critic_loss
 from aerohrl.algorithms.td3bc import TD3BC
 
+if TYPE_CHECKING:
+    from tensordict import TensorDict
+
 
 class TD3AWBCLoss(TD3BCLoss):
     awr_temperature: float = 1.0
     awr_max_weight: float = 100.0
     awr_normalize: str = "none"
 
-    def actor_loss(self, tensordict):
+    def actor_loss(self, tensordict: TensorDict) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The TD3-AWBC actor loss ``-lambda Q_0(s, pi(s)) + (pi(s) - a)^2 + mean_b[w_b (pi(s_b) - a_b)^2]``
+        (module docstring; batch B, actions (B, 4)), ``lambda = alpha / mean|Q_0|``; returns
+        ``(loss, meta)`` with the BC and AWR terms and the weight statistics."""
         td = tensordict.select(*self.actor_network.in_keys, strict=False)
         with self.actor_network_params.to_module(self.actor_network, preserve_module_state=False):
             td = self.actor_network(td)

@@ -15,11 +15,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
+from torch import nn
 
 from aerohrl.algorithms.config import critic_sizes
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.networks import EnsembleSoftUpdate, make_actor, make_critic_loss
+
+if TYPE_CHECKING:
+    from tensordict import TensorDict
 
 
 class TD3BC(Algorithm):
@@ -41,13 +47,17 @@ class TD3BC(Algorithm):
         self._last_actor = {}
         self.setup_ema()
 
-    def optimizers(self):
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """The optimisers by name: the actor's and the critic ensemble's."""
         return {"actor": self.actor_opt, "critic": self.critic_opt}
 
-    def policy_net(self):
+    def policy_net(self) -> nn.Module:
+        """The deterministic actor network."""
         return self.actor.module
 
-    def update(self, batch):
+    def update(self, batch: TensorDict) -> dict[str, torch.Tensor]:
+        """One critic step (clipped TD(0) targets over the ensemble) and, every ``policy_delay``
+        updates, one actor step on ``-lambda Q + BC``; the losses by name."""
         loss_q, meta = self.critic_loss.qvalue_loss(self.critic_batch(batch))
         self.critic_opt.zero_grad(set_to_none=True)
         loss_q.backward()

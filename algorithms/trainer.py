@@ -40,7 +40,7 @@ import shutil
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -66,17 +66,19 @@ class TrainingDiverged(UserError):
 # ----------------------------------------------------------------------------- files
 
 
-def checkpoint_paths(run_dir) -> list[Path]:
+def checkpoint_paths(run_dir: str | Path) -> list[Path]:
     """Checkpoints of a run, oldest first."""
     d = Path(run_dir) / CKPT_DIR
     return sorted(d.glob("step-*.pt")) if d.is_dir() else []
 
 
-def checkpoint_step(path) -> int:
+def checkpoint_step(path: str | Path) -> int:
+    """The training step in a checkpoint's name (``step-000001000.pt`` -> 1000)."""
     return int(Path(path).stem.split("-")[1])
 
 
 def read_json(path: Path) -> dict:
+    """A run's JSON file; a one-line UserError when it is missing or unreadable."""
     try:
         return json.loads(Path(path).read_text())
     except FileNotFoundError:
@@ -85,7 +87,7 @@ def read_json(path: Path) -> dict:
         raise UserError(f"cannot read {path}: {e}") from None
 
 
-def load_checkpoint(path, map_location="cpu") -> dict:
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict:
     """A checkpoint, its SHA-256 verified; CheckpointDamaged (one line naming the file)
     when it differs, is unreadable or is no aerohrl checkpoint. One written before
     checkpoints had checksums loads with a warning."""
@@ -107,7 +109,7 @@ def _warn_unverified(folder: Path) -> None:
         warn(f"the checkpoints in {folder} have no .sha256 files (written before checkpoints had checksums); loaded unverified")
 
 
-def checkpoint_problem(path) -> str | None:
+def checkpoint_problem(path: str | Path) -> str | None:
     """Why the checkpoint at ``path`` cannot be trusted, or None. Without loading it: its
     SHA-256 against the sidecar, or for an old checkpoint without one, the CRC-32 of
     every member of its zip container (what torch.save writes)."""
@@ -125,7 +127,8 @@ def checkpoint_problem(path) -> str | None:
         return f"{path} is damaged: {e}"
 
 
-def read_metrics(run_dir) -> list[dict]:
+def read_metrics(run_dir: str | Path) -> list[dict]:
+    """The records of ``RUN/metrics.jsonl`` in order (a line cut by a kill is skipped)."""
     path = Path(run_dir) / "metrics.jsonl"
     out = []
     if path.exists():
@@ -149,7 +152,7 @@ def dataset_identity(data: Dataset) -> dict:
             "shapes": i.get("shapes"), "frames": i.get("frames"), "episodes": i.get("episodes")}
 
 
-def locate_dataset(identity: dict, run_dir, override=None) -> Path:
+def locate_dataset(identity: dict, run_dir: str | Path, override: str | Path | None = None) -> Path:
     """The folder of a run's dataset: ``override`` (``--dataset``), else the recorded path,
     else a folder ``datasets/*/<version>`` (under the current folder or the run's
     project, RUN/../../datasets) when the data moved. UserError saying ``--dataset``
@@ -171,6 +174,8 @@ def locate_dataset(identity: dict, run_dir, override=None) -> Path:
 
 
 def check_same_dataset(expected: dict, data: Dataset) -> None:
+    """UserError (one line) when ``data``'s feature shapes or version differ from the run's
+    recorded dataset identity."""
     got = dataset_identity(data)
     if got["shapes"] != expected.get("shapes"):
         raise UserError(f"dataset feature shapes {got['shapes']} differ from the run's {expected.get('shapes')}")
@@ -180,7 +185,7 @@ def check_same_dataset(expected: dict, data: Dataset) -> None:
         raise UserError(f"dataset checksum differs from the run's (version {got['version']!r}): the data changed")
 
 
-def new_run_dir(cfg: C.TrainConfig, runs_root="runs", name: str | None = None) -> Path:
+def new_run_dir(cfg: C.TrainConfig, runs_root: str | Path = "runs", name: str | None = None) -> Path:
     """The folder of a new run: ``--name``, or ``ALGO-PRESET-sSEED-TIMESTAMP-XXXXXX`` whose
     random suffix keeps runs started in the same second apart. Not created here:
     :func:`claim_run_dir` does that, exclusively."""
@@ -227,6 +232,7 @@ class RunLock:
             pass
 
     def release(self) -> None:
+        """Release the run's lock (close its file descriptor)."""
         os.close(self.fd)
 
 
@@ -234,6 +240,8 @@ class RunLock:
 
 
 def rng_state(gen: torch.Generator) -> dict:
+    """The state of every random generator a run draws from (torch, the sampler's ``gen``,
+    NumPy, Python, CUDA when present), for a checkpoint."""
     st = {"torch": torch.get_rng_state(), "sampler": gen.get_state(), "numpy": np.random.get_state(), "python": random.getstate()}
     if torch.cuda.is_available():
         st["cuda"] = torch.cuda.get_rng_state_all()
@@ -241,6 +249,7 @@ def rng_state(gen: torch.Generator) -> dict:
 
 
 def set_rng_state(st: dict, gen: torch.Generator) -> None:
+    """Restore :func:`rng_state`'s generators (``gen``: the sampler's)."""
     torch.set_rng_state(st["torch"])
     gen.set_state(st["sampler"])
     np.random.set_state(st["numpy"])
@@ -250,6 +259,8 @@ def set_rng_state(st: dict, gen: torch.Generator) -> None:
 
 
 def seed_everything(seed: int) -> torch.Generator:
+    """Seed torch, NumPy and Python with ``seed``; returns the sampler's generator (seeded
+    ``seed + 1``)."""
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
     random.seed(seed)
@@ -257,6 +268,7 @@ def seed_everything(seed: int) -> torch.Generator:
 
 
 def resolve_device(name: str) -> torch.device:
+    """``name`` as a torch device; UserError for an unknown one or CUDA without a GPU."""
     try:
         dev = torch.device(name)
     except RuntimeError:
@@ -320,6 +332,8 @@ class MetricsLog:
                                      id=run_dir.name, resume="allow")
 
     def write(self, record: dict) -> None:
+        """Append ``record`` to ``metrics.jsonl`` (flushed) and its numeric values to
+        TensorBoard or W&B at ``record["step"]``."""
         try:
             self._f.write(json.dumps(record) + "\n")
             self._f.flush()
@@ -335,6 +349,7 @@ class MetricsLog:
                 self.wandb.log_scalar(k, v, step=step)
 
     def close(self) -> None:
+        """Close ``metrics.jsonl`` and the TensorBoard / W&B writers."""
         try:
             self._f.close()
         except OSError:
@@ -361,6 +376,8 @@ class ProgressLines:
         self.last_step, self.last_t, self.sums, self.count = step, time.monotonic(), {}, 0
 
     def update(self, step: int, metrics: dict[str, float]) -> None:
+        """Add one step's losses to the running means; print a line when one is due (every
+        ``every_s`` seconds, every ``every_steps`` steps, and at the last step)."""
         for k, v in metrics.items():
             self.sums[k] = self.sums.get(k, 0.0) + v
         self.count += 1
@@ -370,6 +387,7 @@ class ProgressLines:
             self.line(step, now)
 
     def line(self, step: int, now: float | None = None) -> str:
+        """Print (and return) the progress line at ``step``, then start new means."""
         now = time.monotonic() if now is None else now
         rate = (step - self.last_step) / max(now - self.last_t, 1e-9)
         eta = (self.total - step) / rate if rate > 0 else float("inf")
@@ -489,6 +507,9 @@ class Trainer:
         self.resumed_from = path
 
     def checkpoint(self) -> Path:
+        """Save weights, optimisers, RNG states and metric sums as
+        ``RUN/checkpoints/step-N.pt`` (atomic, with a SHA-256 sidecar), keep the newest
+        ``keep_checkpoints``; returns the path."""
         path = self.run_dir / CKPT_DIR / f"step-{self.step:09d}.pt"
         atomic.torch_save(path, {
             "format": CHECKPOINT_FORMAT,
@@ -516,6 +537,7 @@ class Trainer:
         return {"reach_desired": make_reach_desired_evaluator(self.data, self.cfg)}
 
     def evaluate(self) -> dict:
+        """Run every evaluator on the current policy; ``{"eval/NAME/METRIC": value}``."""
         evals = self._default_evaluators() if self.evaluators is None else self.evaluators
         out = {}
         for name, fn in evals.items():
@@ -614,8 +636,8 @@ class Trainer:
 # ----------------------------------------------------------------------------- entry points
 
 
-def start_run(cfg: C.TrainConfig, run_dir, *, data: Dataset | None = None, progress: bool = True,
-              evaluators=None, **trainer_kw) -> Trainer:
+def start_run(cfg: C.TrainConfig, run_dir: str | Path, *, data: Dataset | None = None, progress: bool = True,
+              evaluators: dict[str, Evaluator] | None = None, **trainer_kw: Any) -> Trainer:
     """A new run in ``run_dir`` (config.json written, no step taken yet). Everything that
     can be refused (config values, the device, the dataset) is checked before the folder
     is created, exclusively; a failure after that removes it again."""
@@ -639,8 +661,8 @@ def start_run(cfg: C.TrainConfig, run_dir, *, data: Dataset | None = None, progr
         raise
 
 
-def resume_run(run_dir, *, data: Dataset | None = None, progress: bool = True, evaluators=None,
-               overrides: dict | None = None, logger: str | None = None, **trainer_kw) -> Trainer:
+def resume_run(run_dir: str | Path, *, data: Dataset | None = None, progress: bool = True, evaluators: dict[str, Evaluator] | None = None,
+               overrides: dict | None = None, logger: str | None = None, **trainer_kw: Any) -> Trainer:
     """Continue ``run_dir`` from its newest intact checkpoint (or from scratch when it has none)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
