@@ -15,6 +15,7 @@ Exit status: 0 done, 2 bad input (one line ``aerohrl eval: error: ...``), 130 in
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -76,7 +77,8 @@ def _eval_parser() -> ArgumentParser:
     return ap
 
 
-def cmd_eval(a) -> int:
+def cmd_eval(a: argparse.Namespace) -> int:
+    """``aerohrl eval RUN``: evaluate a run's last checkpoints on a task; exit code."""
     from aerohrl.eval.harness import EvalOptions, evaluate_run
 
     set_threads(a.threads)
@@ -103,7 +105,8 @@ def _table_parser() -> ArgumentParser:
     return ap
 
 
-def cmd_table(a) -> int:
+def cmd_table(a: argparse.Namespace) -> int:
+    """``aerohrl eval table``: the thesis tables (3.1, 3.2) over runs, as Markdown and CSV; exit code."""
     from aerohrl.eval import results
 
     t = results.tables(a.runs)
@@ -132,7 +135,8 @@ def _plot_parser() -> ArgumentParser:
     return ap
 
 
-def cmd_plot(a) -> int:
+def cmd_plot(a: argparse.Namespace) -> int:
+    """``aerohrl eval plot``: learning curves (``--curves``) or evaluation figures; exit code."""
     from aerohrl.eval import plots
 
     if a.curves:
@@ -164,7 +168,8 @@ def _oracle_parser() -> ArgumentParser:
     return ap
 
 
-def cmd_oracle(a) -> int:
+def cmd_oracle(a: argparse.Namespace) -> int:
+    """``aerohrl eval oracle``: the single-goal planner's oracle on a run's checkpoint; exit code."""
     import json
 
     from aerohrl.eval import results
@@ -210,6 +215,7 @@ def cmd_oracle(a) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``aerohrl eval`` command (``table``, ``oracle``, ``plot`` or an evaluation); exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "table":
         a = _table_parser().parse_args(argv[1:])

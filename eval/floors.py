@@ -15,11 +15,16 @@ plots treat a floor like any other policy.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 from torch import nn
 
 from aerohrl import task
 from aerohrl.sim.params import GRAVITY
+
+if TYPE_CHECKING:
+    from aerohrl.algorithms.base import Algorithm
 
 FLOORS = ("none", "hover", "no-goal")
 
@@ -39,6 +44,7 @@ class HoverPolicy(_Floor):
 
     @torch.no_grad()
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Hover thrust ``[g, 0, 0, 0]`` (B, 4) for every state (B, 18), whatever the goal (B, 15)."""
         a = torch.zeros(state.shape[0], task.ACTION_DIM, dtype=state.dtype, device=state.device)
         a[:, 0] = GRAVITY
         return a
@@ -49,12 +55,13 @@ class NoGoalPolicy(_Floor):
 
     @torch.no_grad()
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The wrapped policy's action (B, 4) with its normalised relative-goal inputs zeroed."""
         x = self.normalizer.inputs(state, goal)
         x[:, task.OBS_DIM:] = 0.0
         return self.normalizer.action_from_unit(self.inner.policy_unit(x))
 
 
-def wrap(algo, floor: str):
+def wrap(algo: Algorithm, floor: str) -> nn.Module:
     """``algo`` itself (``floor == "none"``) or the floor policy built on it."""
     if floor == "none":
         return algo

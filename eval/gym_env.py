@@ -34,6 +34,8 @@ flight: how the harness hands planned intermediate goals to the policy.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import gymnasium as gym
 from gymnasium import spaces
@@ -53,7 +55,7 @@ class NonFiniteAction(UserError, ValueError):
     """An action with NaN or inf: refused (a one-line error in the commands that fly policies)."""
 
 
-def compute_reward(achieved_goal, desired_goal, info=None):
+def compute_reward(achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
     """Sparse goal-reaching reward (SPEC.md): 1.0 where the goal-reached test holds."""
     return np.asarray(task.goal_reached(np.asarray(achieved_goal, np.float64), np.asarray(desired_goal, np.float64)),
                       dtype=np.float64)
@@ -132,7 +134,8 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self._needs_reset = np.zeros(n, bool)
 
     # ------------------------------------------------------------------ goals
-    def compute_reward(self, achieved_goal, desired_goal, info=None):
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
+        """The sparse reward (1.0 where the goal-reached test holds) of achieved vs desired goals (..., 15)."""
         return compute_reward(achieved_goal, desired_goal, info)
 
     def _sample_goals(self, k: int) -> np.ndarray:
@@ -160,7 +163,9 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self._needs_reset[rows] = False
 
     # ------------------------------------------------------------------ gymnasium API
-    def reset(self, *, seed=None, options=None):
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start every vehicle at hover at the origin (or ``options["start_states"]`` (n, 18))
+        with new goals (``options["goals"]`` (n, 15), else drawn); returns ``(obs, info)``."""
         super().reset(seed=seed)
         options = options or {}
         n = self.num_envs
@@ -172,7 +177,7 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self._reset_rows(np.arange(n), starts, goals, hz)
         return self._obs(), {}
 
-    def set_desired_goals(self, goals, mask=None, horizons=None) -> dict:
+    def set_desired_goals(self, goals: np.ndarray, mask: np.ndarray | None = None, horizons: np.ndarray | int | None = None) -> dict:
         """New goals (and step budgets) for the vehicles in ``mask`` mid-flight; their
         step counters and done flags restart. Returns the observation."""
         mask = np.ones(self.num_envs, bool) if mask is None else np.asarray(mask, bool)
@@ -184,7 +189,9 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self.done[mask] = False
         return self._obs()
 
-    def step(self, actions):
+    def step(self, actions: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray, dict]:
+        """Apply CTBR actions (n, 4), clipped to the action box, for one control period; ``(obs, reward, terminated,
+        truncated, info)`` per vehicle (a non-finite action raises :class:`NonFiniteAction`)."""
         n = self.num_envs
         a = np.asarray(actions, np.float64).reshape(n, 4).copy()
         resetting = self._needs_reset.copy() if self.autoreset else np.zeros(n, bool)
@@ -229,14 +236,17 @@ class QuadrotorReachEnv(gym.Env):
         self.observation_space = self._vec.single_observation_space
         self.action_space = self._vec.single_action_space
 
-    def compute_reward(self, achieved_goal, desired_goal, info=None):
+    def compute_reward(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
+        """The sparse reward (1.0 where the goal-reached test holds) of achieved vs desired goals (..., 15)."""
         return compute_reward(achieved_goal, desired_goal, info)
 
     @staticmethod
     def _one(d):
         return {k: v[0] for k, v in d.items()}
 
-    def reset(self, *, seed=None, options=None):
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start at hover at the origin (or ``options["start_states"]`` (18,)) with a new goal
+        (``options["goals"]`` (15,), else drawn); returns ``(obs, info)``."""
         super().reset(seed=seed)
         opts = dict(options or {})
         for k, shape in (("start_states", task.STATE_DIM), ("goals", task.GOAL_DIM)):
@@ -245,12 +255,13 @@ class QuadrotorReachEnv(gym.Env):
         obs, _ = self._vec.reset(seed=seed, options=opts)
         return self._one(obs), {}
 
-    def step(self, action):
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        """Apply one CTBR action (4,); ``(obs, reward, terminated, truncated, info)``."""
         obs, r, te, tr, info = self._vec.step(np.asarray(action, np.float64).reshape(1, 4))
         return self._one(obs), float(r[0]), bool(te[0]), bool(tr[0]), {k: v[0] for k, v in info.items()}
 
 
-def normalize_actions(env):
+def normalize_actions(env: gym.Env | VectorEnv) -> gym.Env | VectorEnv:
     """``env`` with actions in [-1, 1]^4, mapped affinely onto the CTBR box (-1: zero
     thrust and -20 rad/s, +1: full thrust and +20 rad/s): Gymnasium's ``RescaleAction``
     (``gymnasium.wrappers.vector.RescaleAction`` for a vector env)."""

@@ -14,11 +14,21 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from aerohrl import atomic
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    import torch
+
+    from aerohrl.algorithms.base import Algorithm
+    from aerohrl.algorithms.data import Dataset
+    from aerohrl.eval.families import Ring
+    from aerohrl.eval.planner import ChainPlanner, Planner
+    from aerohrl.eval.tasks import EpisodeSet
 
 PLANNERS = ("none", "single", "multi")
 OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or not
@@ -54,7 +64,7 @@ class EvalOptions:
     out: str | None = None  # default RUN/eval/<name>
     extra: dict = field(default_factory=dict)
 
-    def ring_def(self):
+    def ring_def(self) -> Ring | None:
         """The :class:`~aerohrl.eval.families.Ring` of ``family``/``ring`` (None: the thesis's OOD set)."""
         if self.family is None:
             return None
@@ -63,6 +73,8 @@ class EvalOptions:
         return parse_ring(self.family, self.ring if self.ring is not None else "1")
 
     def name(self) -> str:
+        """The evaluation's folder name under ``RUN/eval/``: task, planner and the options that
+        differ from the defaults."""
         ring = self.ring_def()
         if ring is not None:  # ood-<family>-<ring>-<planner>...: a family's ring, planned or not
             return "ood-" + ring.slug + "-" + self._ood_name()[len("ood-"):]
@@ -79,7 +91,7 @@ class EvalOptions:
             + ("-synth" if self.candidate_source == "synthetic" and self.planner != "none" else "") + tol
 
 
-def load_policy(ckpt_path, device="cpu"):
+def load_policy(ckpt_path: str | Path, device: str | torch.device = "cpu") -> tuple[Algorithm, dict]:
     """(algo, checkpoint dict) from a checkpoint file, in eval mode."""
     from aerohrl.algorithms import config as C
     from aerohrl.algorithms.base import build_algorithm
@@ -97,7 +109,8 @@ def load_policy(ckpt_path, device="cpu"):
     return algo, ck
 
 
-def run_checkpoints(run_dir, k: int) -> list[Path]:
+def run_checkpoints(run_dir: str | Path, k: int) -> list[Path]:
+    """The last ``k`` checkpoints of a run, oldest first; UserError without a run or checkpoints."""
     from aerohrl.algorithms.trainer import checkpoint_paths
 
     run_dir = Path(run_dir)
@@ -111,7 +124,7 @@ def run_checkpoints(run_dir, k: int) -> list[Path]:
     return paths[-k:]
 
 
-def load_run_dataset(run_dir, override=None):
+def load_run_dataset(run_dir: str | Path, override: str | Path | None = None) -> tuple[Dataset, dict]:
     """The run's dataset (``config.json``; found by version under ``datasets/`` when it
     moved), or ``override``; identity checked against the run."""
     from aerohrl.algorithms.data import load_dataset
@@ -128,7 +141,9 @@ def load_run_dataset(run_dir, override=None):
     return data, meta
 
 
-def check_checkpoint_dataset(ck: dict, data, path) -> None:
+def check_checkpoint_dataset(ck: dict, data: Dataset, path: str | Path) -> None:
+    """UserError (one line) when the checkpoint at ``path`` was trained on another dataset
+    than ``data`` (feature shapes or version)."""
     from aerohrl.algorithms.trainer import check_same_dataset
 
     try:
@@ -137,12 +152,15 @@ def check_checkpoint_dataset(ck: dict, data, path) -> None:
         raise UserError(f"checkpoint {path} and dataset {data.info.get('path')} do not belong together: {e}") from None
 
 
-def sim_kwargs(data) -> dict:
+def sim_kwargs(data: Dataset) -> dict:
+    """The simulator settings of the dataset's spec: ``vehicle``, ``fps``, ``substeps``."""
     spec = data.info.get("spec") or {}
     return {"vehicle": spec.get("vehicle", "hummingbird"), "fps": int(spec.get("fps", 100)), "substeps": int(spec.get("substeps", 5))}
 
 
-def make_planner(algo, data, opt: EvalOptions):
+def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Planner | ChainPlanner | None, int]:
+    """The planner of ``opt.planner`` over ``data``'s achieved goals (or synthetic offsets)
+    and its number of intermediate goals; ``(None, 0)`` without one."""
     from aerohrl.eval.planner import Planner, candidates_from_dataset
 
     if opt.planner == "none":
@@ -159,6 +177,7 @@ def make_planner(algo, data, opt: EvalOptions):
 
 
 def check_options(opt: EvalOptions) -> None:
+    """UserError (one line) for an unknown task or planner, or options that contradict each other."""
     from aerohrl.eval.tasks import TASKS
 
     if opt.task not in TASKS:
@@ -194,7 +213,8 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError("--horizon and --beam must be >= 1, --leg-horizon, --candidates and --replan-every >= 0")
 
 
-def build_episodes(data, opt: EvalOptions):
+def build_episodes(data: Dataset, opt: EvalOptions) -> EpisodeSet:
+    """The episode set of ``opt.task`` (starts, goals, horizons) on ``data``'s goals."""
     from aerohrl.eval.tasks import make_episodes
 
     goals = int(data.rest_start_episodes().numel())
@@ -214,7 +234,7 @@ def build_episodes(data, opt: EvalOptions):
     return make_episodes(opt.task, data, opt.episodes, opt.seed, **kw)
 
 
-def evaluate_run(run_dir, opt: EvalOptions, loaded=None) -> dict:
+def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, dict] | None = None) -> dict:
     """Evaluate the last ``opt.checkpoints`` checkpoints of ``run_dir``; returns the summary.
     ``loaded``: ``(data, meta)`` of :func:`load_run_dataset` for this run, when a study
     evaluates one run many times (a large dataset is then loaded once)."""

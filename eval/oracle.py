@@ -28,11 +28,18 @@ reach-novel`` for fresh in-distribution goals). Cost: ``E x C`` flights of
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import torch
 
 from aerohrl import task
 from aerohrl.eval.tasks import EpisodeSet, hover_states
+
+if TYPE_CHECKING:
+    from aerohrl.algorithms.base import Algorithm
+    from aerohrl.algorithms.data import Dataset
+    from aerohrl.eval.planner import Candidates
 
 
 def _flights(starts: np.ndarray, goals: np.ndarray, horizon: int) -> EpisodeSet:
@@ -54,9 +61,9 @@ def roc_auc(score: np.ndarray, label: np.ndarray) -> float:
     return float((r[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
 
 
-def oracle_single(algo, data, goals: np.ndarray, *, candidates: int = 150, seed: int = 0, leg_horizon: int = 500,
+def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidates: int = 150, seed: int = 0, leg_horizon: int = 500,
                   alpha: float = 1.0, chunk: int = 4096, sim: dict | None = None, progress: bool = False,
-                  cand=None) -> dict:
+                  cand: Candidates | None = None) -> dict:
     """Fly every first and second leg of the single-goal planner (see the module docstring).
     ``cand`` (:class:`~aerohrl.eval.planner.Candidates`) replaces the dataset's achieved
     goals, e.g. :func:`synthetic_candidates`."""
@@ -112,7 +119,7 @@ def oracle_single(algo, data, goals: np.ndarray, *, candidates: int = 150, seed:
     }
 
 
-def synthetic_candidates(spec: dict | None, n: int, seed: int = 0):
+def synthetic_candidates(spec: dict | None, n: int, seed: int = 0) -> Candidates:
     """``n`` synthetic waypoints relative to the start at the origin (eval/planner.py's
     offsets, none biased toward a goal): any state within rho_D of the start, as
     :class:`~aerohrl.eval.planner.Candidates` (state = the waypoint with zero body rates)."""
@@ -125,6 +132,7 @@ def synthetic_candidates(spec: dict | None, n: int, seed: int = 0):
 
 
 def format_report(r: dict) -> str:
+    """The oracle's report (:func:`oracle_single`'s dict) as readable lines."""
     lines = [
         f"{r['goals']} goals x {r['candidates']} candidates, legs of {r['leg_horizon']} steps",
         f"first legs  (origin -> g):  success {100 * r['first_leg_success']:.1f} %, near {100 * r['first_leg_near_success']:.1f} %",

@@ -61,12 +61,17 @@ is reached at once and, with re-planning, triggers a new plan from the flown sta
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
 from aerohrl import task
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    from aerohrl.algorithms.base import Algorithm
+    from aerohrl.algorithms.data import Dataset
 
 DEFAULT_ALPHA = 1.0
 DEFAULT_CHUNK = 32768
@@ -85,7 +90,7 @@ class Candidates:
         return len(self.goals)
 
 
-def candidates_from_dataset(data, max_candidates: int = 0, seed: int = 0) -> Candidates:
+def candidates_from_dataset(data: Dataset, max_candidates: int = 0, seed: int = 0) -> Candidates:
     """The dataset's achieved goals (all, or a seeded subset of ``max_candidates``)."""
     F = len(data)
     if F == 0:
@@ -98,7 +103,7 @@ def candidates_from_dataset(data, max_candidates: int = 0, seed: int = 0) -> Can
 
 
 @torch.no_grad()
-def leg_values(algo, states: torch.Tensor, goals: torch.Tensor, chunk: int = DEFAULT_CHUNK) -> torch.Tensor:
+def leg_values(algo: Algorithm, states: torch.Tensor, goals: torch.Tensor, chunk: int = DEFAULT_CHUNK) -> torch.Tensor:
     """``Q_j(s, pi(s, g), g)`` for every critic j: (m, M) from states (M, 18), goals (M, 15)."""
     out = []
     for i in range(0, len(states), chunk):
@@ -166,7 +171,7 @@ class Planner:
         return _pairs(self.algo, self.cs, G, self.chunk).transpose(1, 2)
 
     @torch.no_grad()
-    def plan(self, s0, G, n: int | None = None) -> Plan:
+    def plan(self, s0: np.ndarray | torch.Tensor, G: np.ndarray | torch.Tensor, n: int | None = None) -> Plan:
         """Plan ``n`` (default ``self.n``) intermediate goals from states ``s0`` (E, 18) to goals ``G`` (E, 15)."""
         n = self.n if n is None else int(n)
         s0 = torch.as_tensor(np.asarray(s0), dtype=torch.float32, device=self.device)
@@ -249,7 +254,8 @@ class Offsets:
     def __len__(self) -> int:
         return len(self.pos)
 
-    def to(self, device) -> "Offsets":
+    def to(self, device: str | torch.device) -> "Offsets":
+        """The offsets on ``device``."""
         return Offsets(*(t.to(device) for t in (self.pos, self.vel, self.rot, self.toward, self.mag)))
 
     def steps(self, d: torch.Tensor) -> torch.Tensor:
@@ -259,8 +265,8 @@ class Offsets:
         return torch.where(self.toward[:, None], biased, self.pos.expand(biased.shape))
 
 
-def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_range=(-2.5, 2.5),
-                      acc_range=(-5.0, 5.0), toward: float = 0.5, toward_range=(1.0, 2.0)) -> Offsets:
+def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_range: tuple[float, float] = (-2.5, 2.5),
+                      acc_range: tuple[float, float] = (-5.0, 5.0), toward: float = 0.5, toward_range: tuple[float, float] = (1.0, 2.0)) -> Offsets:
     """C seeded offsets (module docstring): the first ``round(toward * C)`` biased toward G
     (position magnitude ``U(toward_range)`` per axis, signed at planning time), the rest
     ``dp ~ U(-pos_hi, pos_hi)``; all with ``v ~ U(vel_range)``, ``R = flat_attitude(a ~ U(acc_range))``."""
@@ -287,7 +293,7 @@ def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_r
     return Offsets(f(pos), f(vel), f(R), torch.as_tensor(tw), f(mag))
 
 
-def offsets_from_spec(spec: dict | None, C: int = 256, seed: int = 0, **kw) -> Offsets:
+def offsets_from_spec(spec: dict | None, C: int = 256, seed: int = 0, **kw: Any) -> Offsets:
     """:func:`synthetic_offsets` with the ranges of a dataset spec (``pos_range`` hi, ``vel_range``, ``acc_range``)."""
     spec = spec or {}
     return synthetic_offsets(C, seed, pos_hi=float((spec.get("pos_range") or (1.0, 2.0))[1]),
@@ -295,7 +301,7 @@ def offsets_from_spec(spec: dict | None, C: int = 256, seed: int = 0, **kw) -> O
                              acc_range=tuple(spec.get("acc_range") or (-5.0, 5.0)), **kw)
 
 
-def chain_length(s0, G, step: float = 2.0, max_n: int = MAX_CHAIN) -> np.ndarray:
+def chain_length(s0: np.ndarray, G: np.ndarray, step: float = 2.0, max_n: int = MAX_CHAIN) -> np.ndarray:
     """Intermediate goals to reach G (E, 15) from s0 (E, 18) in legs of at most ``step`` m
     per axis: ``ceil(max_i |G_i - p0_i| / step) - 1``, within [1, max_n]; (E,) int."""
     d = np.abs(np.asarray(G, np.float64)[..., :3] - np.asarray(s0, np.float64)[..., :3]).max(-1)
@@ -333,7 +339,7 @@ class ChainPlanner:
         return v.reshape(v.shape[0], *shape)
 
     @torch.no_grad()
-    def plan(self, s0, G, n: int | None = None) -> Plan:
+    def plan(self, s0: np.ndarray | torch.Tensor, G: np.ndarray | torch.Tensor, n: int | None = None) -> Plan:
         """Plan ``n`` (default ``self.n``) intermediate goals from ``s0`` (E, 18) to ``G`` (E, 15)."""
         n = self.n if n is None else int(n)
         if n < 1:

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -55,7 +56,10 @@ def _eval_dir(run, task: str, planner: str | None) -> Path:
     return d
 
 
-def plot_trajectories(run, task: str, out, planner: str | None = None, max_per_panel: int = 12) -> Path:
+def plot_trajectories(run: str | Path, task: str, out: str | Path, planner: str | None = None, max_per_panel: int = 12) -> Path:
+    """3-D flight paths of the newest evaluated checkpoint of ``run`` on ``task`` (thesis
+    Fig. 3.5 / 3.6 analogues; module docstring), successes and failures in two panels of
+    at most ``max_per_panel`` paths; written to ``out``, returns it."""
     from aerohrl.eval.tasks import TASKS
 
     if task not in TASKS:
@@ -126,7 +130,7 @@ def _seed_band(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np.nd
     return np.array(common), vals.mean(0), vals.min(0), vals.max(0)
 
 
-def plot_learning_curves(runs, out) -> Path:
+def plot_learning_curves(runs: Sequence[str | Path], out: str | Path) -> Path:
     """Closed-loop success against training steps for ``runs``; seeds of one experiment as
     a mean line with a min-max band. Written to ``out``; returns it."""
     from aerohrl.algorithms.trainer import read_metrics

@@ -49,10 +49,16 @@ import time
 from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from aerohrl.errors import UserError, run_cli
+
+if TYPE_CHECKING:
+    from aerohrl.algorithms.data import Dataset
+    from aerohrl.eval.families import Ring
+    from aerohrl.eval.harness import EvalOptions
 
 PROG = "aerohrl.eval.reach"
 BEGIN, END = "<!-- reach:begin -->", "<!-- reach:end -->"
@@ -72,7 +78,7 @@ def has_chain() -> bool:
 CHAIN_CANDIDATES, CHAIN_BEAM = 64, 4  # synthetic offsets per extension and beam width (planning cost ~ E k C n^2)
 
 
-def chain_waypoints(ring) -> int:
+def chain_waypoints(ring: Ring) -> int:
     """At most this many waypoints in a chain to a ring's goals: one per 2 m of the ring's
     largest |p_i| less one (eval/planner.py chain_length), >= 2; the beam search may stop earlier."""
     hi = ring.ranges["pos"][1] if "pos" in ring.ranges else 2.0
@@ -84,7 +90,7 @@ def eval_root(run: Path, episodes: int) -> Path:
     return run / "eval" / ("reach" if episodes == 250 else f"reach-n{episodes}")
 
 
-def options(base, ring, variant: str, margin: float | None = None):
+def options(base: EvalOptions, ring: Ring, variant: str, margin: float | None = None) -> EvalOptions:
     """EvalOptions of one variant on one ring."""
     kw = dict(task="ood", family=ring.family, ring=str(ring.index) if ring.index else None, decline_margin=None)
     if variant == "straight":
@@ -138,7 +144,7 @@ def _slice(r: dict, idx: np.ndarray, E: int) -> dict:
     return {k: (v[idx] if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == E else v) for k, v in r.items()}
 
 
-def fly_group(run: Path, opts: list, loaded, heldout: bool, base_episodes: int) -> list[Path]:
+def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool, base_episodes: int) -> list[Path]:
     """Fly one variant on several rings of equal horizon in one batched closed loop per
     checkpoint (the rings' episodes side by side: one policy call per step for all of
     them), and write each ring's evaluation as ``aerohrl eval`` would (episodes CSV,
@@ -224,7 +230,7 @@ def choose_margin(pairs: dict, max_loss: float = MAX_LOSS) -> tuple[float, dict]
     return best, table
 
 
-def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, log, fly_declines: bool = False) -> dict:
+def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, heldout_n: int, log: Callable[[str], Any], fly_declines: bool = False) -> dict:
     """Fly everything (resumable); returns {"margins": {planner: M}, "margin_tables": ...}."""
     from aerohrl.eval.harness import load_run_dataset
 
@@ -278,7 +284,7 @@ def study(runs: list[Path], rings, variants: list[str], base, heldout_n: int, lo
     return {"margins": margins, "margin_tables": {p: {str(k): v for k, v in t.items()} for p, t in margin_tables.items()}}
 
 
-def feasibility_of(ring, n: int, spec: dict, cache: Path) -> dict | None:
+def feasibility_of(ring: Ring, n: int, spec: dict, cache: Path) -> dict | None:
     """Expert feasibility of the ring's test goals (eval/feasibility.py), cached as JSON; None without it."""
     try:
         from aerohrl.eval import feasibility
@@ -304,7 +310,7 @@ def feasibility_of(ring, n: int, spec: dict, cache: Path) -> dict | None:
     return {k: np.array(v) for k, v in keep.items()}
 
 
-def collect(runs: list[Path], rings, variants: list[str], base, margins: dict, feas: dict) -> list[dict]:
+def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, margins: dict, feas: dict) -> list[dict]:
     """Per ring: per variant the success per seed (mean over checkpoints), on all and on
     feasible goals, and the paired gain over straight pooled over seeds."""
     from aerohrl.eval.results import seed_stats
@@ -372,6 +378,8 @@ VARIANT_LABEL = {"straight": "straight", "single": "single (Eq. 3.7, thesis)", "
 
 
 def tables(recs: list[dict], variants: list[str], margins: dict) -> str:
+    """The reach tables as Markdown: per family and ring, each variant's success (mean and
+    seed spread, on all and on expert-feasible goals) and the paired gain over straight."""
     from aerohrl.eval.results import seed_cell
 
     fams: dict[str, list[dict]] = {}
@@ -448,7 +456,7 @@ def plot_curves(recs: list[dict], variants: list[str], path: Path) -> Path:
     return path
 
 
-def plot_paths(run: Path, rings, base, variant: str, path: Path, per_ring: int = 3) -> Path | None:
+def plot_paths(run: Path, rings: list[Ring], base: EvalOptions, variant: str, path: Path, per_ring: int = 3) -> Path | None:
     """3-D paths of far goals (the last ring of each family), planned waypoints marked
     (thesis Fig. 3.6 analogue): flown path per episode, start, goal and its waypoints."""
     import matplotlib
@@ -494,7 +502,9 @@ def plot_paths(run: Path, rings, base, variant: str, path: Path, per_ring: int =
     return path
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
+    """The OOD reach study command (families flown straight and planned over seeds, decline
+    margins on held-out goals, tables and figures); exit code."""
     ap = argparse.ArgumentParser(prog=PROG, description="OOD goal families flown straight and planned over seeds; decline "
                                  "margins chosen on held-out goals; reach tables and curves.")
     ap.add_argument("--runs", nargs="+", type=Path, required=True, help="one run per training seed (same recipe and algorithm)")

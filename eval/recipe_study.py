@@ -36,6 +36,7 @@ import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
@@ -86,6 +87,7 @@ class Row:
 
     @property
     def name(self) -> str:
+        """The row's run name: ``RECIPE-nGOALS-sSEED-STEPSk``."""
         slug = self.recipe.replace(" + ", "+").replace(", ", "-").replace(" ", "-")
         return f"{slug}-n{self.goals}-s{self.seed}-{self.steps // 1000}k"
 
@@ -114,7 +116,7 @@ def flights_per_goal(recipe: str) -> int:
     return int(flags[flags.index("--rollouts-per-goal") + 1]) if "--rollouts-per-goal" in flags else 1
 
 
-def dataset_for(py: str, recipe: str, goals: int, root: str, log) -> str:
+def dataset_for(py: str, recipe: str, goals: int, root: str, log: Callable[[str], Any]) -> str:
     """Build (or verify) the dataset of ``recipe`` with ``goals`` goals; its path."""
     if recipe not in RECIPES:
         raise UserError(f"unknown recipe {recipe!r} (choose from {', '.join(RECIPES)})")
@@ -125,7 +127,7 @@ def dataset_for(py: str, recipe: str, goals: int, root: str, log) -> str:
     return out.strip().splitlines()[-1].strip()
 
 
-def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log) -> Path:
+def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log: Callable[[str], Any]) -> Path:
     """Train (or resume) the row's run, then every evaluation not yet up to date."""
     rd = runs / row.name
     train = [py, "-m", "aerohrl.algorithms.cli"]
@@ -239,6 +241,8 @@ def _flights(recipe: str, goals: int) -> str:
 
 
 def table(recs: list[dict]) -> str:
+    """The recipe table as Markdown: one line per recipe/size/steps with the seeds' success on
+    every task (and at half tolerance) and the critics' AUC."""
     head = ("| recipe | flights (goals) | steps | seeds | Reach-Desired (own goals) | Reach-Novel | Reach-Intermediate | OOD straight | "
             "critics' AUC (Reach-Novel) | RD @ half tol | RN @ half tol | RI @ half tol | OOD @ half tol |\n"
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
@@ -306,7 +310,9 @@ def _figure_line(fig: Path, readme: Path) -> str:
         return f"Plot: `{fig}`."
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
+    """The recipe study command: build the recipe datasets, train GCSL on each, evaluate
+    and write the recipe table; exit code."""
     ap = argparse.ArgumentParser(prog=PROG, description="Build recipe datasets, train GCSL on each, evaluate, write the recipe table.")
     ap.add_argument("--plan", nargs="+", default=["best", "table", "size", "seeds", "sizes"], choices=list(PLANS),
                     help="which rows to train and report [all]")

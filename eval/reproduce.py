@@ -117,7 +117,9 @@ def update_readme(readme: Path, block: str, begin: str = BEGIN, end: str = END) 
     return True
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
+    """``make results``: build the data, train all four algorithms, evaluate them and write the
+    tables and plots; exit code."""
     ap = ArgumentParser(prog=PROG, description="Build data, train all four algorithms, evaluate, write the tables.")
     ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
     ap.add_argument("--runs", default="runs", help="runs root [runs]")

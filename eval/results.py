@@ -20,11 +20,16 @@ import csv
 import io
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterable, Sequence
 
 import numpy as np
 
 from aerohrl import atomic, task
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    from aerohrl.eval.harness import EvalOptions
+    from aerohrl.eval.tasks import EpisodeSet
 
 # thesis Table 3.1 (success %, mean ± std over the last 10 checkpoints) and Table 3.2
 THESIS_T31 = {
@@ -37,11 +42,12 @@ THESIS_T32 = {"single": (11.6, 29.2), "none": (0.0, 4.4)}  # (success %, near su
 ALGO_NAMES = {"gcsl": "GCSL", "td3bc": "TD3-BC", "td3awbc": "TD3-AWBC", "cql": "CQL"}
 
 
-def write_text(path, text: str) -> Path:
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically (temporary, fsync, rename); returns the path."""
     return atomic.write_text(path, text)  # temporary name, fsync, rename
 
 
-def episode_rows(episodes, r: dict) -> tuple[list[str], list[list]]:
+def episode_rows(episodes: EpisodeSet, r: dict) -> tuple[list[str], list[list]]:
     """Header and rows of the per-episode table."""
     E = len(episodes)
     head = ["episode", "kind", "source_episode", "start_frame", "steps_ahead", "horizon"]
@@ -73,7 +79,8 @@ def episode_rows(episodes, r: dict) -> tuple[list[str], list[list]]:
     return head, rows
 
 
-def to_csv(head, rows) -> str:
+def to_csv(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """``head`` and ``rows`` as CSV text."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(head)
@@ -81,11 +88,14 @@ def to_csv(head, rows) -> str:
     return buf.getvalue()
 
 
-def write_episodes(out_dir, step: int, episodes, r: dict) -> Path:
+def write_episodes(out_dir: str | Path, step: int, episodes: EpisodeSet, r: dict) -> Path:
+    """Write the per-episode table of checkpoint ``step`` as ``OUT/episodes-step-N.csv``; returns the path."""
     return write_text(Path(out_dir) / f"episodes-step-{step:09d}.csv", to_csv(*episode_rows(episodes, r)))
 
 
-def write_trajectories(out_dir, step: int, episodes, r: dict) -> Path:
+def write_trajectories(out_dir: str | Path, step: int, episodes: EpisodeSet, r: dict) -> Path:
+    """Write the flown positions, goals, starts and outcomes of checkpoint ``step`` as
+    ``OUT/trajectories-step-N.npz`` (for the trajectory plots); returns the path."""
     path = Path(out_dir) / f"trajectories-step-{step:09d}.npz"
     buf = io.BytesIO()
     extra = {k: r[k] for k in ("waypoints", "planned_waypoints") if k in r}
@@ -97,7 +107,7 @@ def write_trajectories(out_dir, step: int, episodes, r: dict) -> Path:
 FAR_AHEAD = 10  # Reach-Intermediate goals at least this many steps ahead: "far" (hovering cannot succeed)
 
 
-def kind_rates(episodes, r: dict) -> dict:
+def kind_rates(episodes: EpisodeSet, r: dict) -> dict:
     """Success rates per episode kind (reach-intermediate: 'desired' / 'intermediate')."""
     kind = episodes.kind()
     out = {}
@@ -112,7 +122,10 @@ def kind_rates(episodes, r: dict) -> dict:
     return out
 
 
-def summarize(per_ckpt: list[dict], *, run_dir, meta: dict, options, episodes, seconds: float) -> dict:
+def summarize(per_ckpt: list[dict], *, run_dir: str | Path, meta: dict, options: EvalOptions, episodes: EpisodeSet, seconds: float) -> dict:
+    """The ``summary.json`` of an evaluation: the per-checkpoint results ``per_ckpt`` and the
+    mean/std of success and near success over them, with the run, algorithm, task,
+    options, dataset and timing."""
     s = np.array([c["success"] for c in per_ckpt])
     ns = np.array([c["near_success"] for c in per_ckpt])
     from dataclasses import asdict
@@ -139,11 +152,14 @@ def summarize(per_ckpt: list[dict], *, run_dir, meta: dict, options, episodes, s
     }
 
 
-def write_summary(out_dir, summary: dict) -> Path:
+def write_summary(out_dir: str | Path, summary: dict) -> Path:
+    """Write ``summary`` as ``OUT/summary.json`` (atomic); returns the path."""
     return write_text(Path(out_dir) / "summary.json", json.dumps(summary, indent=2, sort_keys=True) + "\n")
 
 
-def read_summary(run_dir, name: str) -> dict | None:
+def read_summary(run_dir: str | Path, name: str) -> dict | None:
+    """The summary of the evaluation ``name`` of a run (``RUN/eval/NAME/summary.json``);
+    None when it has none."""
     p = Path(run_dir) / "eval" / name / "summary.json"
     if not p.exists():
         return None
@@ -169,7 +185,7 @@ def _episode_success(path: Path) -> np.ndarray:
         return np.array([r[col] in ("1", "True", "true") for r in rows], bool)
 
 
-def paired_vs_none(run_dirs, name: str) -> dict | None:
+def paired_vs_none(run_dirs: Sequence[str | Path], name: str) -> dict | None:
     """OOD planner ``name`` against flying straight (``ood-none``) on the same goals and
     checkpoints, pooled over ``run_dirs`` (one run, or the seeds of one experiment):
     per-checkpoint success difference (mean, standard error over all checkpoints of all
@@ -209,7 +225,7 @@ def _paired_cell(pv: dict | None) -> str:
 # ----------------------------------------------------------------------------- seeds
 
 
-def bootstrap_ci(values, n: int = 10_000, seed: int = 0) -> tuple[float, float]:
+def bootstrap_ci(values: Sequence[float] | np.ndarray, n: int = 10_000, seed: int = 0) -> tuple[float, float]:
     """95 % percentile bootstrap interval of the mean over seeds (nan below 2 values)."""
     v = np.asarray(values, float)
     if len(v) < 2:
@@ -219,7 +235,7 @@ def bootstrap_ci(values, n: int = 10_000, seed: int = 0) -> tuple[float, float]:
     return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
-def seed_stats(values) -> dict:
+def seed_stats(values: Iterable[float]) -> dict:
     """A claim over seeds: mean, std (ddof 1; 0 for one seed), the 95 % bootstrap interval
     of the mean and every seed's value."""
     v = [float(x) for x in values]
@@ -239,7 +255,7 @@ def seed_cell(st: dict | None, digits: int = 1) -> str:
     return f"{st['mean']:.{digits}f} ± {st['std']:.{digits}f}{ci} ({vals})"
 
 
-def group_runs(run_dirs) -> list[list[Path]]:
+def group_runs(run_dirs: Sequence[str | Path]) -> list[list[Path]]:
     """The runs grouped into experiments: the same config but for the seed, on the same
     dataset version; in the order given."""
     groups: dict[str, list[Path]] = {}
@@ -294,7 +310,7 @@ def _runs_label(runs: list[Path]) -> str:
     return str(runs[0]) if len(runs) == 1 else f"{runs[0]} (+{len(runs) - 1} seeds: " + ", ".join(p.name for p in runs[1:]) + ")"
 
 
-def tables(run_dirs) -> dict:
+def tables(run_dirs: Sequence[str | Path]) -> dict:
     """Table 3.1 / 3.2 analogues from the runs' evaluation summaries, one row per
     experiment: runs that differ only in their seed are one row, their figures over seeds
     (mean ± std, 95 % bootstrap interval, per-seed values), the checkpoint spread in a
@@ -331,13 +347,15 @@ def tables(run_dirs) -> dict:
     return {"t31": (h31, t31), "t32": (h32, t32)}
 
 
-def markdown(head, rows) -> str:
+def markdown(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """``head`` and ``rows`` as a Markdown table."""
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
 def tables_markdown(t: dict) -> str:
+    """The tables of :func:`tables` as Markdown, each with its caption."""
     out = []
     if t["t31"][1]:
         out += ["**Table 3.1 analogue** (success %: a seed's figure is the mean over its evaluated checkpoints; over "

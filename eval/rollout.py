@@ -21,12 +21,17 @@ ends there; near success = the test with tolerances x 2.5 at any step).
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
 from aerohrl import task
 from aerohrl.eval.tasks import EpisodeSet
+
+if TYPE_CHECKING:
+    from aerohrl.algorithms.base import Algorithm
+    from aerohrl.eval.planner import ChainPlanner, Planner
 
 
 class PolicyFn:
@@ -48,7 +53,7 @@ class PolicyFn:
         return np.clip(np.nan_to_num(a, nan=0.0), self.lo, self.hi)
 
 
-def rollout(algo, episodes: EpisodeSet, *, planner=None, n_waypoints: int = 0, leg_horizon: int | None = None,
+def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPlanner | None = None, n_waypoints: int = 0, leg_horizon: int | None = None,
             replan: bool = True, replan_every: int = 0, waypoint_tol: float = 1.0, goal_tol: float = 1.0,
             decline_margin: float | None = None, record: bool = False,
             vehicle: str = "hummingbird",
@@ -196,7 +201,7 @@ def _replan(planner, obs, G, wp, wp_frame, leg, mask, nw, direct_option):
     return wp, wp_frame, to_direct
 
 
-def rollout_reach(algo, goals: np.ndarray, *, horizon: int = 500, vehicle: str = "hummingbird", fps: int = 100,
+def rollout_reach(algo: Algorithm, goals: np.ndarray, *, horizon: int = 500, vehicle: str = "hummingbird", fps: int = 100,
                   substeps: int = 5, start_states: np.ndarray | None = None) -> dict:
     """Reach-Desired style summary (success, near success, mean steps to success) for
     ``goals`` (N, 15) from hover at the origin or ``start_states``: the trainer's hook."""

@@ -32,11 +32,16 @@ same episodes.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from aerohrl import task
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    from aerohrl.algorithms.data import Dataset
+    from aerohrl.eval.families import Ring
 
 TASKS = ("reach-desired", "reach-intermediate", "ood", "reach-novel")
 HORIZON_DESIRED = 500
@@ -75,6 +80,7 @@ class EpisodeSet:
 
 
 def hover_states(n: int) -> np.ndarray:
+    """``n`` hover states at the origin (n, 18): zero position, velocity and rates, ``R = I``."""
     s = np.zeros((n, task.STATE_DIM))
     s[:, task.ROT] = np.eye(3).ravel()
     return s
@@ -103,7 +109,7 @@ def _pick(rng: np.random.Generator, pool: int, n: int) -> np.ndarray:
     return np.concatenate([np.arange(pool), rng.choice(pool, size=n - pool, replace=True)])
 
 
-def reach_desired(data, n: int = 250, seed: int = 0) -> EpisodeSet:
+def reach_desired(data: Dataset, n: int = 250, seed: int = 0) -> EpisodeSet:
     """Reach-Desired (SPEC.md): origin -> a desired goal of the dataset, 500 steps.
 
     The goals are those of the episodes the expert flew from rest at the origin (all of
@@ -117,7 +123,7 @@ def reach_desired(data, n: int = 250, seed: int = 0) -> EpisodeSet:
                       rest[idx].astype(np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), seed)
 
 
-def reach_intermediate(data, n: int = 250, seed: int = 0, max_ahead: int = MAX_AHEAD) -> EpisodeSet:
+def reach_intermediate(data: Dataset, n: int = 250, seed: int = 0, max_ahead: int = MAX_AHEAD) -> EpisodeSet:
     """Reach-Intermediate (SPEC.md): start on an expert trajectory; 1/3 to its desired
     goal (500 steps), 2/3 to the achieved goal <= ``max_ahead`` steps ahead (100 steps)."""
     n = _check_n(n)
@@ -142,7 +148,7 @@ def reach_intermediate(data, n: int = 250, seed: int = 0, max_ahead: int = MAX_A
                       meta={"max_ahead": int(max_ahead), "n_desired": n_desired})
 
 
-def ood_goals(n: int, seed: int = 0, *, pos_range=OOD_POS_RANGE, vel_range=None, acc_range=None,
+def ood_goals(n: int, seed: int = 0, *, pos_range: tuple[float, float] = OOD_POS_RANGE, vel_range: tuple[float, float] | None = None, acc_range: tuple[float, float] | None = None,
               stream: int = OOD_SEED_OFFSET) -> np.ndarray:
     """(n, 15) out-of-distribution goals (SPEC.md "ood"); another ``pos_range`` and
     ``stream`` give other goal sets (``reach-novel``)."""
@@ -154,7 +160,7 @@ def ood_goals(n: int, seed: int = 0, *, pos_range=OOD_POS_RANGE, vel_range=None,
     return goal_vectors(g)
 
 
-def reach_novel(data, n: int = 250, seed: int = 0) -> EpisodeSet:
+def reach_novel(data: Dataset | None, n: int = 250, seed: int = 0) -> EpisodeSet:
     """Reach-Novel (diagnostic): origin -> a *new* goal from the dataset's own ranges, 500 steps."""
     spec = (data.info.get("spec") or {}) if data is not None else {}
     pos = tuple(spec.get("pos_range") or DEFAULT_POS_RANGE)
@@ -166,7 +172,7 @@ def reach_novel(data, n: int = 250, seed: int = 0) -> EpisodeSet:
                       meta={"pos_range": list(pos), "seed_stream": NOVEL_SEED_OFFSET + int(seed)})
 
 
-def ood(data, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, legs: int = 2) -> EpisodeSet:
+def ood(data: Dataset | None, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, legs: int = 2) -> EpisodeSet:
     """OOD (SPEC.md): origin -> a goal with |p_i| in [2, 3.5] m; ``legs * leg_horizon`` steps in all."""
     spec = (data.info.get("spec") or {}) if data is not None else {}
     goals = ood_goals(n, seed, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"))
@@ -177,7 +183,7 @@ def ood(data, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, l
                             "seed_stream": OOD_SEED_OFFSET + int(seed)})
 
 
-def ood_family(data, n: int = 250, seed: int = 0, *, ring, horizon: int | None = None) -> EpisodeSet:
+def ood_family(data: Dataset | None, n: int = 250, seed: int = 0, *, ring: Ring, horizon: int | None = None) -> EpisodeSet:
     """OOD goals of a family ring (eval/families.py): origin -> a goal that leaves rho_D
     along the ring's dimensions, the others from the dataset's ranges; ``horizon`` steps
     (default: the ring's, scaled to the distance)."""
@@ -197,7 +203,7 @@ def ood_family(data, n: int = 250, seed: int = 0, *, ring, horizon: int | None =
                             "ranges": {k: list(v) for k, v in ring.ranges.items()}, "goal_acc": g["acc"]})
 
 
-def make_episodes(name: str, data, n: int = 250, seed: int = 0, **kw) -> EpisodeSet:
+def make_episodes(name: str, data: Dataset | None, n: int = 250, seed: int = 0, **kw: Any) -> EpisodeSet:
     """The episode set of task ``name`` (one of :data:`TASKS`)."""
     if name not in TASKS:
         raise UserError(f"unknown task {name!r} (choose from {', '.join(TASKS)})")
