@@ -84,6 +84,7 @@ class PlannerConfig:
                                    # its reward units); 0 = run every generation
 
     def validate(self) -> None:
+        """UserError (one line) for an unknown scoring rule or an out-of-range planner setting."""
         if self.scoring not in ("ratio", "additive"):
             raise UserError(f"unknown scoring {self.scoring!r} (ratio|additive)")
         if not np.isfinite(self.cmaes_tol) or self.cmaes_tol < 0:
@@ -111,9 +112,11 @@ class Planner:
         self.cfg.validate()
 
     def reset(self) -> None:
+        """Forget any per-episode state (a new episode starts)."""
         pass
 
     def act(self) -> np.ndarray:  # (N,) action slots
+        """One action slot per environment (N,) int for the current state."""
         raise NotImplementedError
 
 
@@ -157,6 +160,8 @@ class TreePlanner(Planner):
         raise UserError(f"unknown utility {self.kind!r}")
 
     def act(self) -> np.ndarray:
+        """One action slot per live environment (N,): the first primitive of the best sequence of
+        length ``depth`` (exhaustive, batched)."""
         env = self.env
         N = env.n
         out = np.zeros(N, np.int64)
@@ -308,6 +313,7 @@ class CMAESPlanner(Planner):
         self.reset()
 
     def reset(self) -> None:
+        """Empty the per-environment action queues and replan counters."""
         self.queue = np.full((self.env.n, 0), -1, np.int64)
         self.replans = np.zeros(self.env.n, np.int64)  # per env: seeds do not depend on the batch
 
@@ -352,6 +358,8 @@ class CMAESPlanner(Planner):
         return acts, util, cost
 
     def act(self) -> np.ndarray:
+        """One action slot per environment (N,): the next slot of its CMA-ES-optimised
+        sequence, replanned when the queue runs out."""
         from cmaes import CMA
 
         env, cfg = self.env, self.cfg

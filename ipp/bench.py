@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
@@ -21,6 +22,11 @@ from .baselines import PLANNERS, TEACHERS, THESIS_NAMES, PlannerConfig, make_pla
 from .env import EnvConfig, SearchEnv
 from .factory import create_env, sample_for
 from .lattice import Lattice
+
+if TYPE_CHECKING:
+    from aerohrl.eval.rollout import PolicyFn
+
+    from .policy import ActorCritic
 
 TEST_SEED = 1000
 
@@ -38,6 +44,7 @@ class BenchConfig:
     execution: str = "ideal"   # "ideal" (the lattice's sensing) or "flown" (.flown)
 
     def validate(self) -> None:
+        """UserError (one line) for a suite or batch size below 1 or an unknown planner."""
         if self.envs < 1 or self.batch < 1:
             raise UserError("--envs and --batch must be >= 1")
         for p in self.planners:
@@ -46,8 +53,8 @@ class BenchConfig:
                                 f"{', '.join(PLANNERS + TEACHERS)}, rl)")
 
 
-def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids=None, progress=None,
-                 keep_env: bool = False, model=None, skill=None) -> dict:
+def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids: Sequence[int] | np.ndarray | None = None, progress: Any = None,
+                 keep_env: bool = False, model: ActorCritic | None = None, skill: PolicyFn | None = None) -> dict:
     """Run ``name`` on the suite; returns per-env metrics, summary inputs and timing."""
     ids = np.arange(cfg.envs) if env_ids is None else np.asarray(env_ids)
     per_env: dict[str, list] = {}
@@ -106,7 +113,7 @@ def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids=None, pr
     return out
 
 
-def render_episode(env: SearchEnv, n: int, path, title: str = "") -> Path:
+def render_episode(env: SearchEnv, n: int, path: str | Path, title: str = "") -> Path:
     """Fig. 2.3 analogue for env ``n`` of a finished run: truth, prior, path at 70/30/0 %."""
     import matplotlib
     matplotlib.use("Agg")
@@ -181,8 +188,8 @@ def render_episode(env: SearchEnv, n: int, path, title: str = "") -> Path:
     return path
 
 
-def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, path,
-                    model=None, title: str = "", fps: int = 4, skill=None) -> Path:
+def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, path: str | Path,
+                    model: ActorCritic | None = None, title: str = "", fps: int = 4, skill: PolicyFn | None = None) -> Path:
     """Animated episode (GIF) on test world ``env_id`` (target search): one frame per
     primitive, showing the belief (colour bar), the path so far (flown path too with
     ``cfg.execution == "flown"``), the true targets found (green) and not yet found (red

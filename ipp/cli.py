@@ -597,6 +597,7 @@ def _dispatch(argv) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``aerohrl ipp`` command (lattice, bench, train, ...); returns the exit code."""
     return run_cli(PROG, lambda: _dispatch(sys.argv[1:] if argv is None else argv))
 
 

@@ -80,6 +80,7 @@ class EnvConfig:
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
 
     def validate(self, lattice: Lattice) -> None:
+        """UserError (one line) when the map does not fit the lattice or a setting is out of range."""
         if self.map_size < 2 * lattice.config.footprint_radius + 2:
             raise UserError(f"map size {self.map_size} is too small for the lattice "
                             f"(needs >= {2 * lattice.config.footprint_radius + 2})")
@@ -309,7 +310,7 @@ class SearchEnv:
         return action_features(self)
 
     # ------------------------------------------------------------------- step
-    def step(self, actions: np.ndarray):
+    def step(self, actions: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
         """Execute one primitive per environment. Returns (obs, reward, terms, done).
 
         ``actions`` (N,) int action slots; entries of finished environments are ignored.
@@ -447,6 +448,7 @@ class SearchEnv:
         return b
 
     def plan_entropy(self, b: np.ndarray) -> np.ndarray:
+        """The planner's entropy term: Shannon entropy (bits) of belief ``b`` per cell."""
         return entropy_bits(b)
 
     def prio_map(self) -> np.ndarray:

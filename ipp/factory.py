@@ -7,11 +7,19 @@ subclass (no import cycle: ``env`` <- ``semantic_env`` <- ``factory``).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
 from .env import EnvConfig, SearchEnv
 from .lattice import Lattice
 from .semantic import sample_semantic_worlds
 from .semantic_env import SemanticEnv
 from .world import sample_worlds
+
+if TYPE_CHECKING:
+    from .semantic import SemanticWorlds
+    from .world import Worlds
 
 
 def create_env(cfg: EnvConfig, lattice: Lattice) -> SearchEnv:
@@ -21,14 +29,14 @@ def create_env(cfg: EnvConfig, lattice: Lattice) -> SearchEnv:
     return SearchEnv(cfg, lattice)
 
 
-def sample_for(cfg: EnvConfig, seed: int, indices):
+def sample_for(cfg: EnvConfig, seed: int, indices: Sequence[int] | np.ndarray) -> Worlds | SemanticWorlds:
     """Worlds ``indices`` of suite ``seed`` of the config's kind."""
     if cfg.kind == "semantic":
         return sample_semantic_worlds(cfg.semantic, seed, indices)
     return sample_worlds(cfg.world, seed, indices)
 
 
-def make_env(cfg: EnvConfig, lattice: Lattice, seed: int, indices) -> tuple[SearchEnv, dict]:
+def make_env(cfg: EnvConfig, lattice: Lattice, seed: int, indices: Sequence[int] | np.ndarray) -> tuple[SearchEnv, dict]:
     """Convenience: an env reset on worlds ``indices`` of suite ``seed``."""
     env = create_env(cfg, lattice)
     obs = env.reset(sample_for(cfg, seed, indices))

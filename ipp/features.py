@@ -44,9 +44,13 @@ own primitive library.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.ndimage import distance_transform_edt
+
+if TYPE_CHECKING:
+    from .env import SearchEnv
 
 
 N_FEAT = 16
@@ -176,7 +180,7 @@ def _two_step_detect(env, pr, valid, d1, fp, cmean):
     return np.where(valid, np.where(ok2.any(-1), score, d1 / fp / np.minimum(c1, R)), 0.0)
 
 
-def action_features(env) -> np.ndarray:
+def action_features(env: SearchEnv) -> np.ndarray:
     """(N, A, N_FEAT) float32 features of every action slot (see module docstring).
 
     Target search: :func:`action_features_reference`. Semantic worlds: the same values
@@ -189,7 +193,7 @@ def action_features(env) -> np.ndarray:
     return action_features_reference(env)
 
 
-def action_features_reference(env) -> np.ndarray:
+def action_features_reference(env: SearchEnv) -> np.ndarray:
     """The direct computation of :func:`action_features` for any env kind.
 
     The belief enters through the env's planner hooks (``plan_cells``, ``plan_ig``,
@@ -289,7 +293,7 @@ _K_QUANT = 24        # ... and at quantiles (time/memory balance only; any choic
 _FAST_CHUNK = 16     # environments per sparse product (bounds the (K x window) maps)
 
 
-def fast_path_applies(env) -> bool:
+def fast_path_applies(env: SearchEnv) -> bool:
     """True for semantic environments whose padding holds the fast path's window."""
     if getattr(env, "n_classes", None) is None:
         return False
@@ -491,7 +495,7 @@ def _window_edt(env, live, ends, R):
     return out
 
 
-def semantic_fast(env):
+def semantic_fast(env: SearchEnv) -> tuple[np.ndarray, np.ndarray]:
     """(features (N, A, N_FEAT) float32, detect scores (N, A)) on a semantic env; the
     scores are the ``detect`` tree's depth-2 budget-aware ``utility / cost`` of each
     first slot (-inf where invalid). Cached per state (``env.version`` and the agents'

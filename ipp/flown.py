@@ -32,10 +32,19 @@ sensor measures along the **flown** path, not the ideal one.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .env import EnvConfig, SearchEnv
 from .lattice import Lattice, poly_eval
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from aerohrl.eval.rollout import PolicyFn
+
+    from .world import Worlds
 
 EXECUTIONS = ("ideal", "flown", "skill")
 SKILL_SPACING = 1.0   # s: goals at most this far apart along a primitive (0.5-1 s apart)
@@ -58,7 +67,9 @@ class FlownEnv(SearchEnv):
         self.sim = None
 
     # ---------------------------------------------------------------- episodes
-    def reset(self, worlds, start=None) -> dict:
+    def reset(self, worlds: Worlds, start: np.ndarray | None = None) -> dict:
+        """Reset as :meth:`SearchEnv.reset` and put every vehicle at hover over its start cell;
+        returns the observation."""
         obs = super().reset(worlds, start)
         from aerohrl.eval.tasks import hover_states
         from aerohrl.sim import BatchedQuadrotor
@@ -76,11 +87,12 @@ class FlownEnv(SearchEnv):
             if self.keep_trace else None
         return obs
 
-    def reset_rows(self, rows, worlds, start=None) -> None:  # pragma: no cover - not offered
+    def reset_rows(self, rows: np.ndarray, worlds: Worlds, start: np.ndarray | None = None) -> None:  # pragma: no cover - not offered
+        """Not offered: a flown env restarts whole batches (:meth:`reset`)."""
         raise NotImplementedError("FlownEnv restarts whole batches (reset)")
 
     # ------------------------------------------------------------------ flight
-    def fly(self, idx: np.ndarray, pr: np.ndarray):
+    def fly(self, idx: np.ndarray, pr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Fly primitives ``pr`` from the nominal cells of envs ``idx``; returns the flown
         positions at the sensing times (k, S, 2), their validity (k, S), and per env the
         maximum and RMS tracking error (m)."""
@@ -153,7 +165,7 @@ class FlownEnv(SearchEnv):
                 self.flown_trace[i].append(tr[r][np.isfinite(tr[r, :, 0])])
         return samples, sval, emax, rms
 
-    def flown_measurements(self, idx, samples, sval):
+    def flown_measurements(self, idx: np.ndarray, samples: np.ndarray, sval: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measurement lists (offsets from the nominal start cells, levels) of the flown
         sample positions: distinct visited centre cells x the footprint (batched)."""
         r = self.lat.config.footprint_radius
@@ -184,7 +196,8 @@ class FlownEnv(SearchEnv):
         off, lev = self.flown_measurements(idx, samples, sval)
         return self._apply_meas(idx, off, lev)
 
-    def metrics(self):
+    def metrics(self) -> dict[str, np.ndarray]:
+        """Per-env metrics of :meth:`SearchEnv.metrics` plus the tracking error: max and RMS (m)."""
         m = super().metrics()
         m["track_max_m"] = self.track_max.copy()
         m["track_rms_m"] = np.sqrt(self.track_sq / np.maximum(self.track_steps, 1))
@@ -216,12 +229,16 @@ class SkillEnv(FlownEnv):
         self.policy = policy_fn
         self.leg_log: list[np.ndarray] = []
 
-    def reset(self, worlds, start=None) -> dict:
+    def reset(self, worlds: Worlds, start: np.ndarray | None = None) -> dict:
+        """Reset as :meth:`FlownEnv.reset` and clear the leg log; returns the observation."""
         obs = super().reset(worlds, start)
         self.leg_log = []  # per leg: (strict success, near success, duration s)
         return obs
 
-    def fly(self, idx, pr):
+    def fly(self, idx: np.ndarray, pr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Fly primitives ``pr`` of envs ``idx`` with the skill policy, leg by leg (class
+        docstring); returns the flown positions at the sensing times (k, S, 2), their validity
+        (k, S), and per env the maximum and RMS tracking error (m)."""
         from aerohrl import task
         from aerohrl.datagen.goals import flat_attitude
 
@@ -319,7 +336,8 @@ class SkillEnv(FlownEnv):
                 self.flown_trace[i].append(tr[r][np.isfinite(tr[r, :, 0])])
         return samples[:, : step // every + 1], sval[:, : step // every + 1], emax, rms
 
-    def metrics(self):
+    def metrics(self) -> dict[str, np.ndarray]:
+        """Per-env metrics of :meth:`FlownEnv.metrics` plus the skill's flight time (s)."""
         m = super().metrics()
         m["skill_flight_s"] = getattr(self, "skill_time", np.zeros(self.n)).copy()
         return m
@@ -329,7 +347,7 @@ class SkillEnv(FlownEnv):
         return np.stack(self.leg_log, 0) if self.leg_log else np.zeros((0, 3))
 
 
-def load_skill(run) -> tuple:
+def load_skill(run: str | Path | None) -> tuple:
     """The goal-conditioned policy of a chapter-3 training run (``RUN`` directory: its last
     checkpoint; or a checkpoint file) as a batched ``(states, goals) -> CTBR`` function,
     and a label. A missing run or checkpoint is a one-line error."""
@@ -355,7 +373,7 @@ def load_skill(run) -> tuple:
     return PolicyFn(algo), f"{p.parent.parent.name}/{p.name}"
 
 
-def create_flown_env(cfg: EnvConfig, lattice: Lattice, execution: str, skill=None) -> SearchEnv:
+def create_flown_env(cfg: EnvConfig, lattice: Lattice, execution: str, skill: PolicyFn | None = None) -> SearchEnv:
     """A :class:`SearchEnv` (``ideal``), :class:`FlownEnv` (``flown``, the geometric
     controller) or :class:`SkillEnv` (``skill``, the policy ``skill`` of
     :func:`load_skill`); target search only."""

@@ -107,7 +107,9 @@ class IPPSearchVectorEnv(VectorEnv):
         return self.env.valid_mask()
 
     # ------------------------------------------------------------------ gymnasium API
-    def reset(self, *, seed=None, options=None):
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start every env on a new world (``options["worlds"]``: given world indices, else
+        drawn); returns ``(obs, info)`` with the action masks."""
         super().reset(seed=seed)
         options = options or {}
         idx = options.get("worlds")
@@ -118,7 +120,9 @@ class IPPSearchVectorEnv(VectorEnv):
         self._needs_reset[:] = False
         return self._obs(), self._info()
 
-    def step(self, actions):
+    def step(self, actions: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray, dict]:
+        """Execute one primitive (action slot, (n,) int) per env; ``(obs, reward, terminated,
+        truncated, info)`` (info: action masks, worlds, reward terms, metrics at the end)."""
         n, env = self.num_envs, self.env
         a = np.asarray(actions).reshape(n)
         if not np.issubdtype(a.dtype, np.integer):
@@ -173,9 +177,12 @@ class IPPSearchEnv(gym.Env):
         return {k: (v[0] if isinstance(v, np.ndarray) else v) for k, v in d.items()}
 
     def action_masks(self) -> np.ndarray:
+        """The valid action slots (A,) bool of the current state (for maskable policies)."""
         return self._vec.action_masks()[0]
 
-    def reset(self, *, seed=None, options=None):
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """Start on a new world (``options["world"]``: a given index, else drawn); returns
+        ``(obs, info)`` with the action mask."""
         super().reset(seed=seed)
         opts = dict(options or {})
         if "world" in opts:
@@ -185,7 +192,8 @@ class IPPSearchEnv(gym.Env):
         self._done = False
         return self._one(obs), {"action_mask": info["action_mask"][0], "world": int(info["world"][0])}
 
-    def step(self, action):
+    def step(self, action: int) -> tuple[dict, float, bool, bool, dict]:
+        """Execute one primitive (action slot); ``(obs, reward, terminated, truncated, info)``."""
         obs, r, te, tr, info = self._vec.step(np.asarray([int(action)]))
         out = {"action_mask": info["action_mask"][0], "world": int(info["world"][0]),
                "terms": info["terms"][0]}

@@ -95,6 +95,8 @@ class LatticeConfig:
     vertex_speed: float = 0.9    # X is the disk |v| <= vertex_speed * v_max (turns need room)
 
     def validate(self) -> None:
+        """UserError (one line) for an inconsistent lattice configuration (counts, speeds,
+        durations, footprint, hover moves)."""
         if self.n_vertices < 1:
             raise UserError("lattice: n_vertices must be >= 1")
         if self.v_max <= 0 or self.a_max <= 0 or self.rho <= 0:
@@ -171,7 +173,7 @@ def select_vertices(cfg: LatticeConfig) -> tuple[np.ndarray, np.ndarray]:
     return np.array(verts), np.array(disp)
 
 
-def quintic_coefficients(p0, v0, p1, v1, T) -> np.ndarray:
+def quintic_coefficients(p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray, T: float | np.ndarray) -> np.ndarray:
     """Minimum-jerk quintic with zero boundary accelerations, batched.
 
     ``p0, v0, p1, v1``: (..., 2); ``T``: (...). Returns (..., 2, 6) with
@@ -253,21 +255,25 @@ class Lattice:
 
     @property
     def n_vertices(self) -> int:
+        """The number of lattice vertices (velocity states)."""
         return len(self.vertices)
 
     @property
     def n_actions(self) -> int:
+        """The number of action slots per vertex (outgoing edges, invalid ones padded)."""
         return self.edges.shape[1]
 
     @property
     def n_prims(self) -> int:
+        """The number of motion primitives."""
         return len(self.prim_T)
 
     @property
     def n_levels(self) -> int:
+        """The number of sensing levels (altitudes / footprint sizes) of the measurements."""
         return self.cell_count.shape[2]
 
-    def positions(self, prim: int, origin=(0, 0), n: int = 50) -> np.ndarray:
+    def positions(self, prim: int, origin: tuple[int, int] | np.ndarray = (0, 0), n: int = 50) -> np.ndarray:
         """Tiled trajectory of primitive ``prim`` started at cell ``origin``: (n, 2)."""
         t = np.linspace(0.0, self.prim_T[prim], n)
         p = poly_eval(self.prim_coef[prim], t[None, :])  # (2, n)
@@ -281,7 +287,7 @@ class Lattice:
             self._extra["prim_length"] = path_length(self.prim_coef, self.prim_T)
         return self._extra["prim_length"]
 
-    def sensed_cells(self, prim: int, origin=(0, 0)) -> tuple[np.ndarray, np.ndarray]:
+    def sensed_cells(self, prim: int, origin: tuple[int, int] | np.ndarray = (0, 0)) -> tuple[np.ndarray, np.ndarray]:
         """Tiled measurements of ``prim`` at ``origin``: cells (m, 2) and levels (m,)."""
         keep = self.meas_level[prim] >= 0
         return self.meas_off[prim][keep].astype(int) + np.asarray(origin, int), \
@@ -513,6 +519,8 @@ def semantic_lattice() -> Lattice:
 
 
 def get_lattice(path: str | os.PathLike | None, kind: str = "targets") -> Lattice:
+    """The lattice at ``path`` (an ``ipp lattice build`` file), else the default lattice of
+    ``kind`` (targets or semantic)."""
     if path is not None:
         return load_lattice(path)
     return semantic_lattice() if kind == "semantic" else default_lattice()

@@ -15,6 +15,7 @@ import csv
 import io
 import os
 from pathlib import Path
+from typing import Collection
 
 import numpy as np
 
@@ -50,6 +51,7 @@ THESIS_TABLE_2_2 = {
 
 
 def thesis_table(kind: str = "targets") -> dict:
+    """The thesis's reference figures (Table 2.1, or 2.2 for ``semantic``) by planner."""
     return THESIS_TABLE_2_2 if kind == "semantic" else THESIS_TABLE
 
 
@@ -99,7 +101,7 @@ def markdown_table(results: dict[str, dict], names: dict[str, str], kind: str = 
     return head + "\n".join(rows) + "\n"
 
 
-def paired_differences(results: dict[str, dict], baselines, metric: str = "search_efficiency"):
+def paired_differences(results: dict[str, dict], baselines: Collection[str], metric: str = "search_efficiency") -> tuple[dict[str, dict[str, tuple[float, float, int]]], str | None]:
     """Paired differences of ``metric`` between every non-baseline row and every baseline
     row, over the environments both ran: ``{row: {baseline: (mean, standard error, n)}}``
     plus the best baseline by mean. Rows must share their ``env_ids``."""
@@ -120,7 +122,7 @@ def paired_differences(results: dict[str, dict], baselines, metric: str = "searc
     return out, best
 
 
-def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines) -> str:
+def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines: Collection[str]) -> str:
     """Markdown table of :func:`paired_differences` of search efficiency ('' if there is
     nothing to pair)."""
     diffs, best = paired_differences(results, baselines)
@@ -138,6 +140,7 @@ def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines) 
 
 
 def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
+    """Per planner: the number of worlds and each metric's mean and std, as CSV."""
     buf = io.StringIO()
     w = csv.writer(buf)
     keys = [k for k in ALL_METRICS if all(k in r["summary"] for r in results.values())]
@@ -153,6 +156,7 @@ def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
 
 
 def per_env_csv(results: dict[str, dict]) -> str:
+    """Per planner and world: KL(truth || prior), every metric and the steps, as CSV."""
     buf = io.StringIO()
     w = csv.writer(buf)
     first = next(iter(results.values()))["per_env"]
@@ -188,6 +192,7 @@ _LABEL = {"coverage": "coverage % (900)", "coverage_padded": "coverage % (1600)"
 
 
 def budget_csv(sweep: dict) -> str:
+    """Per planner and budget of a budget sweep: each metric's mean and std, as CSV."""
     buf = io.StringIO()
     w = csv.writer(buf)
     keys = [k for k in ALL_METRICS if all(k in r["summary"] for r in sweep.values())]
@@ -197,7 +202,7 @@ def budget_csv(sweep: dict) -> str:
     return buf.getvalue()
 
 
-def plot_budgets(sweep: dict, names: dict[str, str], path, kind: str = "targets") -> Path:
+def plot_budgets(sweep: dict, names: dict[str, str], path: str | Path, kind: str = "targets") -> Path:
     """Each metric against the budget (mean ± standard error over the worlds), one line per
     planner; the thesis's Table 2.1 value as a dotted line of the same colour on the
     panels of its denominator (padded coverage / entropy, search efficiency)."""
@@ -297,13 +302,14 @@ def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
 
 
 def write_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically (temporary, rename); returns the path."""
     with atomic_path(path) as tmp:
         with open(tmp, "w") as f:
             f.write(text)
     return Path(path)
 
 
-def plot_kl(results: dict[str, dict], names: dict[str, str], path, bins: int = 5,
+def plot_kl(results: dict[str, dict], names: dict[str, str], path: str | Path, bins: int = 5,
             xlabel: str = "KL(truth || prior) (nats), quantile bins") -> Path:
     """Fig. 2.4 analogue: search efficiency against KL(truth || prior), binned, per planner."""
     import matplotlib
