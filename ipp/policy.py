@@ -70,9 +70,10 @@ class ActorCritic(nn.Module):
         nn.init.zeros_(self.pi.bias)
 
     def initial_state(self, n: int) -> torch.Tensor:
+        """The zero recurrent state (1, n, hidden) of ``n`` new episodes."""
         return torch.zeros(1, n, self.cfg.hidden)
 
-    def forward(self, maps, vec, h, feat=None):
+    def forward(self, maps: torch.Tensor, vec: torch.Tensor, h: torch.Tensor, feat: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """maps (T, N, C, H, W), vec (T, N, D), h (1, N, hidden), feat (T, N, A, F)
         -> (policy logits, per-term values, valid logits, h) over (T, N)."""
         T, N = maps.shape[:2]
@@ -94,20 +95,22 @@ class ActorCritic(nn.Module):
         return logits, self.v(x), self.valid(x), h
 
 
-def valid_loss(phi_logits, valid, beta1: float = 1.0, beta2: float = 0.2):
+def valid_loss(phi_logits: torch.Tensor, valid: torch.Tensor, beta1: float = 1.0, beta2: float = 0.2) -> torch.Tensor:
     """Eq. 2.7: ``-[beta1 (1-y) log(1-phi) + beta2 y log phi]`` (invalid weighted heavily)."""
     y = valid.float()
     ls = nn.functional.logsigmoid
     return -(beta1 * (1 - y) * ls(-phi_logits) + beta2 * y * ls(phi_logits)).mean()
 
 
-def save_policy(model: ActorCritic, dims: dict, path, env_kind: str = "targets") -> None:
+def save_policy(model: ActorCritic, dims: dict, path: str | Path, env_kind: str = "targets") -> None:
     """Atomically, with a SHA-256 sidecar (``model.pt.sha256``) checked by :func:`load_policy`."""
     atomic.torch_save(path, {"state_dict": model.state_dict(), "dims": dims,
                              "config": asdict(model.cfg), "env_kind": env_kind})
 
 
-def load_policy(path) -> ActorCritic:
+def load_policy(path: str | Path) -> ActorCritic:
+    """A policy saved by :func:`save_policy` (``path`` or ``path/model.pt``), its SHA-256
+    verified, in eval mode; a one-line UserError when missing or damaged."""
     path = Path(path)
     if path.is_dir():
         path = path / "model.pt"
@@ -177,10 +180,13 @@ class RLPlanner(Planner):
         self.h = None
 
     def reset(self) -> None:
+        """Forget the recurrent state (a new episode starts)."""
         self.h = None
 
     @torch.no_grad()
     def act(self) -> np.ndarray:
+        """One action slot per environment (N,) int: a valid primitive of the policy (its argmax
+        when ``greedy``, else sampled); the recurrent state advances for live envs."""
         env = self.env
         if self.h is None or self.h.shape[1] != env.n:
             self.h = self.model.initial_state(env.n)

@@ -55,6 +55,7 @@ import os
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 from scipy.ndimage import gaussian_filter, shift as nd_shift
@@ -238,6 +239,7 @@ class SemanticWorlds:
 
     @property
     def targets(self) -> np.ndarray:  # feature cells (non-background), for counts
+        """(N, S, S) bool: the feature cells (class > 0), for the target counts."""
         return self.classes > 0
 
 
@@ -255,7 +257,7 @@ def semantic_prior(rng: np.random.Generator, classes: np.ndarray, cfg: SemanticC
     return out.astype(np.float32)
 
 
-def make_semantic_world(cfg: SemanticConfig, seed: int, index: int):
+def make_semantic_world(cfg: SemanticConfig, seed: int, index: int) -> tuple[np.ndarray, np.ndarray]:
     """World ``index`` of suite ``seed``: (classes, prior). A raster fixes the classes."""
     rng = np.random.default_rng([seed, index, 2])
     if cfg.raster is not None:
@@ -267,7 +269,9 @@ def make_semantic_world(cfg: SemanticConfig, seed: int, index: int):
     return classes, semantic_prior(rng, classes, cfg)
 
 
-def sample_semantic_worlds(cfg: SemanticConfig, seed: int, indices) -> SemanticWorlds:
+def sample_semantic_worlds(cfg: SemanticConfig, seed: int, indices: Sequence[int] | np.ndarray) -> SemanticWorlds:
+    """Worlds ``indices`` of suite ``seed``: classes (N, S, S), prior (N, S, S, C), the
+    KL(truth || prior) per world and the seeds."""
     idx = np.atleast_1d(np.asarray(indices, np.int64))
     out = [make_semantic_world(cfg, seed, int(i)) for i in idx]
     cls = np.stack([o[0] for o in out])
@@ -304,6 +308,7 @@ def categorical_update(l: np.ndarray, z: np.ndarray, err: np.ndarray) -> np.ndar
 
 
 def softmax(l: np.ndarray) -> np.ndarray:
+    """``softmax(l)`` over the last axis (class log-odds -> probabilities), shape kept."""
     e = np.exp(l - l.max(-1, keepdims=True))
     return e / e.sum(-1, keepdims=True)
 
@@ -349,4 +354,5 @@ def _info_gain_cat_direct(p: np.ndarray, lam: np.ndarray) -> np.ndarray:
 
 
 def class_rgb(classes: np.ndarray) -> np.ndarray:
+    """RGB colours (..., 3) of class indices ``classes`` (:data:`PALETTE`)."""
     return PALETTE[np.asarray(classes, np.int64)]

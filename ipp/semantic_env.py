@@ -38,6 +38,8 @@ class SemanticEnv(SearchEnv):
         self.lam_levels = label_logratio(self.err_levels, C)
 
     def reset(self, worlds: SemanticWorlds, start: np.ndarray | None = None) -> dict:
+        """Start every env on ``worlds``: class log-beliefs from the prior, nothing covered or
+        found, agents at the start cells; returns the observation."""
         cfg, S, p, C = self.cfg, self.S, self.pad, self.n_classes
         N = len(worlds)
         self.n, self.worlds = N, worlds
@@ -129,7 +131,7 @@ class SemanticEnv(SearchEnv):
         return Hn, ncov, nf, rt
 
     # ------------------------------------------------- planner hooks (baselines.py)
-    def plan_cells(self, n_idx, flat):
+    def plan_cells(self, n_idx: np.ndarray, flat: np.ndarray) -> np.ndarray:
         """(…, C) class probabilities at padded flat cells ``flat`` of envs ``n_idx``
         (read from the observation planes, which hold softmax(L) on the inner map)."""
         C, HH = self.n_classes, self.Hp * self.Hp
@@ -137,19 +139,24 @@ class SemanticEnv(SearchEnv):
         n_idx, flat = np.broadcast_arrays(n_idx, flat)
         return pl[n_idx[..., None], flat[..., None] + np.arange(C) * HH]  # float32: speed
 
-    def plan_ig(self, b, lam):
+    def plan_ig(self, b: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
+        """Expected information gain (bits) of sensing cells with class beliefs ``b`` (..., C)
+        with total log-ratio ``lam``."""
         return info_gain_cat(b, np.asarray(lam, b.dtype))
 
-    def plan_prio(self, b):
+    def plan_prio(self, b: np.ndarray) -> np.ndarray:
+        """Probability that the cell holds a feature: ``1 - P(background)`` of ``b`` (..., C)."""
         return 1.0 - b[..., 0]
 
-    def plan_entropy(self, b):
+    def plan_entropy(self, b: np.ndarray) -> np.ndarray:
+        """The planner's entropy term: categorical entropy (bits) of ``b`` (..., C) per cell."""
         return entropy_cat_bits(b)
 
-    def prio_map(self):
+    def prio_map(self) -> np.ndarray:
+        """(N, Hp, Hp) float32 :meth:`plan_prio` of every cell (valid on the inner map)."""
         return 1.0 - self.planes[:, 0]
 
-    def plan_detect(self, b, lam):
+    def plan_detect(self, b: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
         """sum_{c>0} P(c) P(label c) [posterior of c after label c >= threshold].
 
         One label with the equivalent error ``e = 1 / (1 + exp(lam)/(C-1))`` (``lam``
@@ -163,11 +170,12 @@ class SemanticEnv(SearchEnv):
         return detect_success(lam_e, self.n_classes) * (
             bf * (lam_e[..., None] >= crossing_lam(bf, self.cfg.found_threshold))).sum(-1)
 
-    def plan_detect_gain_flat(self, gflat, lp, lam):
+    def plan_detect_gain_flat(self, gflat: np.ndarray, lp: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """:meth:`plan_detect_gain` at flat indices into the ``(N, Hp, Hp)`` maps."""
         HH = self.Hp * self.Hp
         return self.plan_detect_gain(self.plan_cells(gflat // HH, gflat % HH), lp, lam)
 
-    def plan_open(self, b):
+    def plan_open(self, b: np.ndarray) -> np.ndarray:
         """Cells whose most likely feature class is still below the threshold."""
         return b[..., 1:].max(-1) < self.cfg.found_threshold
 

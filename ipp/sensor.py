@@ -27,6 +27,8 @@ class SensorConfig:
     logodds_clip: float = 20.0  # |L| bound (numerical safety only)
 
     def error_levels(self, n_levels: int) -> np.ndarray:
+        """Per sensing level (n_levels,): the classification error ``err0 + err_slope * level``,
+        clipped to [1e-9, 0.5]."""
         e = self.err0 + self.err_slope * np.arange(n_levels)
         return np.clip(e, 1e-9, 0.5)
 
@@ -48,10 +50,13 @@ def measure(truth: np.ndarray, err: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def sigmoid(L: np.ndarray) -> np.ndarray:
+    """The logistic function ``1 / (1 + exp(-L))`` (log-odds -> probability), elementwise,
+    as ``(1 + tanh(L / 2)) / 2`` (no overflow)."""
     return 0.5 * (1.0 + np.tanh(0.5 * L))
 
 
 def logit(b: np.ndarray) -> np.ndarray:
+    """Log-odds ``log(b) - log(1 - b)`` of probabilities ``b``, elementwise."""
     b = np.asarray(b, float)
     return np.log(b) - np.log1p(-b)
 

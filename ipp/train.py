@@ -50,6 +50,7 @@ import json
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -110,9 +111,12 @@ class TrainConfig:
 
     @property
     def total_iterations(self) -> int:
+        """Behaviour-cloning plus PPO iterations."""
         return self.bc_iterations + self.iterations
 
     def validate(self) -> None:
+        """UserError (one line) for an out-of-range setting (sizes, iterations, rates, weights,
+        teacher) or a training or validation seed equal to the test suite's."""
         from .bench import TEST_SEED
         if self.n_envs < 1 or self.iterations < 0 or self.bc_iterations < 0 \
                 or self.total_iterations < 1:
@@ -191,7 +195,7 @@ def _discounted(rew, alive, gamma):
 
 
 # ------------------------------------------------------------------ config (de)serialising
-def config_from_dict(cls, d: dict):
+def config_from_dict(cls: type, d: dict) -> Any:
     """Rebuild a (nested, frozen) config dataclass from :func:`dataclasses.asdict` output
     (as stored in ``config.json``); unknown keys are an error, missing keys default."""
     if not isinstance(d, dict):
@@ -242,7 +246,9 @@ def _scalar(name, v, ref):
     return v
 
 
-def load_run_config(run_dir) -> TrainConfig:
+def load_run_config(run_dir: str | Path) -> TrainConfig:
+    """The :class:`TrainConfig` of an ``ipp train`` run (``RUN/config.json``); a one-line
+    UserError when it is missing or malformed."""
     p = Path(run_dir) / "config.json"
     if not p.is_file():
         raise UserError(f"{run_dir}: no config.json (not a training run directory)")
@@ -377,7 +383,7 @@ def _ppo_update(model, opt, ro, cfg, use_feat):
                     np.mean(stats, 0).tolist()))
 
 
-def evaluate(model, lattice: Lattice, env_cfg: EnvConfig, seed: int, n: int) -> dict:
+def evaluate(model: ActorCritic, lattice: Lattice, env_cfg: EnvConfig, seed: int, n: int) -> dict:
     """Greedy policy on worlds ``0..n-1`` of suite ``seed`` from the centre start: mean
     Table 2.1 metrics (used for validation; never pass the test seed while training)."""
     from .policy import RLPlanner
@@ -432,7 +438,7 @@ def _dims(env, obs, cfg):
             "n_feat": N_FEAT if cfg.policy.features else 0}
 
 
-def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None,
+def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress: Any = None,
           resume: bool = False) -> dict:
     """Train (or, with ``resume``, continue the run in ``run_dir``); returns the last
     iteration's log entry. ``progress``: a tqdm-like object (``update``/``set_postfix``)."""
@@ -545,7 +551,8 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress=None,
     return last
 
 
-def preset(name: str, **overrides) -> TrainConfig:
+def preset(name: str, **overrides: Any) -> TrainConfig:
+    """The training preset ``name`` with the non-None ``overrides`` applied."""
     if name not in PRESETS:
         raise UserError(f"unknown preset {name!r} (choose from {', '.join(PRESETS)})")
     cfg = PRESETS[name]
@@ -560,7 +567,9 @@ def preset(name: str, **overrides) -> TrainConfig:
 
 
 # ------------------------------------------------------------------------ learning curve
-def read_metrics(run_dir) -> list[dict]:
+def read_metrics(run_dir: str | Path) -> list[dict]:
+    """The iteration log of an ``ipp train`` run (``RUN/metrics.jsonl``), in order; a one-line
+    UserError when it is missing, malformed or empty."""
     p = Path(run_dir) / "metrics.jsonl"
     if not p.is_file():
         raise UserError(f"{run_dir}: no metrics.jsonl (not a training run directory)")
@@ -579,7 +588,7 @@ def read_metrics(run_dir) -> list[dict]:
     return out
 
 
-def plot_learning_curve(run_dir, out=None) -> Path:
+def plot_learning_curve(run_dir: str | Path, out: str | Path | None = None) -> Path:
     """``learning_curve.png`` (or ``out``): search efficiency and return per iteration on
     the training worlds (raw and a 10-iteration running mean), the greedy policy's
     validation search efficiency where logged, per-term returns, and the BC/PPO

@@ -12,6 +12,7 @@ Every world ``i`` of a suite with seed ``s`` is generated from
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -72,7 +73,7 @@ def kl_divergence(p: np.ndarray, q: np.ndarray, eps: float = 1e-12) -> np.ndarra
     return np.sum(p * (np.log(p + eps) - np.log(q + eps)), axis=(-2, -1))
 
 
-def make_world(cfg: WorldConfig, seed: int, index: int):
+def make_world(cfg: WorldConfig, seed: int, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One world from ``default_rng([seed, index])``: (density, targets, prior)."""
     rng = np.random.default_rng([seed, index])
     S = cfg.map_size
@@ -102,7 +103,7 @@ def make_world(cfg: WorldConfig, seed: int, index: int):
     return dens, tg.reshape(S, S), prior
 
 
-def sample_worlds(cfg: WorldConfig, seed: int, indices) -> Worlds:
+def sample_worlds(cfg: WorldConfig, seed: int, indices: Sequence[int] | np.ndarray) -> Worlds:
     """Worlds ``indices`` of the suite ``seed`` (one Python iteration per world)."""
     idx = np.atleast_1d(np.asarray(indices, np.int64))
     out = [make_world(cfg, seed, int(i)) for i in idx]
