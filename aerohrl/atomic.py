@@ -210,7 +210,8 @@ def verify(path: str | Path) -> bool:
     return True
 
 
-def torch_load(path: str | Path, *, map_location: Any = "cpu", weights_only: bool = False, warn: Callable[[str], Any] | None = None) -> Any:
+def torch_load(path: str | Path, *, map_location: Any = "cpu", weights_only: bool = False,
+               warn: Callable[[str], Any] | None = None) -> Any:
     """Verify ``path`` against its sidecar, then ``torch.load`` it. A file without a
     sidecar (written before checksums) loads after ``warn(message)`` when given.
     CheckpointDamaged when the hash differs or torch cannot read the file."""

@@ -49,7 +49,8 @@ class _Deprecated(argparse.Action):
         setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
 
 
-def deprecated(p: argparse.ArgumentParser, old: str, new: str, dest: str, *, flag: bool = False, type: Callable[[str], Any] | None = None) -> None:
+def deprecated(p: argparse.ArgumentParser, old: str, new: str, dest: str, *, flag: bool = False,
+               type: Callable[[str], Any] | None = None) -> None:
     """``old`` as a hidden alias of ``new`` (same ``dest``): it works and prints a deprecation note.
     ``flag``: a switch (no value; stores True)."""
     kw: dict[str, Any] = {"nargs": 0, "const": True} if flag else {"type": type}

@@ -71,7 +71,9 @@ class ArgumentParser(argparse.ArgumentParser):
         print(f"{self.prog}: error: {message} (see --help)", file=sys.stderr)
         sys.exit(2)
 
-    def parse_known_args(self, args: Sequence[str] | None = None, namespace: Any = None) -> tuple[Any, list[str]]:  # type: ignore[override]
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: Any = None
+    ) -> tuple[Any, list[str]]:
         """``argparse``'s parse, then the run given as ``RUN`` or ``--run RUN`` merged into
         ``namespace.run`` (two different runs -> error)."""
         namespace, extras = super().parse_known_args(args, namespace)

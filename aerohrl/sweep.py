@@ -390,8 +390,9 @@ def write_tables(out: Path, names: list[str]) -> str:
     return md
 
 
-def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus: int | None = None, cpus_per_run: int = 1,
-              gpus_per_run: float | None = None, max_retries: int = 3, evaluate: bool = True, log: Callable[[str], Any] = print) -> dict:
+def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus: int | None = None,
+              cpus_per_run: int = 1, gpus_per_run: float | None = None, max_retries: int = 3, evaluate: bool = True,
+              log: Callable[[str], Any] = print) -> dict:
     """Train every grid point of ``sp`` on Ray into ``out/runs``, evaluate each as soon as it
     is trained (unless ``evaluate=False``) and write ``sweep-report.json`` and the tables;
     returns the report (``{"runs": ..., "errors": ...}``, as ``train_on_ray``)."""
@@ -446,8 +447,9 @@ def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus:
     return report
 
 
-def train_on_ray(ray: Any, items: list[tuple[str, str, dict]], *, cpus_per_run: int = 1, gpus: float = 0, max_retries: int = 3,
-                 log: Callable[[str], Any] = print, on_trained: Callable[[str, dict], Any] | None = None) -> dict:
+def train_on_ray(ray: Any, items: list[tuple[str, str, dict]], *, cpus_per_run: int = 1, gpus: float = 0,
+                 max_retries: int = 3, log: Callable[[str], Any] = print,
+                 on_trained: Callable[[str, dict], Any] | None = None) -> dict:
     """Train every ``(label, run folder, config dict)`` as one Ray task (``train_task``)
     declaring ``cpus_per_run`` CPUs and ``gpus`` GPUs, retried ``max_retries`` times when
     its worker dies; ``on_trained(label, result)`` as each one ends. The longest-first

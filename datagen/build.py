@@ -87,7 +87,10 @@ class BuildResult:
     seconds: float
 
 
-def plan_references(spec: DatasetSpec, rng: np.random.Generator, n: int | None = None, sample_starts: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None = None) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int, np.ndarray | None]:
+def plan_references(
+    spec: DatasetSpec, rng: np.random.Generator, n: int | None = None,
+    sample_starts: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None = None,
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Sample rho_D and solve each goal's minimum-time reference; resample infeasible goals.
 
     Returns (goals, T, coeffs, resampled, sources). Replacement goals come from the same
@@ -142,8 +145,8 @@ class Rollout:
 
 
 def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool = True,
-                   start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False,
-                   noise_rng: np.random.Generator | None = None) -> Rollout:
+                   start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None,
+                   record_rotors: bool = False, noise_rng: np.random.Generator | None = None) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
 
     Episode i records steps k = 0 .. ceil(T_i * fps) - 1: state s_k, action a_k and
@@ -257,7 +260,8 @@ def block_bounds(n: int, block: int | None = None) -> np.ndarray:
 
 
 def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-               start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False, runner: BlockRunner | None = None) -> Iterator[tuple[int, int, _Frames]]:
+               start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None,
+               record_rotors: bool = False, runner: BlockRunner | None = None) -> Iterator[tuple[int, int, _Frames]]:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
     ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
     episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of
@@ -285,7 +289,8 @@ def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray
 
 
 def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-        start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False, runner: BlockRunner | None = None) -> _Frames:
+        start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False,
+        runner: BlockRunner | None = None) -> _Frames:
     """All frames of :func:`fly_blocks` in arrays allocated once (their size is known from
     T): what :func:`generate` keeps in memory. ``datagen build`` streams the blocks to
     disk instead (:func:`stream_dataset`)."""
@@ -358,7 +363,8 @@ class BlockRunner:
 
 
 def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.ndarray, ep: np.ndarray, k: np.ndarray,
-                       state: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int, np.ndarray | None]:
+                       state: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int,
+                                                   np.ndarray | None]:
     """Starts and references of the continuation episodes (``spec.continuations``).
 
     A start is a recorded frame of a rest-start flight, drawn uniformly (``ep``, ``k``,
@@ -380,7 +386,9 @@ def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.n
     return plan_references(spec, rng, spec.continuations, sample_starts)
 
 
-def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray,
+                   coeffs: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray | None,
+                                                np.ndarray]:
     """The goal episodes of the recipe: each goal flown ``rollouts_per_goal`` times
     (goal-major), from rest or from perturbed starts. Returns (goals, T, coeffs,
     start_state or None, goal_index). A perturbed start whose reference to its goal is
@@ -779,8 +787,8 @@ def _continuation_note(meta: dict) -> str:
             "state one of the rest-start flights passes through, moved to the origin)")
 
 
-def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log: Callable[[str], Any] = print, force: bool = False,
-          workers: int = 1, ray_address: str | None = None) -> BuildResult:
+def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log: Callable[[str], Any] = print,
+          force: bool = False, workers: int = 1, ray_address: str | None = None) -> BuildResult:
     """Build ``<out>/<name>/<version>/`` for ``spec``; verify instead if it exists.
 
     ``workers`` > 1 flies the blocks of :data:`ROLLOUT_BLOCK` episodes in that many local

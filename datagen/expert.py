@@ -106,7 +106,8 @@ class GeometricController:
         hi = np.concatenate([[self._c_max], self._rate_lim])
         return lo, hi
 
-    def desired(self, state: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray, ref_acc: np.ndarray, yaw: float | np.ndarray = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def desired(self, state: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray, ref_acc: np.ndarray,
+                yaw: float | np.ndarray = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """``(a_des, e_v)`` (N, 3) each: desired acceleration incl. gravity, and velocity error."""
         s = np.asarray(state, dtype=np.float64)
         e_p = s[:, 0:3] - ref_pos

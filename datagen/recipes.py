@@ -65,7 +65,8 @@ class OUNoise:
         return out
 
 
-def sample_start_states(rng: np.random.Generator, n: int, v_max: float, tilt: float, w_max: float) -> tuple[np.ndarray, np.ndarray]:
+def sample_start_states(rng: np.random.Generator, n: int, v_max: float, tilt: float,
+                        w_max: float) -> tuple[np.ndarray, np.ndarray]:
     """``(state (n, 18), x0 (n, 3, 3))``: perturbed starts at the origin and the
     reference's initial ``[axis, (p, v, a)]`` = ``(0, v_0, 0)`` (module docstring)."""
     from scipy.spatial.transform import Rotation

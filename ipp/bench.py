@@ -53,8 +53,9 @@ class BenchConfig:
                                 f"{', '.join(PLANNERS + TEACHERS)}, rl)")
 
 
-def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids: Sequence[int] | np.ndarray | None = None, progress: Any = None,
-                 keep_env: bool = False, model: ActorCritic | None = None, skill: PolicyFn | None = None) -> dict:
+def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids: Sequence[int] | np.ndarray | None = None,
+                 progress: Any = None, keep_env: bool = False, model: ActorCritic | None = None,
+                 skill: PolicyFn | None = None) -> dict:
     """Run ``name`` on the suite; returns per-env metrics, summary inputs and timing."""
     ids = np.arange(cfg.envs) if env_ids is None else np.asarray(env_ids)
     per_env: dict[str, list] = {}
@@ -189,7 +190,8 @@ def render_episode(env: SearchEnv, n: int, path: str | Path, title: str = "") ->
 
 
 def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, path: str | Path,
-                    model: ActorCritic | None = None, title: str = "", fps: int = 4, skill: PolicyFn | None = None) -> Path:
+                    model: ActorCritic | None = None, title: str = "", fps: int = 4,
+                    skill: PolicyFn | None = None) -> Path:
     """Animated episode (GIF) on test world ``env_id`` (target search): one frame per
     primitive, showing the belief (colour bar), the path so far (flown path too with
     ``cfg.execution == "flown"``), the true targets found (green) and not yet found (red

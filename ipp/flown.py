@@ -87,7 +87,8 @@ class FlownEnv(SearchEnv):
             if self.keep_trace else None
         return obs
 
-    def reset_rows(self, rows: np.ndarray, worlds: Worlds, start: np.ndarray | None = None) -> None:  # pragma: no cover - not offered
+    def reset_rows(self, rows: np.ndarray, worlds: Worlds,  # pragma: no cover - not offered
+                   start: np.ndarray | None = None) -> None:
         """Not offered: a flown env restarts whole batches (:meth:`reset`)."""
         raise NotImplementedError("FlownEnv restarts whole batches (reset)")
 
@@ -165,7 +166,8 @@ class FlownEnv(SearchEnv):
                 self.flown_trace[i].append(tr[r][np.isfinite(tr[r, :, 0])])
         return samples, sval, emax, rms
 
-    def flown_measurements(self, idx: np.ndarray, samples: np.ndarray, sval: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def flown_measurements(self, idx: np.ndarray, samples: np.ndarray,
+                           sval: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measurement lists (offsets from the nominal start cells, levels) of the flown
         sample positions: distinct visited centre cells x the footprint (batched)."""
         r = self.lat.config.footprint_radius

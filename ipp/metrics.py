@@ -101,7 +101,9 @@ def markdown_table(results: dict[str, dict], names: dict[str, str], kind: str = 
     return head + "\n".join(rows) + "\n"
 
 
-def paired_differences(results: dict[str, dict], baselines: Collection[str], metric: str = "search_efficiency") -> tuple[dict[str, dict[str, tuple[float, float, int]]], str | None]:
+def paired_differences(results: dict[str, dict], baselines: Collection[str],
+                       metric: str = "search_efficiency") -> tuple[dict[str, dict[str, tuple[float, float, int]]],
+                                                                   str | None]:
     """Paired differences of ``metric`` between every non-baseline row and every baseline
     row, over the environments both ran: ``{row: {baseline: (mean, standard error, n)}}``
     plus the best baseline by mean. Rows must share their ``env_ids``."""

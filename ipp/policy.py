@@ -73,7 +73,8 @@ class ActorCritic(nn.Module):
         """The zero recurrent state (1, n, hidden) of ``n`` new episodes."""
         return torch.zeros(1, n, self.cfg.hidden)
 
-    def forward(self, maps: torch.Tensor, vec: torch.Tensor, h: torch.Tensor, feat: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, maps: torch.Tensor, vec: torch.Tensor, h: torch.Tensor,
+                feat: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """maps (T, N, C, H, W), vec (T, N, D), h (1, N, hidden), feat (T, N, A, F)
         -> (policy logits, per-term values, valid logits, h) over (T, N)."""
         T, N = maps.shape[:2]

@@ -18,11 +18,24 @@ ENVS = {"env", "semantic_env", "scoring", "sensor", "world", "semantic", "lattic
         "factory", "flown", "gym_env"}
 
 
+def _type_checking_only(tree: ast.Module) -> set[int]:
+    """ids of the import nodes inside ``if TYPE_CHECKING:`` blocks: type hints only, never
+    executed, so they cannot form an import cycle."""
+    skip = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+            skip.update(id(n) for b in node.body for n in ast.walk(b))
+    return skip
+
+
 def _edges(mod: str) -> set[str]:
-    """ipp modules imported anywhere in ``mod`` (relative or absolute)."""
+    """ipp modules imported anywhere in ``mod`` (relative or absolute), but for type hints."""
     tree = ast.parse((PKG / f"{mod}.py").read_text())
+    skip = _type_checking_only(tree)
     out = set()
     for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.ImportFrom):
             if node.level == 1:
                 if node.module:
