@@ -44,7 +44,7 @@ def temp_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp-{os.getpid()}{path.suffix}")
 
 
-def write_error(path: str | Path, e: OSError) -> UserError:
+def write_error(path: str | os.PathLike[str], e: OSError) -> UserError:
     """The one-line error for a failed write of ``path``."""
     hint = "; free some space and run it again (files written before are intact)" if e.errno in (errno.ENOSPC, errno.EDQUOT) else ""
     return UserError(f"cannot write {path}: {e.strerror or e}{hint}")
@@ -59,7 +59,7 @@ def _fsync(path: Path) -> None:
 
 
 @contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; when the block ends normally the file is
     synced and renamed over ``path``. On any exception the temporary is removed and
     ``path`` is untouched; an ``OSError`` is re-raised as a one-line UserError."""
@@ -78,7 +78,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             tmp.unlink(missing_ok=True)
 
 
-def write_bytes(path: str | Path, data: bytes) -> Path:
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temporary, fsync, rename); returns ``path``."""
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
@@ -86,17 +86,17 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     return Path(path)
 
 
-def write_text(path: str | Path, text: str) -> Path:
+def write_text(path: str | os.PathLike[str], text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically; returns ``path``."""
     return write_bytes(path, text.encode())
 
 
-def write_json(path: str | Path, obj: Any) -> Path:
+def write_json(path: str | os.PathLike[str], obj: Any) -> Path:
     """Write ``obj`` as indented JSON with sorted keys to ``path`` atomically; returns ``path``."""
     return write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
 
 
-def save_figure(fig: Any, path: str | Path, **kw: Any) -> Path:
+def save_figure(fig: Any, path: str | os.PathLike[str], **kw: Any) -> Path:
     """``fig.savefig`` through a temporary (the format follows ``path``'s extension, png without one)."""
     path = Path(path)
     kw.setdefault("format", path.suffix.lstrip(".") or "png")
@@ -105,7 +105,7 @@ def save_figure(fig: Any, path: str | Path, **kw: Any) -> Path:
     return path
 
 
-def new_folder(path: str | Path) -> bool:
+def new_folder(path: str | os.PathLike[str]) -> bool:
     """Create ``path`` (and its parents) unless it exists; True when this call created it.
     The final ``mkdir`` is exclusive, so of two processes claiming one folder exactly one
     gets True: how run folders are made private to one run."""
@@ -123,7 +123,7 @@ def new_folder(path: str | Path) -> bool:
 # ----------------------------------------------------------------------------- checksums
 
 
-def sha256_file(path: str | Path) -> str:
+def sha256_file(path: str | os.PathLike[str]) -> str:
     """The hex SHA-256 digest of the file at ``path`` (read in chunks)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -132,7 +132,7 @@ def sha256_file(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def checksum_path(path: str | Path) -> Path:
+def checksum_path(path: str | os.PathLike[str]) -> Path:
     """The SHA-256 sidecar of ``path`` (``path`` + ``CHECKSUM_SUFFIX``)."""
     path = Path(path)
     return path.with_name(path.name + CHECKSUM_SUFFIX)
@@ -158,7 +158,7 @@ class _HashingWriter:
         self.f.flush()
 
 
-def torch_save(path: str | Path, obj: Any) -> str:
+def torch_save(path: str | os.PathLike[str], obj: Any) -> str:
     """``torch.save`` atomically with a SHA-256 sidecar; returns the digest."""
     import torch
 
@@ -177,7 +177,7 @@ def torch_save(path: str | Path, obj: Any) -> str:
     return digest
 
 
-def recorded_sha256(path: str | Path) -> str | None:
+def recorded_sha256(path: str | os.PathLike[str]) -> str | None:
     """The digest in ``path``'s sidecar; None when there is none (written before checksums)."""
     side = checksum_path(path)
     try:
@@ -192,7 +192,7 @@ def recorded_sha256(path: str | Path) -> str | None:
     return digest
 
 
-def verify(path: str | Path) -> bool:
+def verify(path: str | os.PathLike[str]) -> bool:
     """True when ``path`` matches its sidecar, False when it has none; CheckpointDamaged
     (naming the file) on a mismatch, a missing file or an unreadable one."""
     path = Path(path)
@@ -210,7 +210,7 @@ def verify(path: str | Path) -> bool:
     return True
 
 
-def torch_load(path: str | Path, *, map_location: Any = "cpu", weights_only: bool = False,
+def torch_load(path: str | os.PathLike[str], *, map_location: Any = "cpu", weights_only: bool = False,
                warn: Callable[[str], Any] | None = None) -> Any:
     """Verify ``path`` against its sidecar, then ``torch.load`` it. A file without a
     sidecar (written before checksums) loads after ``warn(message)`` when given.
@@ -226,7 +226,7 @@ def torch_load(path: str | Path, *, map_location: Any = "cpu", weights_only: boo
         raise CheckpointDamaged(f"checkpoint {path} is damaged: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
 
 
-def remove(path: str | Path) -> None:
+def remove(path: str | os.PathLike[str]) -> None:
     """Delete a checkpoint and its sidecar."""
     path = Path(path)
     path.unlink(missing_ok=True)
@@ -254,7 +254,7 @@ def temp_owner(name: str) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def remove_stale_temporaries(folder: str | Path) -> list[Path]:
+def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
     """Delete the temporaries in ``folder`` whose writer process is gone (a kill during a
     write); a live writer's are kept. Returns what was removed."""
     folder = Path(folder)

@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 if TYPE_CHECKING:
     import numpy as np
     import torch
 
-    Array = np.ndarray | torch.Tensor  # every function takes either (module docstring)
+    # every function takes NumPy arrays or torch tensors (module docstring) and returns the same kind
+    Array = TypeVar("Array", np.ndarray, torch.Tensor)
 
 STATE_DIM = 18
 GOAL_DIM = 15
@@ -103,11 +104,11 @@ def goal_errors(achieved: Array, goal: Array) -> tuple[Array, Array, Array]:
     dv = ((achieved[..., VEL] - goal[..., VEL]) ** 2).sum(-1) ** 0.5
     c = rotation_cosine(achieved[..., ROT], goal[..., ROT]).clip(-1.0, 1.0)
     if _is_torch(c):
-        ang = c.arccos()  # type: ignore[union-attr]
+        ang = c.arccos()  # type: ignore[attr-defined]  # (mypy checks this branch for arrays too)
     else:
         import numpy as np
 
-        ang = np.arccos(c)
+        ang = np.arccos(c)  # type: ignore[assignment]
     return dp, dv, ang
 
 

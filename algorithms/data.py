@@ -195,7 +195,8 @@ def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
     )
 
 
-def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator, device: str | torch.device = "cpu") -> TensorDictReplayBuffer:
+def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator,
+                device: str | torch.device = "cpu") -> TensorDictReplayBuffer:
     """A torchrl ``TensorDictReplayBuffer`` over the whole dataset, sampling uniformly
     with replacement (thesis Alg. 2, line 3). Its ``TensorStorage`` wraps the dataset's
     own tensors (no copy: one copy of a multi-GB dataset in memory, not two)."""
@@ -339,7 +340,8 @@ class GoalBatchSampler:
         )
 
 
-def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None, bc_target: str = "expert") -> Normalizer:
+def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None,
+                   bc_target: str = "expert") -> Normalizer:
     """Input statistics over every frame with its desired goal and with a relabelled
     (strictly later achieved, drawn as in training: ``future``) goal, action bounds over
     every frame's BC target (what the policy's [-1, 1] output must span; flown noisy

@@ -95,7 +95,8 @@ def first_hit_index(next_state: torch.Tensor, goal: torch.Tensor, episode_end: t
     return torch.where((t >= j) & (t <= episode_end), t, torch.full_like(t, -1))
 
 
-def mc_lower_bound(index: torch.Tensor, k: torch.Tensor, relabelled: torch.Tensor, first_hit: torch.Tensor, gamma: float) -> torch.Tensor:
+def mc_lower_bound(index: torch.Tensor, k: torch.Tensor, relabelled: torch.Tensor, first_hit: torch.Tensor,
+                   gamma: float) -> torch.Tensor:
     """A lower bound on the discounted return of the data's own continuation (MCAC,
     Wilcox et al. 2022), per transition ``j`` with sparse reward and termination at the
     first success: ``gamma^(k - j)`` for a goal relabelled with the achieved goal of step

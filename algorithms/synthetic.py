@@ -49,7 +49,8 @@ def straight_columns(n_eps: int = 4, length: int = 30, seed: int = 0) -> dict:
     return out
 
 
-def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version: str = "synthetic-1", fps: int = 100) -> Path:
+def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version: str = "synthetic-1",
+                            fps: int = 100) -> Path:
     """Write ``cols`` (default: :func:`straight_columns`) as a dataset folder the way
     ``datagen build`` does (LeRobot v3.0 files + meta/aerohrl.json with checksums)."""
     from pathlib import Path

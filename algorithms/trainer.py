@@ -661,8 +661,9 @@ def start_run(cfg: C.TrainConfig, run_dir: str | Path, *, data: Dataset | None =
         raise
 
 
-def resume_run(run_dir: str | Path, *, data: Dataset | None = None, progress: bool = True, evaluators: dict[str, Evaluator] | None = None,
-               overrides: dict | None = None, logger: str | None = None, **trainer_kw: Any) -> Trainer:
+def resume_run(run_dir: str | Path, *, data: Dataset | None = None, progress: bool = True,
+               evaluators: dict[str, Evaluator] | None = None, overrides: dict | None = None, logger: str | None = None,
+               **trainer_kw: Any) -> Trainer:
     """Continue ``run_dir`` from its newest intact checkpoint (or from scratch when it has none)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():

@@ -261,7 +261,8 @@ def block_bounds(n: int, block: int | None = None) -> np.ndarray:
 
 def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
                start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None,
-               record_rotors: bool = False, runner: BlockRunner | None = None) -> Iterator[tuple[int, int, _Frames]]:
+               record_rotors: bool = False,
+               runner: BlockRunner | None = None) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
     ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
     episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of

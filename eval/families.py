@@ -132,7 +132,8 @@ def _ring_magnitudes(rng: np.random.Generator, n: int, lo: float, hi: float) -> 
     return mag * sign
 
 
-def sample_ring(ring: Ring, n: int, seed: int = 0, *, pos_range: tuple[float, float] = (1.0, 2.0), vel_range: tuple[float, float] = (-2.5, 2.5),
+def sample_ring(ring: Ring, n: int, seed: int = 0, *, pos_range: tuple[float, float] = (1.0, 2.0),
+                vel_range: tuple[float, float] = (-2.5, 2.5),
                 acc_range: tuple[float, float] = (-5.0, 5.0)) -> dict[str, np.ndarray]:
     """``n`` goals of ``ring`` (``{"pos", "vel", "acc"}`` (n, 3), ``"R"`` (n, 3, 3)); the
     dimensions the ring does not move are drawn from rho_D (the given ranges)."""

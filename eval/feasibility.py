@@ -173,7 +173,8 @@ _pos_float = reference._positive  # the reference generator's check: a finite nu
 # ------------------------------------------------------------------- references
 
 
-def goal_bounds(acc: np.ndarray, a_max: float | None = None, *, a_spec: float = A_SPEC, margin: float = A_MARGIN, a_cap: float = A_CAP) -> np.ndarray:
+def goal_bounds(acc: np.ndarray, a_max: float | None = None, *, a_spec: float = A_SPEC, margin: float = A_MARGIN,
+                a_cap: float = A_CAP) -> np.ndarray:
     """Per-goal per-axis acceleration bound (E,): ``min(a_cap, max(a_spec, margin max_j |acc_j|))``,
     or the fixed ``a_max`` for every goal when given."""
     acc = np.asarray(acc, dtype=np.float64)
@@ -183,7 +184,8 @@ def goal_bounds(acc: np.ndarray, a_max: float | None = None, *, a_spec: float = 
     return np.minimum(a_cap, np.maximum(a_spec, margin * np.abs(acc).max(axis=1)))
 
 
-def min_time(x0: np.ndarray, xf: np.ndarray, a_max: np.ndarray, t_hi: float, tol: float = BISECTION_TOL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def min_time(x0: np.ndarray, xf: np.ndarray, a_max: np.ndarray, t_hi: float,
+             tol: float = BISECTION_TOL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimum-time quintics with a per-reference bound ``a_max`` (N,) -> ``(T, coeffs, feasible)``.
 
     Thesis Alg. 1 on ``[0, t_hi]`` exactly as :func:`aerohrl.datagen.reference.min_time`
@@ -215,7 +217,8 @@ def min_time(x0: np.ndarray, xf: np.ndarray, a_max: np.ndarray, t_hi: float, tol
     return hi, reference.min_jerk_closed_form(x0, xf, hi), feasible
 
 
-def runup_waypoints(xf: np.ndarray, a_max: float | np.ndarray, factors: Sequence[float] = DISTANCE_FACTORS, lateral: Sequence[float] = LATERAL, min_runup: float = MIN_RUNUP) -> np.ndarray:
+def runup_waypoints(xf: np.ndarray, a_max: float | np.ndarray, factors: Sequence[float] = DISTANCE_FACTORS,
+                    lateral: Sequence[float] = LATERAL, min_runup: float = MIN_RUNUP) -> np.ndarray:
     """Candidate run-up waypoints (E, O, 3), O = len(factors) x len(lateral) (factor-major):
     ``p - d v_hat + l d u`` with ``d = max(d0, min_runup) f``, ``d0 = |v| max_i |v_i| / (2 a_max)``
     (module docstring)."""
@@ -243,8 +246,9 @@ def runup_waypoints(xf: np.ndarray, a_max: float | np.ndarray, factors: Sequence
 # ------------------------------------------------------------------------ flying
 
 
-def fly(goal_vec: np.ndarray, coeffs: np.ndarray, durations: np.ndarray, horizon: int, *, vehicle: str = "hummingbird", fps: int = 100,
-        substeps: int = 5, record_every: int = 0, tol: task.GoalTolerance = task.TOLERANCE) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def fly(goal_vec: np.ndarray, coeffs: np.ndarray, durations: np.ndarray, horizon: int, *, vehicle: str = "hummingbird",
+        fps: int = 100, substeps: int = 5, record_every: int = 0,
+        tol: task.GoalTolerance = task.TOLERANCE) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Fly N multi-leg references with the clean geometric expert from hover at the origin.
 
     ``coeffs`` (N, L, 3, 6) and ``durations`` (N, L) s: leg l starts when legs 0..l-1 end;
@@ -316,8 +320,9 @@ def _first(step: np.ndarray):
 
 def feasibility(goals: dict, horizon_steps: int, vehicle: str = "hummingbird", fps: int = 100, substeps: int = 5,
                 a_max: float | None = None, *, a_spec: float = A_SPEC, margin: float = A_MARGIN, a_cap: float = A_CAP,
-                stretch: Sequence[float] = STRETCH, factors: Sequence[float] = DISTANCE_FACTORS, lateral: Sequence[float] = LATERAL, runup_stretch: Sequence[float] = RUNUP_STRETCH,
-                runup: str = "all", record_every: int = 0, tol: task.GoalTolerance = task.TOLERANCE) -> Feasibility:
+                stretch: Sequence[float] = STRETCH, factors: Sequence[float] = DISTANCE_FACTORS,
+                lateral: Sequence[float] = LATERAL, runup_stretch: Sequence[float] = RUNUP_STRETCH, runup: str = "all",
+                record_every: int = 0, tol: task.GoalTolerance = task.TOLERANCE) -> Feasibility:
     """Which of ``goals`` (``{"pos", "vel", "acc"}`` (E, 3), ``"R"`` (E, 3, 3)) the expert reaches
     within ``horizon_steps`` at ``fps``: directly from rest at the origin, and through one
     run-up waypoint (module docstring). ``a_max``: one fixed per-axis bound (m/s^2) instead

@@ -177,7 +177,8 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self._reset_rows(np.arange(n), starts, goals, hz)
         return self._obs(), {}
 
-    def set_desired_goals(self, goals: np.ndarray, mask: np.ndarray | None = None, horizons: np.ndarray | int | None = None) -> dict:
+    def set_desired_goals(self, goals: np.ndarray, mask: np.ndarray | None = None,
+                          horizons: np.ndarray | int | None = None) -> dict:
         """New goals (and step budgets) for the vehicles in ``mask`` mid-flight; their
         step counters and done flags restart. Returns the observation."""
         mask = np.ones(self.num_envs, bool) if mask is None else np.asarray(mask, bool)

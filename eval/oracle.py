@@ -61,9 +61,9 @@ def roc_auc(score: np.ndarray, label: np.ndarray) -> float:
     return float((r[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
 
 
-def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidates: int = 150, seed: int = 0, leg_horizon: int = 500,
-                  alpha: float = 1.0, chunk: int = 4096, sim: dict | None = None, progress: bool = False,
-                  cand: Candidates | None = None) -> dict:
+def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidates: int = 150, seed: int = 0,
+                  leg_horizon: int = 500, alpha: float = 1.0, chunk: int = 4096, sim: dict | None = None,
+                  progress: bool = False, cand: Candidates | None = None) -> dict:
     """Fly every first and second leg of the single-goal planner (see the module docstring).
     ``cand`` (:class:`~aerohrl.eval.planner.Candidates`) replaces the dataset's achieved
     goals, e.g. :func:`synthetic_candidates`."""

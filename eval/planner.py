@@ -266,7 +266,8 @@ class Offsets:
 
 
 def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_range: tuple[float, float] = (-2.5, 2.5),
-                      acc_range: tuple[float, float] = (-5.0, 5.0), toward: float = 0.5, toward_range: tuple[float, float] = (1.0, 2.0)) -> Offsets:
+                      acc_range: tuple[float, float] = (-5.0, 5.0), toward: float = 0.5,
+                      toward_range: tuple[float, float] = (1.0, 2.0)) -> Offsets:
     """C seeded offsets (module docstring): the first ``round(toward * C)`` biased toward G
     (position magnitude ``U(toward_range)`` per axis, signed at planning time), the rest
     ``dp ~ U(-pos_hi, pos_hi)``; all with ``v ~ U(vel_range)``, ``R = flat_attitude(a ~ U(acc_range))``."""

@@ -56,7 +56,8 @@ def _eval_dir(run, task: str, planner: str | None) -> Path:
     return d
 
 
-def plot_trajectories(run: str | Path, task: str, out: str | Path, planner: str | None = None, max_per_panel: int = 12) -> Path:
+def plot_trajectories(run: str | Path, task: str, out: str | Path, planner: str | None = None,
+                      max_per_panel: int = 12) -> Path:
     """3-D flight paths of the newest evaluated checkpoint of ``run`` on ``task`` (thesis
     Fig. 3.5 / 3.6 analogues; module docstring), successes and failures in two panels of
     at most ``max_per_panel`` paths; written to ``out``, returns it."""

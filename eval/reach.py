@@ -230,7 +230,8 @@ def choose_margin(pairs: dict, max_loss: float = MAX_LOSS) -> tuple[float, dict]
     return best, table
 
 
-def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, heldout_n: int, log: Callable[[str], Any], fly_declines: bool = False) -> dict:
+def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, heldout_n: int,
+          log: Callable[[str], Any], fly_declines: bool = False) -> dict:
     """Fly everything (resumable); returns {"margins": {planner: M}, "margin_tables": ...}."""
     from aerohrl.eval.harness import load_run_dataset
 
@@ -310,7 +311,8 @@ def feasibility_of(ring: Ring, n: int, spec: dict, cache: Path) -> dict | None:
     return {k: np.array(v) for k, v in keep.items()}
 
 
-def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, margins: dict, feas: dict) -> list[dict]:
+def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, margins: dict,
+            feas: dict) -> list[dict]:
     """Per ring: per variant the success per seed (mean over checkpoints), on all and on
     feasible goals, and the paired gain over straight pooled over seeds."""
     from aerohrl.eval.results import seed_stats
@@ -456,7 +458,8 @@ def plot_curves(recs: list[dict], variants: list[str], path: Path) -> Path:
     return path
 
 
-def plot_paths(run: Path, rings: list[Ring], base: EvalOptions, variant: str, path: Path, per_ring: int = 3) -> Path | None:
+def plot_paths(run: Path, rings: list[Ring], base: EvalOptions, variant: str, path: Path,
+               per_ring: int = 3) -> Path | None:
     """3-D paths of far goals (the last ring of each family), planned waypoints marked
     (thesis Fig. 3.6 analogue): flown path per episode, start, goal and its waypoints."""
     import matplotlib

@@ -36,7 +36,7 @@ import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable
+from typing import TextIO
 
 import numpy as np
 
@@ -116,7 +116,7 @@ def flights_per_goal(recipe: str) -> int:
     return int(flags[flags.index("--rollouts-per-goal") + 1]) if "--rollouts-per-goal" in flags else 1
 
 
-def dataset_for(py: str, recipe: str, goals: int, root: str, log: Callable[[str], Any]) -> str:
+def dataset_for(py: str, recipe: str, goals: int, root: str, log: TextIO) -> str:
     """Build (or verify) the dataset of ``recipe`` with ``goals`` goals; its path."""
     if recipe not in RECIPES:
         raise UserError(f"unknown recipe {recipe!r} (choose from {', '.join(RECIPES)})")
@@ -127,7 +127,7 @@ def dataset_for(py: str, recipe: str, goals: int, root: str, log: Callable[[str]
     return out.strip().splitlines()[-1].strip()
 
 
-def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log: Callable[[str], Any]) -> Path:
+def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log: TextIO) -> Path:
     """Train (or resume) the row's run, then every evaluation not yet up to date."""
     rd = runs / row.name
     train = [py, "-m", "aerohrl.algorithms.cli"]

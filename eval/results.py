@@ -122,7 +122,8 @@ def kind_rates(episodes: EpisodeSet, r: dict) -> dict:
     return out
 
 
-def summarize(per_ckpt: list[dict], *, run_dir: str | Path, meta: dict, options: EvalOptions, episodes: EpisodeSet, seconds: float) -> dict:
+def summarize(per_ckpt: list[dict], *, run_dir: str | Path, meta: dict, options: EvalOptions, episodes: EpisodeSet,
+              seconds: float) -> dict:
     """The ``summary.json`` of an evaluation: the per-checkpoint results ``per_ckpt`` and the
     mean/std of success and near success over them, with the run, algorithm, task,
     options, dataset and timing."""

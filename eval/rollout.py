@@ -53,11 +53,11 @@ class PolicyFn:
         return np.clip(np.nan_to_num(a, nan=0.0), self.lo, self.hi)
 
 
-def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPlanner | None = None, n_waypoints: int = 0, leg_horizon: int | None = None,
-            replan: bool = True, replan_every: int = 0, waypoint_tol: float = 1.0, goal_tol: float = 1.0,
-            decline_margin: float | None = None, record: bool = False,
-            vehicle: str = "hummingbird",
-            fps: int = 100, substeps: int = 5, progress: bool = False, desc: str = "rollout") -> dict:
+def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPlanner | None = None,
+            n_waypoints: int = 0, leg_horizon: int | None = None, replan: bool = True, replan_every: int = 0,
+            waypoint_tol: float = 1.0, goal_tol: float = 1.0, decline_margin: float | None = None, record: bool = False,
+            vehicle: str = "hummingbird", fps: int = 100, substeps: int = 5, progress: bool = False,
+            desc: str = "rollout") -> dict:
     """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
 
     ``planner`` (a :class:`~aerohrl.eval.planner.Planner`) with ``n_waypoints >= 1``
@@ -201,8 +201,8 @@ def _replan(planner, obs, G, wp, wp_frame, leg, mask, nw, direct_option):
     return wp, wp_frame, to_direct
 
 
-def rollout_reach(algo: Algorithm, goals: np.ndarray, *, horizon: int = 500, vehicle: str = "hummingbird", fps: int = 100,
-                  substeps: int = 5, start_states: np.ndarray | None = None) -> dict:
+def rollout_reach(algo: Algorithm, goals: np.ndarray, *, horizon: int = 500, vehicle: str = "hummingbird",
+                  fps: int = 100, substeps: int = 5, start_states: np.ndarray | None = None) -> dict:
     """Reach-Desired style summary (success, near success, mean steps to success) for
     ``goals`` (N, 15) from hover at the origin or ``start_states``: the trainer's hook."""
     from aerohrl.eval.tasks import hover_states

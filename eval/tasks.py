@@ -148,7 +148,8 @@ def reach_intermediate(data: Dataset, n: int = 250, seed: int = 0, max_ahead: in
                       meta={"max_ahead": int(max_ahead), "n_desired": n_desired})
 
 
-def ood_goals(n: int, seed: int = 0, *, pos_range: tuple[float, float] = OOD_POS_RANGE, vel_range: tuple[float, float] | None = None, acc_range: tuple[float, float] | None = None,
+def ood_goals(n: int, seed: int = 0, *, pos_range: tuple[float, float] = OOD_POS_RANGE,
+              vel_range: tuple[float, float] | None = None, acc_range: tuple[float, float] | None = None,
               stream: int = OOD_SEED_OFFSET) -> np.ndarray:
     """(n, 15) out-of-distribution goals (SPEC.md "ood"); another ``pos_range`` and
     ``stream`` give other goal sets (``reach-novel``)."""
@@ -172,7 +173,8 @@ def reach_novel(data: Dataset | None, n: int = 250, seed: int = 0) -> EpisodeSet
                       meta={"pos_range": list(pos), "seed_stream": NOVEL_SEED_OFFSET + int(seed)})
 
 
-def ood(data: Dataset | None, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, legs: int = 2) -> EpisodeSet:
+def ood(data: Dataset | None, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED,
+        legs: int = 2) -> EpisodeSet:
     """OOD (SPEC.md): origin -> a goal with |p_i| in [2, 3.5] m; ``legs * leg_horizon`` steps in all."""
     spec = (data.info.get("spec") or {}) if data is not None else {}
     goals = ood_goals(n, seed, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"))
@@ -183,7 +185,8 @@ def ood(data: Dataset | None, n: int = 250, seed: int = 0, leg_horizon: int = HO
                             "seed_stream": OOD_SEED_OFFSET + int(seed)})
 
 
-def ood_family(data: Dataset | None, n: int = 250, seed: int = 0, *, ring: Ring, horizon: int | None = None) -> EpisodeSet:
+def ood_family(data: Dataset | None, n: int = 250, seed: int = 0, *, ring: Ring,
+               horizon: int | None = None) -> EpisodeSet:
     """OOD goals of a family ring (eval/families.py): origin -> a goal that leaves rho_D
     along the ring's dimensions, the others from the dataset's ranges; ``horizon`` steps
     (default: the ring's, scaled to the distance)."""

@@ -310,8 +310,10 @@ class SearchEnv:
         return action_features(self)
 
     # ------------------------------------------------------------------- step
-    def step(self, actions: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
-        """Execute one primitive per environment. Returns (obs, reward, terms, done).
+    def step(self, actions: np.ndarray) -> tuple[dict[str, np.ndarray] | None, np.ndarray, np.ndarray,
+                                                 np.ndarray]:
+        """Execute one primitive per environment. Returns (obs, reward, terms, done); ``obs``
+        is None with ``lazy_obs``.
 
         ``actions`` (N,) int action slots; entries of finished environments are ignored.
         ``terms`` (N, 5) holds the reward terms in the order of :data:`TERMS`.

@@ -173,8 +173,8 @@ def select_vertices(cfg: LatticeConfig) -> tuple[np.ndarray, np.ndarray]:
     return np.array(verts), np.array(disp)
 
 
-def quintic_coefficients(p0: np.ndarray, v0: np.ndarray, p1: np.ndarray, v1: np.ndarray,
-                         T: float | np.ndarray) -> np.ndarray:
+def quintic_coefficients(p0: float | np.ndarray, v0: float | np.ndarray, p1: float | np.ndarray,
+                         v1: float | np.ndarray, T: float | np.ndarray) -> np.ndarray:
     """Minimum-jerk quintic with zero boundary accelerations, batched.
 
     ``p0, v0, p1, v1``: (..., 2); ``T``: (...). Returns (..., 2, 6) with

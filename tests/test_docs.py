@@ -123,7 +123,17 @@ def test_every_public_function_is_annotated_and_documented():
 @pytest.mark.slow  # ~50 s without a cache
 def test_public_modules_are_mypy_clean():
     pytest.importorskip("mypy")
-    files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/cli_common.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py"]
+    files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/cli_common.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py",
+             # issue 16 item 1: every module that passes as it stands (the others need code changes, not hints)
+             "aerohrl/cli.py", "aerohrl/cli_types.py",
+             "algorithms/__init__.py", "algorithms/augment.py", "algorithms/base.py", "algorithms/cli.py", "algorithms/closed_loop.py",
+             "algorithms/config.py", "algorithms/cql.py", "algorithms/gcsl.py", "algorithms/relabel.py", "algorithms/td3awbc.py",
+             "algorithms/td3bc.py",
+             "datagen/__init__.py", "datagen/cli.py", "datagen/estimate.py", "datagen/expert.py", "datagen/goals.py",
+             "datagen/mcap_export.py", "datagen/plots.py", "datagen/recipes.py",
+             "eval/__init__.py", "eval/cli.py", "eval/families.py", "eval/floors.py", "eval/harness.py", "eval/reproduce.py",
+             "eval/tasks.py",
+             "ipp/__init__.py", "ipp/sensor.py", "ipp/world.py"]
     p = subprocess.run([sys.executable, "-m", "mypy", *files, "--follow-imports=silent", "--ignore-missing-imports",
                         "--no-incremental"], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0 and "Success" in p.stdout, p.stdout + p.stderr
