@@ -360,7 +360,7 @@ def tables_markdown(t: dict) -> str:
     out = []
     if t["t31"][1]:
         out += ["**Table 3.1 analogue** (success %: a seed's figure is the mean over its evaluated checkpoints; over "
-                "seeds mean ± std [95 % bootstrap interval of the mean, from 3 seeds] (per-seed values); ckpt spread = the "
+                "seeds mean ± std [95 % bootstrap interval of the mean, shown with 3 or more seeds] (per-seed values); ckpt spread = the "
                 "std over checkpoints, mean over seeds; near = near success, mean; thesis values beside: last 10 "
                 "checkpoints x 250 episodes, one run; floors: hover, and the policy without its goal inputs)\n",
                 markdown(*t["t31"])]
