@@ -326,8 +326,9 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
         for suffix, label in (("", ALGO_NAMES.get(algo, algo)), ("-floor-hover", "floor: hover"),
                               ("-floor-no-goal", f"floor: {ALGO_NAMES.get(algo, algo)} without goal")):
             row = _t31_row(runs, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
-            if row:
-                t31.append([label, _runs_label(runs)] + row)
+            if row:  # a floor names the runs it was flown on (make results: the first seed's only)
+                flown = [rd for rd in runs if any(read_summary(rd, t + suffix) for t in ("reach-desired", "reach-intermediate"))]
+                t31.append([label, _runs_label(flown or runs)] + row)
         evals = sorted({p.name for rd in runs for p in (rd / "eval").glob("ood-*") if (p / "summary.json").exists()})
         for name in evals:
             f = _seed_figures(runs, name)

@@ -53,7 +53,9 @@ def test_seeds_of_one_experiment_make_one_row(tmp_path):
     rd_spread = rows[0][head.index("ckpt spread")]  # Reach-Desired's (the first of the two columns)
     assert row["seeds x ckpts x episodes"] == "3 x 2 x 250" and rd_spread == "0.7"  # mean of 1.0, 1.0, 0.0
     assert row["RI >= 10 steps ahead %"].startswith("60.0 ± 0.0") and "+2 seeds" in row["runs"]
-    assert dict(zip(head, rows[1]))["Reach-Desired success %"] == "0.0"  # the floor, flown on seed 0's data
+    floor = dict(zip(head, rows[1]))
+    assert floor["Reach-Desired success %"] == "0.0"  # the floor, flown on seed 0's data
+    assert floor["runs"] == str(a)  # and named by the one run it was flown on
     lo, hi = st["ci95"]
     assert lo <= st["mean"] <= hi and st["std"] == pytest.approx(np.std([91, 95, 98], ddof=1))
 
