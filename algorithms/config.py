@@ -83,7 +83,7 @@ class TrainConfig:
     alpha_schedule: str = "linear"
     # TD3-AWBC: weight exp(A / temperature). The cpu preset's 10 (on A / std(A)) won issue 11's
     # ablation on 2 seeds (algorithms/README.md "TD3-AWBC"): weights 1 +- 0.1; temperature 1
-    # (weights 1 +- 1.4) fell to 37.5 % Reach-Desired, 3 to 69 %, 10 reached 92 %
+    # (weights 1 +- 2) fell to 37.5 % Reach-Desired, 3 to 69 %, 10 reached 92 %
     awr_temperature: float = 10.0
     awr_max_weight: float = 100.0
     # TD3-AWBC: "std" divides the advantage by its batch standard deviation before the
