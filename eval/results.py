@@ -288,15 +288,18 @@ def _seed_figures(runs: list[Path], name: str) -> dict | None:
             "near": seed_stats([100 * s["near_success_mean"] for _, s in sums]),
             "near_std": float(np.mean([100 * s["near_success_std"] for _, s in sums])),
             "seeds": len(sums), "ckpts": len(sums[0][1]["checkpoints"]), "episodes": sums[0][1]["episodes"],
-            "far": seed_stats([100 * x for x in far]) if far else None, "planner": sums[0][1].get("planner")}
+            "far": seed_stats([100 * x for x in far]) if far else None, "planner": sums[0][1].get("planner"),
+            "runs": [rd for rd, _ in sums]}
 
 
-def _t31_row(runs: list[Path], suffix: str, th: dict) -> list[str] | None:
+def _t31_row(runs: list[Path], suffix: str, th: dict) -> tuple[list[str], list[Path]] | None:
     """Table 3.1 cells of an experiment's evaluations (``suffix`` "-floor-hover" /
-    "-floor-no-goal": of a floor flown on its data); None when it has neither main task."""
-    cells = []
+    "-floor-no-goal": of a floor flown on its data) and the runs that have them (make
+    results flies the floors on the first seed only); None when it has neither main task."""
+    cells, flown = [], []
     for name in ("reach-desired", "reach-intermediate"):
         f = _seed_figures(runs, name + suffix)
+        flown += [rd for rd in (f["runs"] if f else []) if rd not in flown]
         cells += [seed_cell(f["success"]) if f else "—", f"{f['spread']:.1f}" if f else "—",
                   f"{f['near']['mean']:.1f}" if f else "—", f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—",
                   f"{f['seeds']} x {f['ckpts']} x {f['episodes']}" if f else "0"]
@@ -304,7 +307,7 @@ def _t31_row(runs: list[Path], suffix: str, th: dict) -> list[str] | None:
             cells.append(seed_cell(f["far"]) if f and f["far"] else "—")
     nov = _seed_figures(runs, "reach-novel" + suffix)  # the generalisation diagnostic, beyond the thesis
     cells.append(f"{seed_cell(nov['success'])} (near {nov['near']['mean']:.1f})" if nov else "—")
-    return cells if any(c != "—" for c in (cells[0], cells[5])) else None
+    return (cells, flown) if any(c != "—" for c in (cells[0], cells[5])) else None
 
 
 def _runs_label(runs: list[Path]) -> str:
@@ -326,9 +329,9 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
         for suffix, label in (("", ALGO_NAMES.get(algo, algo)), ("-floor-hover", "floor: hover"),
                               ("-floor-no-goal", f"floor: {ALGO_NAMES.get(algo, algo)} without goal")):
             row = _t31_row(runs, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
-            if row:  # a floor names the runs it was flown on (make results: the first seed's only)
-                flown = [rd for rd in runs if any(read_summary(rd, t + suffix) for t in ("reach-desired", "reach-intermediate"))]
-                t31.append([label, _runs_label(flown or runs)] + row)
+            if row:  # named by the runs it was flown on (a floor: the first seed's only)
+                cells, flown = row
+                t31.append([label, _runs_label(flown)] + cells)
         evals = sorted({p.name for rd in runs for p in (rd / "eval").glob("ood-*") if (p / "summary.json").exists()})
         for name in evals:
             f = _seed_figures(runs, name)
