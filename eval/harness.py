@@ -256,11 +256,14 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
     out_dir = Path(opt.out) if opt.out else run_dir / "eval" / opt.name()
     atomic.remove_stale_temporaries(out_dir)  # left by an evaluation that was killed while writing
     per_ckpt = []
+    hover_success = None  # Reach-Intermediate: the hover floor's outcomes on these episodes (kind_rates)
     t_start = time.perf_counter()
     bar = tqdm(ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=None if opt.progress else True, dynamic_ncols=True)  # None: only on a terminal
     for i, path in enumerate(bar):
         algo, ck = load_policy(path, device)
         check_checkpoint_dataset(ck, data, path)
+        if hover_success is None and episodes.task == "reach-intermediate":  # one batched flight, ~1 s
+            hover_success = rollout(wrap_floor(algo, "hover"), episodes, goal_tol=opt.goal_tol, **sim_kwargs(data))["success"]
         algo = wrap_floor(algo, opt.floor)
         planner, nw = make_planner(algo, data, opt)
         leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
@@ -274,7 +277,7 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         per_ckpt.append({"checkpoint": path.name, "step": int(ck["step"]), "success": float(r["success"].mean()),
                          "near_success": float(r["near_success"].mean()), "seconds": wall,
                          **({"declined": float(r["declined"].mean())} if "declined" in r else {}),
-                         **results.kind_rates(episodes, r)})
+                         **results.kind_rates(episodes, r, hover_success)})
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
         if record:
             results.write_trajectories(out_dir, int(ck["step"]), episodes, r)

@@ -89,6 +89,26 @@ def test_intermediate_ood_planners_table_and_plots(setup, capsys, tmp_path):
     assert all((tmp_path / f).stat().st_size > 1000 for f in ("ood.png", "rd.png", "c.png"))
 
 
+def test_beyond_hover_rate_is_success_on_the_episodes_the_hover_floor_misses(setup):
+    run = setup["run"]
+    common = ["--task", "reach-intermediate", "--run", str(run), "--episodes", "12", "--checkpoints", "1", "--quiet"]
+    assert main(["eval", *common, "-o", str(run / "eval" / "ri12")]) == 0
+    assert main(["eval", *common, "--floor", "hover"]) == 0
+
+    def outcomes(name):
+        d = run / "eval" / name
+        rows = list(csv.DictReader(open(next(d.glob("episodes-*.csv")))))
+        return np.array([int(r["success"]) for r in rows], bool), json.loads((d / "summary.json").read_text())["checkpoints"][0]
+
+    policy, ck = outcomes("ri12")
+    hover, ck_hover = outcomes("reach-intermediate-floor-hover")
+    if hover.all():
+        assert "success_beyond_hover" not in ck
+    else:
+        assert ck["success_beyond_hover"] == pytest.approx(policy[~hover].mean())
+        assert ck_hover["success_beyond_hover"] == 0.0  # hover misses them all, by construction
+
+
 @pytest.mark.parametrize("case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals",
                                   "more-than-goals", "bad-seed"])
 def test_bad_input_is_one_line(setup, capsys, case):

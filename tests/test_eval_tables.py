@@ -15,17 +15,17 @@ def _run(root, name, seed, rd_rates, *, algo="gcsl", lr=1e-3, ood=None, floors=N
     (rd / "config.json").write_text(json.dumps({"config": {"algo": algo, "seed": seed, "lr_actor": lr, "dataset": f"/x/{name}"},
                                                 "dataset": {"version": "n250-s0-dbb240c0"}}))
 
-    def summary(name, rates, planner="none", far=None):
+    def summary(name, rates, planner="none", far=None, beyond=None):
         d = rd / "eval" / name
         d.mkdir()
-        ck = [{"success": r, "near_success": min(1.0, r + 0.05), **({"success_intermediate_far": far} if far is not None else {})}
-              for r in rates]
+        ck = [{"success": r, "near_success": min(1.0, r + 0.05), **({"success_intermediate_far": far} if far is not None else {}),
+               **({"success_beyond_hover": beyond} if beyond is not None else {})} for r in rates]
         (d / "summary.json").write_text(json.dumps({"checkpoints": ck, "success_mean": float(np.mean(rates)),
                                                    "success_std": float(np.std(rates)), "near_success_mean": float(np.mean(rates)) + 0.05,
                                                    "near_success_std": 0.0, "episodes": 250, "planner": planner}))
 
     summary("reach-desired", rd_rates)
-    summary("reach-intermediate", [0.8, 0.8], far=0.6)
+    summary("reach-intermediate", [0.8, 0.8], far=0.6, beyond=0.1 + 0.1 * seed)
     for planner, per_ckpt in (ood or {}).items():
         summary(f"ood-{planner}", [np.mean(x) for x in per_ckpt], planner=planner)
         for k, ep in enumerate(per_ckpt):
@@ -53,6 +53,7 @@ def test_seeds_of_one_experiment_make_one_row(tmp_path):
     rd_spread = rows[0][head.index("ckpt spread")]  # Reach-Desired's (the first of the two columns)
     assert row["seeds x ckpts x episodes"] == "3 x 2 x 250" and rd_spread == "0.7"  # mean of 1.0, 1.0, 0.0
     assert row["RI >= 10 steps ahead %"].startswith("60.0 ± 0.0") and "+2 seeds" in row["runs"]
+    assert row["RI goals hover misses %"].startswith("20.0 ± 10.0") and "(10.0/20.0/30.0)" in row["RI goals hover misses %"]
     floor = dict(zip(head, rows[1]))
     assert floor["Reach-Desired success %"] == "0.0"  # the floor, flown on seed 0's data
     assert floor["runs"] == str(a)  # and named by the one run it was flown on
@@ -70,3 +71,20 @@ def test_planner_comparison_is_pooled_over_seeds(tmp_path):
     head, rows = results.tables([a, b])["t32"]
     single = [dict(zip(head, r)) for r in rows if r[2] == "single"][0]
     assert single["seeds x ckpts x episodes"] == "2 x 1 x 250" and "episodes 4 : 1" in single[head[-1]]
+
+
+def test_kind_rates_split_intermediate_goals_by_steps_ahead_and_by_what_hover_misses():
+    from aerohrl.eval.tasks import EpisodeSet
+
+    n = 6
+    steps_ahead = np.array([0, 0, 2, 12, 30, 40])
+    eps = EpisodeSet("reach-intermediate", np.zeros((n, 18)), np.zeros((n, 15)), np.full(n, 100), np.zeros(n, np.int64),
+                     np.zeros(n, np.int64), steps_ahead, 0)
+    r = {"success": np.array([1, 0, 1, 1, 0, 1], bool)}
+    hover = np.array([0, 0, 1, 1, 0, 0], bool)  # hover meets the goals 2 and 12 steps ahead
+    out = results.kind_rates(eps, r, hover)
+    assert out["success_desired"] == 0.5 and out["success_intermediate"] == 0.75
+    assert out["success_intermediate_far"] == pytest.approx(2 / 3)  # 12, 30, 40 steps ahead
+    assert out["success_beyond_hover"] == 0.5  # episodes 0, 1, 4, 5: two of four reached
+    assert "success_beyond_hover" not in results.kind_rates(eps, r)  # no hover outcomes given
+    assert "success_beyond_hover" not in results.kind_rates(eps, r, np.ones(n, bool))  # hover meets every goal
