@@ -295,6 +295,24 @@ def _config(sp: SweepSpec, p: Point):
 # ----------------------------------------------------------------------------- tasks (run in Ray workers)
 
 
+def config_differences(run_dir: str | Path, cfg) -> str:
+    """``""``, or ``" (kept its own config: FIELD RUN's -> asked, ...)"`` when the run at
+    ``run_dir`` was started with another config than ``cfg`` (a run is reused or resumed
+    with its own config: a preset changed since, or a flag, shows here instead of silently;
+    the step count, checkpoint interval, device and dataset path are not compared)."""
+    import json
+
+    from aerohrl.algorithms import config as C
+
+    try:
+        old = C.to_dict(C.from_dict(json.loads((Path(run_dir) / "config.json").read_text())["config"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return ""
+    new = C.to_dict(cfg)
+    keys = [k for k in new if k not in ("steps", "checkpoint_every", "device", "dataset") and old.get(k) != new[k]]
+    return f" (kept its own config: {', '.join(f'{k} {old.get(k)} -> {new[k]}' for k in keys)})" if keys else ""
+
+
 def train_task(run_dir: str, cfg_dict: dict, threads: int) -> dict:
     """Train one run to its end: start it, resume it, or leave it (finished). Runs in a
     Ray worker; a retry after the worker died resumes from the newest checkpoint."""
@@ -310,10 +328,11 @@ def train_task(run_dir: str, cfg_dict: dict, threads: int) -> dict:
     kw = {"progress": False, "progress_every_s": 60.0}
     if (rd / "config.json").exists():
         ck = checkpoint_paths(rd)
+        differs = config_differences(rd, cfg)
         if ck and checkpoint_step(ck[-1]) >= cfg.steps:
-            return {"run": run_dir, "step": checkpoint_step(ck[-1]), "status": "finished before", "seconds": 0.0}
+            return {"run": run_dir, "step": checkpoint_step(ck[-1]), "status": "finished before" + differs, "seconds": 0.0}
         tr = resume_run(rd, overrides={"steps": cfg.steps}, **kw)
-        status = f"resumed at step {tr.step}"
+        status = f"resumed at step {tr.step}" + differs
     else:
         if rd.is_dir() and not checkpoint_paths(rd):
             import shutil

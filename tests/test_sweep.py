@@ -115,6 +115,23 @@ def _weights(run):
     return torch.load(checkpoint_paths(run)[-1], weights_only=False)["model"]
 
 
+def test_a_reused_run_with_another_config_says_so(dataset_dir, tmp_path):
+    """A run is reused or resumed with its own config; when a preset or a flag changed since,
+    the status names the fields instead of hiding it (steps and dataset path are not compared)."""
+    from aerohrl.algorithms import config as C
+
+    cfg = C.make_config("cpu", algo="gcsl", dataset=str(dataset_dir), steps=40)
+    rd = tmp_path / "run"
+    rd.mkdir()
+    (rd / "config.json").write_text(json.dumps({"config": C.to_dict(cfg)}))
+    assert sweep.config_differences(rd, C.make_config("cpu", algo="gcsl", dataset="/elsewhere", steps=80)) == ""
+    msg = sweep.config_differences(rd, C.make_config("cpu", algo="gcsl", dataset=str(dataset_dir), steps=40,
+                                                     relabel_prob=0.3, hidden=(64, 64)))
+    assert msg.startswith(" (kept its own config: ") and f"relabel_prob {cfg.relabel_prob} -> 0.3" in msg
+    assert "hidden [512, 512, 512] -> [64, 64]" in msg and "steps" not in msg
+    assert sweep.config_differences(tmp_path / "no-run", cfg) == ""
+
+
 @pytest.mark.slow
 def test_sweep_survives_a_killed_worker(tmp_path):
     """2 algorithms x 2 seeds on a 250-goal dataset: the process training a run is killed
