@@ -39,12 +39,15 @@ import time
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from aerohrl import atomic
 from aerohrl import cli_types as T
 from aerohrl.cli_common import add_common, toml_value
 from aerohrl.errors import ArgumentParser, UserError, run_cli
+
+if TYPE_CHECKING:
+    from aerohrl.algorithms.config import TrainConfig
 
 PROG = "aerohrl sweep"
 # what a run's identity is made of (top-level keys), never a [set]/[grid] override
@@ -295,7 +298,7 @@ def _config(sp: SweepSpec, p: Point):
 # ----------------------------------------------------------------------------- tasks (run in Ray workers)
 
 
-def config_differences(run_dir: str | Path, cfg) -> str:
+def config_differences(run_dir: str | Path, cfg: TrainConfig) -> str:
     """``""``, or ``" (kept its own config: FIELD RUN's -> asked, ...)"`` when the run at
     ``run_dir`` was started with another config than ``cfg`` (a run is reused or resumed
     with its own config: a preset changed since, or a flag, shows here instead of silently;

@@ -134,7 +134,8 @@ def parser() -> ArgumentParser:
         elif isinstance(default, str):
             ap.add_argument(flag, default=None, choices=CHOICES.get(f.name), help=f"{h} [cpu: {default}]" if default else h)
         else:
-            ap.add_argument(flag, type=flag_type(f.name, default), default=None, help=f"{h} [cpu: {default}]")
+            per_algo = "".join(f"; {a} {v[f.name]}" for a, v in C.ALGO_PRESETS["cpu"].items() if f.name in v)
+            ap.add_argument(flag, type=flag_type(f.name, default), default=None, help=f"{h} [cpu: {default}{per_algo}]")
     return ap
 
 

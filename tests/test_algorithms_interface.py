@@ -115,6 +115,11 @@ def test_presets():
     assert t.hidden == (512, 2048, 2048, 512) and t.batch_size == 1048 and t.steps == 2_000_000
     c = make_config("cpu", steps=123, batch_size=7)
     assert c.steps == 123 and c.batch_size == 7 and c.num_critics == 5
+    # per-algorithm values of the cpu preset (GCSL's relabelling probability), under the flags
+    assert make_config("cpu", algo="gcsl").relabel_prob == 0.01
+    assert {make_config("cpu", algo=a).relabel_prob for a in ("td3bc", "td3awbc", "cql")} == {0.05}
+    assert make_config("cpu", algo="gcsl", relabel_prob=0.2).relabel_prob == 0.2
+    assert make_config("thesis", algo="gcsl").relabel_prob == 0.5  # the thesis preset has none
 
 
 def test_loader_rejects_bad_columns():
