@@ -303,13 +303,12 @@ def config_differences(run_dir: str | Path, cfg: TrainConfig) -> str:
     ``run_dir`` was started with another config than ``cfg`` (a run is reused or resumed
     with its own config: a preset changed since, or a flag, shows here instead of silently;
     the step count, checkpoint interval, device and dataset path are not compared)."""
-    import json
-
     from aerohrl.algorithms import config as C
+    from aerohrl.algorithms.trainer import read_json
 
     try:
-        old = C.to_dict(C.from_dict(json.loads((Path(run_dir) / "config.json").read_text())["config"]))
-    except (OSError, ValueError, KeyError, TypeError):
+        old = C.to_dict(C.from_dict(read_json(Path(run_dir) / "config.json")["config"]))
+    except (UserError, KeyError, TypeError):  # no run there, or a damaged one: resume_run says so
         return ""
     new = C.to_dict(cfg)
     keys = [k for k in new if k not in ("steps", "checkpoint_every", "device", "dataset") and old.get(k) != new[k]]

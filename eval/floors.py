@@ -5,8 +5,9 @@
   meets or drifts into: on Reach-Intermediate the goals a few steps ahead (31.2 % of the
   thesis's episode mix in issue 11's probe), and some far ahead too (likely, not verified
   on the trajectories: from a moving, tilted start the held attitude and thrust keep
-  accelerating the way the expert was, which extrapolates its path). The evaluation therefore also reports success on the goals this
-  floor misses (``success_beyond_hover``, eval/results.py ``kind_rates``).
+  accelerating the way the expert was, which extrapolates its path). The evaluation
+  therefore also reports success on the goals this floor misses
+  (``success_beyond_hover``, eval/results.py ``kind_rates``).
 * ``no-goal``: the run's learned policy with its goal inputs held at the dataset's mean
   (the normalised relative-goal features set to 0), so it acts on the state alone: what
   the policy does without goal information, the floor of goal conditioning.

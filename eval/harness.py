@@ -262,7 +262,7 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
     for i, path in enumerate(bar):
         algo, ck = load_policy(path, device)
         check_checkpoint_dataset(ck, data, path)
-        if hover_success is None and episodes.task == "reach-intermediate":  # one batched flight, ~1 s
+        if hover_success is None and episodes.task == "reach-intermediate" and opt.floor != "hover":  # one flight, ~1 s
             hover_success = rollout(wrap_floor(algo, "hover"), episodes, goal_tol=opt.goal_tol, **sim_kwargs(data))["success"]
         algo = wrap_floor(algo, opt.floor)
         planner, nw = make_planner(algo, data, opt)
@@ -277,7 +277,7 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         per_ckpt.append({"checkpoint": path.name, "step": int(ck["step"]), "success": float(r["success"].mean()),
                          "near_success": float(r["near_success"].mean()), "seconds": wall,
                          **({"declined": float(r["declined"].mean())} if "declined" in r else {}),
-                         **results.kind_rates(episodes, r, hover_success)})
+                         **results.kind_rates(episodes, r, r["success"] if opt.floor == "hover" else hover_success)})
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
         if record:
             results.write_trajectories(out_dir, int(ck["step"]), episodes, r)
