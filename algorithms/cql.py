@@ -45,6 +45,22 @@ class _TanhLoc(nn.Module):
         return torch.tanh(loc)
 
 
+def lagrange_terms(loss_cql: torch.Tensor, log_alpha_prime: torch.Tensor, thresh: float):
+    """CQL's Lagrange form (Kumar et al. 2020, Eq. 5 with the dual step; their code's
+    ``with_lagrange``): the critics minimise ``α' (P1 + P2 - 2τ)`` with α' held fixed, and α'
+    maximises ``α' (P̄ - τ)`` with the penalties held fixed, where ``P_i = min_q_weight ·
+    (logsumexp_a Q_i(s, a) - Q_i(s, a_data))`` and ``P̄`` their mean over the two critics.
+
+    ``loss_cql`` is torchrl's ``CQLLoss`` output ``mean(P1 + P2)``. Written here because
+    torchrl's own pieces do not give this: its ``loss_cql`` is never scaled by α', and its
+    ``loss_alpha_prime = -α' (P̄ - τ)`` keeps the critics' graph, so adding it to the
+    critics' loss (as torchrl's sota script does) gives them ``-α'/2 ∇P``: the penalty turns
+    into a bonus once α' exceeds 2. Returns (critics' term, α' loss, α', P̄)."""
+    alpha_prime = log_alpha_prime.exp().clamp(max=1e6)
+    gap = loss_cql.detach() / 2
+    return alpha_prime.detach() * (loss_cql - 2 * thresh), -alpha_prime * (gap - thresh), alpha_prime.detach(), gap
+
+
 class CQL(Algorithm):
     name = "cql"
 
@@ -103,11 +119,15 @@ class CQL(Algorithm):
         critic ensemble; the losses by name."""
         # 1. CQL: actor, conservative critics, entropy temperature (disjoint gradients)
         out = self.cql_loss(batch.clone(False))
-        loss = out["loss_actor"] + out["loss_qvalue"] + out["loss_cql"] + out["loss_alpha"]
+        penalty, lagrange = out["loss_cql"], {}
         opts = [self.actor_opt, self.cql_critic_opt, self.alpha_opt]
-        if self.alpha_prime_opt is not None:  # the Lagrange multiplier's loss (gradient to log_alpha_prime only)
-            loss = loss + out["loss_alpha_prime"]
+        if self.alpha_prime_opt is not None:  # Lagrange form: α' scales the penalty, and ascends on it
+            penalty, loss_alpha_prime, alpha_prime, gap = lagrange_terms(
+                out["loss_cql"], self.cql_loss.log_alpha_prime, self.cfg.cql_lagrange_thresh)
+            penalty = penalty + loss_alpha_prime  # disjoint gradients: critics | log α'
+            lagrange = {"loss_alpha_prime": loss_alpha_prime.detach(), "alpha_prime": alpha_prime, "cql_gap": gap}
             opts.append(self.alpha_prime_opt)
+        loss = out["loss_actor"] + out["loss_qvalue"] + penalty + out["loss_alpha"]
         for opt in opts:
             opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -127,7 +147,7 @@ class CQL(Algorithm):
             "loss_cql_qvalue": out["loss_qvalue"].detach(),
             "loss_cql": out["loss_cql"].detach(),
             "alpha": out["alpha"].detach(),
-            **({"loss_alpha_prime": out["loss_alpha_prime"].detach()} if self.alpha_prime_opt is not None else {}),
+            **lagrange,
             "loss_critic": loss_q.detach(),
             "q_mean": meta["pred_value"].mean(),
             "target_mean": meta["target_value"].mean(),

@@ -55,7 +55,23 @@ def test_cql_lagrange_trains_its_multiplier(ds, tmp_path):
     tr.train()
     assert "alpha_prime" in tr.algo.optimizers()
     assert not torch.equal(before, tr.algo.cql_loss.log_alpha_prime.detach())
-    assert any("loss_alpha_prime" in r for r in _metrics(tmp_path / "cql"))
+    assert any("loss_alpha_prime" in r and "alpha_prime" in r and "cql_gap" in r for r in _metrics(tmp_path / "cql"))
+
+
+def test_cql_lagrange_scales_the_penalty_and_ascends_on_it():
+    """Kumar et al.'s form: the critics get α' ∇P (a penalty at any α'), α' grows while the
+    gap exceeds τ and shrinks below it; no gradient crosses between the two."""
+    from aerohrl.algorithms.cql import lagrange_terms
+    for gap, grows in ((8.0, True), (2.0, False)):
+        loss_cql = torch.tensor(2 * gap, requires_grad=True)   # mean(P1 + P2)
+        log_ap = torch.tensor(float(torch.log(torch.tensor(3.0))), requires_grad=True)  # α' = 3 > 2
+        critics, dual, ap, mean_gap = lagrange_terms(loss_cql, log_ap, thresh=5.0)
+        critics.backward()
+        assert loss_cql.grad.item() == pytest.approx(3.0) and log_ap.grad is None
+        assert mean_gap.item() == pytest.approx(gap) and ap.item() == pytest.approx(3.0)
+        dual.backward()
+        assert loss_cql.grad.item() == pytest.approx(3.0)      # unchanged by the dual loss
+        assert (log_ap.grad.item() < 0) == grows                # gradient descent on -α'(P̄ - τ)
 
 
 @pytest.mark.parametrize("kw, msg", [({"alpha_schedule": "cosine"}, "unknown alpha schedule"),
