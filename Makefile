@@ -48,7 +48,7 @@ test: venv
 test-fast: venv
 	$(BIN)/python -m pytest
 
-# The whole chapter-3 reproduction (dataset -> 4 algorithms x 3 seeds -> Tables 3.1/3.2 in README.md); about 2 h on 2 cores per seed.
+# The whole chapter-3 reproduction (datasets -> 4 algorithms x 3 seeds + the planner experiment -> Tables 3.1/3.2 in README.md); about 4 h on 2 cores, resumable.
 # The training runs are Ray tasks (aerohrl sweep's machinery): RAY_ADDRESS=host:port runs them on a cluster.
 RAY_ADDRESS ?=
 results: venv
