@@ -45,7 +45,8 @@ class _TanhLoc(nn.Module):
         return torch.tanh(loc)
 
 
-def lagrange_terms(loss_cql: torch.Tensor, log_alpha_prime: torch.Tensor, thresh: float):
+def lagrange_terms(loss_cql: torch.Tensor, log_alpha_prime: torch.Tensor,
+                   thresh: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """CQL's Lagrange form (Kumar et al. 2020, Eq. 5 with the dual step; their code's
     ``with_lagrange``): the critics minimise ``α' (P1 + P2 - 2τ)`` with α' held fixed, and α'
     maximises ``α' (P̄ - τ)`` with the penalties held fixed, where ``P_i = min_q_weight ·
