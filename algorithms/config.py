@@ -7,9 +7,9 @@ critics 128-128, batch 512, 30k steps under bf16 autocast (41 steps/s on one
 AVX512-BF16 core), actor learning rate 1e-3 with cosine decay, an EMA of the policy
 weights (0.999), critic targets bounded below by the data's discounted return,
 relabelling probability 0.05 (GCSL 0.01, ``ALGO_PRESETS``) with a geometric offset of
-mean 30 steps, TD3-BC and
-TD3-AWBC alpha 0.001 annealed linearly to 0 with an actor update every critic update
-(issue 11's sweep, algorithms/README.md "TD3-BC sweep"), a checkpoint every 1,000 steps.
+mean 30 steps, TD3-BC and TD3-AWBC alpha 0.001 annealed linearly to 0 with an actor
+update every critic update (issue 11's sweep, algorithms/README.md "TD3-BC sweep"), and
+a checkpoint every 1,000 steps.
 Measured on the 250-goal dataset over 3 seeds: README "Results" (``make results``).
 Every field maps one to one to a ``train`` flag (``batch_size`` -> ``--batch-size``);
 a flag given on the command line overrides the preset.
