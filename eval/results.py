@@ -19,6 +19,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Sequence
 
@@ -324,6 +325,18 @@ def _runs_label(runs: list[Path]) -> str:
     return str(runs[0]) if len(runs) == 1 else f"{runs[0]} (+{len(runs) - 1} seeds: " + ", ".join(p.name for p in runs[1:]) + ")"
 
 
+def floor_label(algo: str, floor: str) -> str:
+    """How a table names a floor: "hover", or "<ALGO> without goal"."""
+    return "hover" if floor == "hover" else f"{ALGO_NAMES.get(algo, algo)} without goal"
+
+
+def _ood_variant(name: str) -> tuple[str, str | None, str | None]:
+    """An OOD evaluation's folder name, ``ood-<planner>[-goaltol<x>][-floor-<floor>]``
+    (EvalOptions' naming), split into (planner, goal tolerance factor, floor)."""
+    m = re.fullmatch(r"ood-(.+?)(?:-goaltol([0-9.e+-]+))?(?:-floor-(.+))?", name)
+    return (m.group(1), m.group(2), m.group(3)) if m else (name[4:], None, None)
+
+
 def tables(run_dirs: Sequence[str | Path]) -> dict:
     """Table 3.1 / 3.2 analogues from the runs' evaluation summaries, one row per
     experiment: runs that differ only in their seed are one row, their figures over seeds
@@ -337,7 +350,7 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
     for runs in group_runs(run_dirs):
         algo = _algo_of(runs[0])
         for suffix, label in (("", ALGO_NAMES.get(algo, algo)), ("-floor-hover", "floor: hover"),
-                              ("-floor-no-goal", f"floor: {ALGO_NAMES.get(algo, algo)} without goal")):
+                              ("-floor-no-goal", f"floor: {floor_label(algo, 'no-goal')}")):
             row = _t31_row(runs, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
             if row:  # named by the runs it was flown on (a floor: the first seed's only)
                 cells, flown = row
@@ -345,12 +358,16 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
         evals = sorted({p.name for rd in runs for p in (rd / "eval").glob("ood-*") if (p / "summary.json").exists()})
         for name in evals:
             f = _seed_figures(runs, name)
-            th2 = THESIS_T32.get(f["planner"]) if algo == "gcsl" and name in ("ood-none", "ood-single") else None
-            t32.append([ALGO_NAMES.get(algo, algo), _runs_label(runs), name[4:], seed_cell(f["success"]), f"{f['spread']:.1f}",
+            planner, tol, floor = _ood_variant(name)
+            label = f"floor: {floor_label(algo, floor)}" if floor else ALGO_NAMES.get(algo, algo)
+            th2 = THESIS_T32.get(planner) if algo == "gcsl" and not (tol or floor) and planner in ("none", "single") else None
+            t32.append([label, _runs_label(f["runs"] if floor else runs),
+                        planner + (f" (goal tolerance x {tol})" if tol else ""), seed_cell(f["success"]), f"{f['spread']:.1f}",
                         f"{f['near']['mean']:.1f} ± {f['near_std']:.1f}" if f["seeds"] == 1 else seed_cell(f["near"]),
                         f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—",
                         f"{f['seeds']} x {f['ckpts']} x {f['episodes']}",
-                        _paired_cell(paired_vs_none(runs, name)) if name != "ood-none" else "—"])
+                        # a planner against flying straight; a floor or a stricter tolerance is no planner
+                        _paired_cell(paired_vs_none(runs, name)) if planner != "none" and not (tol or floor) else "—"])
     if not t31 and not t32:
         raise UserError("none of the runs has evaluation results (run `aerohrl eval --task ... --run RUN` first)")
     h31 = ["algorithm", "runs", "Reach-Desired success %", "ckpt spread", "near %", "thesis %", "seeds x ckpts x episodes",

@@ -73,6 +73,21 @@ def test_planner_comparison_is_pooled_over_seeds(tmp_path):
     assert single["seeds x ckpts x episodes"] == "2 x 1 x 250" and "episodes 4 : 1" in single[head[-1]]
 
 
+def test_ood_floors_and_tolerance_variants_are_labelled_not_compared_as_planners(tmp_path):
+    a = _run(tmp_path, "a", 0, [0.9], ood={"none": [[1, 1, 0, 0]], "none-goaltol0.5": [[1, 0, 0, 0]],
+                                           "none-floor-hover": [[0, 0, 0, 0]], "single": [[1, 1, 1, 0]]})
+    b = _run(tmp_path, "b", 1, [0.9], ood={"none": [[1, 0, 0, 0]], "single": [[1, 0, 0, 0]]})
+    head, rows = results.tables([a, b])["t32"]
+    by = {(r[0], r[2]): dict(zip(head, r)) for r in rows}
+    assert set(by) == {("GCSL", "none"), ("GCSL", "none (goal tolerance x 0.5)"), ("floor: hover", "none"), ("GCSL", "single")}
+    paired = head[-1]
+    assert by[("GCSL", "single")][paired].startswith("+12.5")  # the one planner: compared with flying straight
+    assert all(by[k][paired] == "—" for k in by if k[1] != "single")  # floors and tolerances: no comparison
+    assert by[("floor: hover", "none")]["runs"] == str(a)  # named by the run it was flown on
+    assert by[("GCSL", "none")]["thesis success %"] == "0.0" and by[("floor: hover", "none")]["thesis success %"] == "—"
+    assert results._ood_variant("ood-multi2-replan10-goaltol0.5-floor-no-goal") == ("multi2-replan10", "0.5", "no-goal")
+
+
 def test_kind_rates_split_intermediate_goals_by_steps_ahead_and_by_what_hover_misses():
     from aerohrl.eval.tasks import EpisodeSet
 
