@@ -322,7 +322,7 @@ def _t31_row(runs: list[Path], suffix: str, th: dict) -> tuple[list[str], list[P
 
 
 def _runs_label(runs: list[Path]) -> str:
-    return str(runs[0]) if len(runs) == 1 else f"{runs[0]} (+{len(runs) - 1} seeds: " + ", ".join(p.name for p in runs[1:]) + ")"
+    return str(runs[0]) if len(runs) == 1 else f"{runs[0]} (+{len(runs) - 1} seed{'s' if len(runs) > 2 else ''}: " + ", ".join(p.name for p in runs[1:]) + ")"
 
 
 def floor_label(algo: str, floor: str) -> str:
@@ -361,7 +361,7 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
             planner, tol, floor = _ood_variant(name)
             label = f"floor: {floor_label(algo, floor)}" if floor else ALGO_NAMES.get(algo, algo)
             th2 = THESIS_T32.get(planner) if algo == "gcsl" and not (tol or floor) and planner in ("none", "single") else None
-            t32.append([label, _runs_label(f["runs"] if floor else runs),
+            t32.append([label, _runs_label(f["runs"]),  # the runs that have this evaluation
                         planner + (f" (goal tolerance x {tol})" if tol else ""), seed_cell(f["success"]), f"{f['spread']:.1f}",
                         f"{f['near']['mean']:.1f} ± {f['near_std']:.1f}" if f["seeds"] == 1 else seed_cell(f["near"]),
                         f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—",
