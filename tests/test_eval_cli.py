@@ -169,7 +169,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     text = readme.read_text()
     assert "Table 3.1 analogue" in text and "Table 3.2 analogue" in text and "wall time" in text and "TD3-BC" in text
     assert "Oracle of the single-goal planner for gcsl" in text and "Reach-Novel" in text
-    assert "(+1 seeds: gcsl-cpu-s1)" in text and "floor: hover" in text  # rows over seeds, floors beside GCSL
+    assert "(+1 seed: gcsl-cpu-s1)" in text and "floor: hover" in text  # rows over seeds, floors beside GCSL
     assert (tmp_path / "res" / "tables-t31.csv").exists() and (tmp_path / "res" / "ood-gcsl.png").exists()
     assert "Oracle of the single-goal planner for gcsl-cont" in text and "runs/gcsl-cpu-cont" in text
     assert (tmp_path / "res" / "ood-gcsl-cont.png").exists()
