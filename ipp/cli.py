@@ -1,4 +1,4 @@
-"""``aerohrl ipp``: lattice build, bench, show.
+"""``aerohrl ipp``: lattice build, bench, compare, show.
 
     aerohrl ipp lattice build --out lattice.npz         # + lattice.png
     aerohrl ipp bench --planner dp --envs 100
@@ -7,6 +7,7 @@
     aerohrl ipp train --resume runs/<run>               # continue from its checkpoint
     aerohrl ipp curve runs/<run>                        # -> runs/<run>/learning_curve.png
     aerohrl ipp bench --all --run runs/<run>            # baselines + learned policy
+    aerohrl ipp compare runs/bench-a runs/bench-b       # two benches paired over their worlds
     aerohrl ipp show --env 7 --planner dp --out path.png
     aerohrl ipp bench --all --world semantic --envs 30  # Table 2.2 analogue
     aerohrl ipp bench --all --world semantic --raster campus.png   # a user's class raster
@@ -193,6 +194,12 @@ def _parser() -> argparse.ArgumentParser:
                     help="sweep: comma-separated budgets (numbers or names); writes "
                     "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)")
     env_flags(be)
+
+    co = sub.add_parser("compare", help="two benches paired over the worlds both ran (e.g. two planners run apart)")
+    co.add_argument("bench_a", metavar="A", help="bench folder (or its ipp_bench_envs.csv) of one planner")
+    co.add_argument("bench_b", metavar="B", help="the bench it is compared with")
+    co.add_argument("--metric", default="search_efficiency",
+                    help="per-world column of ipp_bench_envs.csv [search_efficiency]")
 
     sh = sub.add_parser("show", help="Fig. 2.3 analogue: truth, prior, path over the budget")
     sh.add_argument("--env", type=T.nonneg_int, default=0, help="test-suite world index")
@@ -532,6 +539,20 @@ def _train(a) -> int:
     return 0
 
 
+def _compare(a) -> int:
+    """``aerohrl ipp compare A B``: A − B paired over the same worlds, one line."""
+    from .metrics import paired_comparison, read_per_env
+
+    (pa, va), (pb, vb) = read_per_env(a.bench_a, a.metric), read_per_env(a.bench_b, a.metric)
+    if len(set(va) & set(vb)) < 2:
+        raise UserError(f"{a.bench_a} and {a.bench_b} share fewer than 2 worlds (same --seed and --envs?)")
+    c = paired_comparison(va, vb)
+    print(f"{a.metric}: {pa} ({a.bench_a}) - {pb} ({a.bench_b}) = {c['diff']:+.2f} ± {c['se']:.2f} points "
+          f"(mean ± s.e. over {c['n']} worlds; better on {c['better']}, worse on {c['worse']}; "
+          f"paired t-test p = {c['p_t']:.3f}, Wilcoxon p = {c['p_wilcoxon']:.3f})")
+    return 0
+
+
 def _curve(a) -> int:
     from .train import plot_learning_curve
     out = plot_learning_curve(a.run, a.out)
@@ -593,6 +614,8 @@ def _dispatch(argv) -> int:
         return _train(a)
     if a.cmd == "curve":
         return _curve(a)
+    if a.cmd == "compare":
+        return _compare(a)
     raise UserError(f"unknown command {a.cmd!r}")
 
 

@@ -341,3 +341,40 @@ def plot_kl(results: dict[str, dict], names: dict[str, str], path: str | Path, b
         fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return path
+
+
+def read_per_env(path: str | Path, metric: str = "search_efficiency") -> tuple[str, dict[int, float]]:
+    """One planner's per-world ``metric`` from a bench's ``ipp_bench_envs.csv`` (or the
+    bench folder holding it): ``(planner, {env id: value})``. UserError if the file is
+    missing, lacks the metric or holds more than one planner."""
+    from aerohrl.errors import UserError
+
+    f = Path(path)
+    f = f / "ipp_bench_envs.csv" if f.is_dir() else f
+    try:
+        rows = list(csv.DictReader(f.open()))
+    except OSError:
+        raise UserError(f"no bench results at {path} (run `aerohrl ipp bench -o DIR` first)") from None
+    if not rows or metric not in rows[0]:
+        raise UserError(f"{f} has no column {metric!r}")
+    planners = sorted({r["planner"] for r in rows})
+    if len(planners) != 1:
+        raise UserError(f"{f} holds {len(planners)} planners ({', '.join(planners)}); compare benches of one planner each")
+    return planners[0], {int(r["env"]): float(r[metric]) for r in rows}
+
+
+def paired_comparison(a: dict[int, float], b: dict[int, float]) -> dict:
+    """``a - b`` paired over the worlds both ran: mean, standard error, n, worlds better /
+    worse, and the paired t-test's and Wilcoxon signed-rank test's p-values (scipy)."""
+    from scipy import stats
+
+    ids = sorted(set(a) & set(b))
+    if len(ids) < 2:
+        raise ValueError("fewer than 2 worlds in common")
+    x, y = np.array([a[i] for i in ids]), np.array([b[i] for i in ids])
+    d = x - y
+    nz = d[d != 0]
+    return {"diff": float(d.mean()), "se": float(d.std(ddof=1) / np.sqrt(len(d))), "n": len(d),
+            "better": int((d > 0).sum()), "worse": int((d < 0).sum()),
+            "p_t": float(stats.ttest_rel(x, y).pvalue) if d.std() > 0 else 1.0,
+            "p_wilcoxon": float(stats.wilcoxon(nz).pvalue) if len(nz) else 1.0}

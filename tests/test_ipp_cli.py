@@ -130,3 +130,27 @@ def test_table_has_both_denominators_and_thesis_beside_padded(tmp_path, capsys):
     inner = float(row[head.index("coverage % (900)")].split()[0])
     padded = float(row[head.index("coverage % (1600)")].split()[0])
     assert padded < inner and padded >= inner * 900 / 1600 - 0.05
+
+
+def test_compare_pairs_two_benches_over_their_worlds(tmp_path, capsys):
+    def bench(name, planner, values):
+        d = tmp_path / name
+        d.mkdir()
+        rows = ["planner,env,kl,search_efficiency,steps"] + [f"{planner},{i},0.1,{v},30" for i, v in enumerate(values)]
+        (d / "ipp_bench_envs.csv").write_text("\n".join(rows) + "\n")
+        return str(d)
+
+    a = bench("a", "detect", [90, 80, 70, 60])
+    b = bench("b", "dp", [88, 81, 66, 60])  # differences +2, -1, +4, 0
+    assert main(["compare", a, b]) == 0
+    out = capsys.readouterr().out
+    assert "detect" in out and "dp" in out and "+1.25 ± 1.11" in out and "over 4 worlds" in out
+    assert "better on 2, worse on 1" in out
+    two = tmp_path / "two"
+    two.mkdir()
+    (two / "ipp_bench_envs.csv").write_text("planner,env,search_efficiency\ndp,0,1\ngreedy,0,2\n")
+    for argv, msg in ((["compare", a, str(two)], "holds 2 planners"), (["compare", a, str(tmp_path / "none")], "no bench results"),
+                      (["compare", a, b, "--metric", "nope"], "no column 'nope'")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert msg in err and len(err.splitlines()) == 1
