@@ -543,9 +543,12 @@ def _compare(a) -> int:
     """``aerohrl ipp compare A B``: A − B paired over the same worlds, one line."""
     from .metrics import paired_comparison, read_per_env
 
-    (pa, va), (pb, vb) = read_per_env(a.bench_a, a.metric), read_per_env(a.bench_b, a.metric)
-    if len(set(va) & set(vb)) < 2:
+    (pa, va, ka), (pb, vb, kb) = read_per_env(a.bench_a, a.metric), read_per_env(a.bench_b, a.metric)
+    common = set(va) & set(vb)
+    if len(common) < 2:
         raise UserError(f"{a.bench_a} and {a.bench_b} share fewer than 2 worlds (same --seed and --envs?)")
+    if any(ka[i] != kb[i] for i in common):  # same index, another world: a different --seed or map
+        raise UserError(f"{a.bench_a} and {a.bench_b} ran different worlds under the same ids (same --seed and world flags?)")
     c = paired_comparison(va, vb)
     print(f"{a.metric}: {pa} ({a.bench_a}) - {pb} ({a.bench_b}) = {c['diff']:+.2f} ± {c['se']:.2f} points "
           f"(mean ± s.e. over {c['n']} worlds; better on {c['better']}, worse on {c['worse']}; "

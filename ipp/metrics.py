@@ -343,10 +343,12 @@ def plot_kl(results: dict[str, dict], names: dict[str, str], path: str | Path, b
     return path
 
 
-def read_per_env(path: str | Path, metric: str = "search_efficiency") -> tuple[str, dict[int, float]]:
+def read_per_env(path: str | Path, metric: str = "search_efficiency") -> tuple[str, dict[int, float], dict[int, str]]:
     """One planner's per-world ``metric`` from a bench's ``ipp_bench_envs.csv`` (or the
-    bench folder holding it): ``(planner, {env id: value})``. UserError if the file is
-    missing, lacks the metric or holds more than one planner."""
+    bench folder holding it): ``(planner, {env id: value}, {env id: KL(truth || prior)})``,
+    the KL as written (it identifies the world: the same id under another ``--seed`` is
+    another world). UserError if the file is missing, lacks the metric or holds more than
+    one planner."""
     from aerohrl.errors import UserError
 
     f = Path(path)
@@ -360,7 +362,7 @@ def read_per_env(path: str | Path, metric: str = "search_efficiency") -> tuple[s
     planners = sorted({r["planner"] for r in rows})
     if len(planners) != 1:
         raise UserError(f"{f} holds {len(planners)} planners ({', '.join(planners)}); compare benches of one planner each")
-    return planners[0], {int(r["env"]): float(r[metric]) for r in rows}
+    return planners[0], {int(r["env"]): float(r[metric]) for r in rows}, {int(r["env"]): r.get("kl", "") for r in rows}
 
 
 def paired_comparison(a: dict[int, float], b: dict[int, float]) -> dict:

@@ -133,10 +133,10 @@ def test_table_has_both_denominators_and_thesis_beside_padded(tmp_path, capsys):
 
 
 def test_compare_pairs_two_benches_over_their_worlds(tmp_path, capsys):
-    def bench(name, planner, values):
+    def bench(name, planner, values, kl="0.1"):
         d = tmp_path / name
         d.mkdir()
-        rows = ["planner,env,kl,search_efficiency,steps"] + [f"{planner},{i},0.1,{v},30" for i, v in enumerate(values)]
+        rows = ["planner,env,kl,search_efficiency,steps"] + [f"{planner},{i},{kl},{v},30" for i, v in enumerate(values)]
         (d / "ipp_bench_envs.csv").write_text("\n".join(rows) + "\n")
         return str(d)
 
@@ -150,7 +150,8 @@ def test_compare_pairs_two_benches_over_their_worlds(tmp_path, capsys):
     two.mkdir()
     (two / "ipp_bench_envs.csv").write_text("planner,env,search_efficiency\ndp,0,1\ngreedy,0,2\n")
     for argv, msg in ((["compare", a, str(two)], "holds 2 planners"), (["compare", a, str(tmp_path / "none")], "no bench results"),
-                      (["compare", a, b, "--metric", "nope"], "no column 'nope'")):
+                      (["compare", a, b, "--metric", "nope"], "no column 'nope'"),
+                      (["compare", a, bench("other-seed", "dp", [1, 2, 3, 4], kl="0.2")], "different worlds")):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert msg in err and len(err.splitlines()) == 1
