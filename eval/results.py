@@ -349,8 +349,8 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
     t31, t32 = [], []
     for runs in group_runs(run_dirs):
         algo = _algo_of(runs[0])
-        for suffix, label in (("", ALGO_NAMES.get(algo, algo)), ("-floor-hover", "floor: hover"),
-                              ("-floor-no-goal", f"floor: {floor_label(algo, 'no-goal')}")):
+        for suffix, label in (("", ALGO_NAMES.get(algo, algo)),
+                              *((f"-floor-{fl}", f"floor: {floor_label(algo, fl)}") for fl in ("hover", "no-goal"))):
             row = _t31_row(runs, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
             if row:  # named by the runs it was flown on (a floor: the first seed's only)
                 cells, flown = row

@@ -101,6 +101,11 @@ def markdown_table(results: dict[str, dict], names: dict[str, str], kind: str = 
     return head + "\n".join(rows) + "\n"
 
 
+def _standard_error(d: np.ndarray) -> float:
+    """Standard error of the mean of paired differences ``d`` (nan below 2 worlds)."""
+    return float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
+
+
 def paired_differences(results: dict[str, dict], baselines: Collection[str],
                        metric: str = "search_efficiency") -> tuple[dict[str, dict[str, tuple[float, float, int]]],
                                                                    str | None]:
@@ -119,8 +124,7 @@ def paired_differences(results: dict[str, dict], baselines: Collection[str],
             if not np.array_equal(results[p]["env_ids"], results[q]["env_ids"]):
                 raise ValueError(f"{p} and {q} ran on different environments")
             d = results[p]["per_env"][metric] - results[q]["per_env"][metric]
-            se = float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
-            out[p][q] = (float(d.mean()), se, len(d))
+            out[p][q] = (float(d.mean()), _standard_error(d), len(d))
     return out, best
 
 
@@ -354,11 +358,13 @@ def read_per_env(path: str | Path, metric: str = "search_efficiency") -> tuple[s
     f = Path(path)
     f = f / "ipp_bench_envs.csv" if f.is_dir() else f
     try:
-        rows = list(csv.DictReader(f.open()))
+        with f.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
     except OSError:
         raise UserError(f"no bench results at {path} (run `aerohrl ipp bench -o DIR` first)") from None
-    if not rows or metric not in rows[0]:
-        raise UserError(f"{f} has no column {metric!r}")
+    for col in ("planner", "env", metric):
+        if not rows or col not in rows[0]:
+            raise UserError(f"{f} has no column {col!r}")
     planners = sorted({r["planner"] for r in rows})
     if len(planners) != 1:
         raise UserError(f"{f} holds {len(planners)} planners ({', '.join(planners)}); compare benches of one planner each")
@@ -376,7 +382,7 @@ def paired_comparison(a: dict[int, float], b: dict[int, float]) -> dict:
     x, y = np.array([a[i] for i in ids]), np.array([b[i] for i in ids])
     d = x - y
     nz = d[d != 0]
-    return {"diff": float(d.mean()), "se": float(d.std(ddof=1) / np.sqrt(len(d))), "n": len(d),
+    return {"diff": float(d.mean()), "se": _standard_error(d), "n": len(d),
             "better": int((d > 0).sum()), "worse": int((d < 0).sum()),
             "p_t": float(stats.ttest_rel(x, y).pvalue) if d.std() > 0 else 1.0,
             "p_wilcoxon": float(stats.wilcoxon(nz).pvalue) if len(nz) else 1.0}
