@@ -78,6 +78,9 @@ class PlannerConfig:
                                    # original's coverage planners)
     prio_revisit: bool = True      # prioritised coverage scores belief mass of every sensed
                                    # cell, covered or not (the original); False: new cells only
+    info_weight: float = 0.0       # detect: + this x the expected information gain (bits)
+                                   # of the sensed cells, a value for looking at cells whose
+                                   # belief one pass cannot confirm (0: detections alone)
     cmaes_tol: float = 0.0         # CMA-ES: stop an env's search when the std of its
                                    # generation-best score over the last 10 generations is
                                    # <= tol * |mean| (the original: absolute std < 0.1 in
@@ -91,6 +94,8 @@ class PlannerConfig:
             raise UserError("--cmaes-tol must be a finite number >= 0")
         if not np.isfinite(self.cost_weight) or self.cost_weight < 0:
             raise UserError("--cost-weight must be a finite number >= 0")
+        if not np.isfinite(self.info_weight) or self.info_weight < 0:
+            raise UserError("--info-weight must be a finite number >= 0")
 
 
 def sequence_score(util: np.ndarray, cost: np.ndarray, cfg: "PlannerConfig") -> np.ndarray:
@@ -140,13 +145,12 @@ class TreePlanner(Planner):
     def _util(self, b, c, lp, lam):
         env = self.env
         if self.kind == "detect":
-            return env.plan_detect_gain(b, lp, lam)
-        if self.kind == "info":
-            g = env.plan_ig(b, lp + lam)
-            seen = lp > 0
-            if seen.any():
-                g[seen] -= env.plan_ig(b[seen], lp[seen])
+            g = env.plan_detect_gain(b, lp, lam)
+            if self.cfg.info_weight > 0:
+                g = g + self.cfg.info_weight * self._ig_gain(b, lp, lam)
             return g
+        if self.kind == "info":
+            return self._ig_gain(b, lp, lam)
         new = (~c) & (lp == 0)
         if self.kind == "coverage":
             return new.astype(float)
@@ -158,6 +162,14 @@ class TreePlanner(Planner):
         if self.kind == "greedy":
             return self.cfg.f1 * env.plan_prio(b) + self.cfg.f2 * env.plan_entropy(b)
         raise UserError(f"unknown utility {self.kind!r}")
+
+    def _ig_gain(self, b, lp, lam):
+        """Information gain of sensing with ``lam`` more after ``lp`` earlier in the sequence."""
+        g = self.env.plan_ig(b, lp + lam)
+        seen = lp > 0
+        if seen.any():
+            g[seen] -= self.env.plan_ig(b[seen], lp[seen])
+        return g
 
     def act(self) -> np.ndarray:
         """One action slot per live environment (N,): the first primitive of the best sequence of
@@ -192,7 +204,7 @@ class TreePlanner(Planner):
         on a window instead of the (slot, slot, cell, class) arrays; same values up to
         float rounding, a test checks): use it (75 -> ~2 ms per decision)."""
         if not (self.kind == "detect" and self.depth == 2 and self.budget_aware
-                and self.use_fast):
+                and self.cfg.info_weight == 0 and self.use_fast):
             return False
         from .features import fast_path_applies
         return fast_path_applies(self.env)

@@ -109,6 +109,9 @@ def _parser() -> argparse.ArgumentParser:
                        "w * cost (the original's form)")
         q.add_argument("--cost-weight", type=T.nonneg_float, default=0.0,
                        help="--scoring additive: w per cost unit (default 0: utility alone)")
+        q.add_argument("--info-weight", type=T.nonneg_float, default=0.0,
+                       help="detect: + w x the information gain (bits) of the sensed cells "
+                       "[0: expected new detections alone]")
         q.add_argument("--prio-revisit", action=argparse.BooleanOptionalAction, default=True,
                        help="prio_coverage scores the belief mass of covered cells too "
                        "(default, the original); --no-prio-revisit: new cells only")
@@ -266,7 +269,7 @@ def _configs(a):
     pc = PlannerConfig(depth=a.depth, horizon=a.horizon, popsize=a.popsize,
                        generations=a.generations, budget_aware=a.budget_aware,
                        scoring=a.scoring, cost_weight=a.cost_weight,
-                       prio_revisit=a.prio_revisit, cmaes_tol=a.cmaes_tol)
+                       info_weight=a.info_weight, prio_revisit=a.prio_revisit, cmaes_tol=a.cmaes_tol)
     if a.horizon < 1 or a.popsize < 2 or a.generations < 1:
         raise UserError("--horizon >= 1, --popsize >= 2 and --generations >= 1 are required")
     return env, pc
@@ -320,6 +323,7 @@ def _load_models(a, kind: str = "targets") -> dict:
         m = load_policy(path)
         pp = Path(path)
         m.run_label = pp.name if pp.is_dir() else f"{pp.parent.name}/{pp.name}"
+        m.checkpoint_name = "model.pt" if pp.is_dir() else pp.name
         if m.env_kind != kind:
             raise UserError(f"{path}: policy was trained on {m.env_kind} worlds, not {kind}")
         key = "rl" if m.cfg.recurrent else "rl_nolstm"
@@ -337,8 +341,8 @@ def _bench(a) -> int:
     from .bench import BenchConfig, run_episodes
     from .factory import create_env
     from .lattice import get_lattice
-    from .metrics import (markdown_table, paired_markdown, per_env_csv, plot_kl, summarise,
-                          summary_csv, write_atomic)
+    from .metrics import (markdown_table, paired_markdown, per_env_csv, plot_kl, seeds_markdown,
+                          summarise, summary_csv, write_atomic)
 
     set_threads(a.threads)
     env, pc = _configs(a)
@@ -385,13 +389,19 @@ def _bench(a) -> int:
     labels = dict(THESIS_NAMES)
     labels = _variant_labels(labels, names, pc)
     from .policy import describe_policy
+    recipes: dict[str, dict] = {}  # one recipe, several training seeds: a claim over seeds
     for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
         labels[k] = f"{describe_policy(m)} ({m.run_label})"
+        seeds = recipes.setdefault(f"{describe_policy(m)}, {m.checkpoint_name}", {})
+        seeds.setdefault(m.train_info.get("seed"), []).append(k)
+    groups = {f"{r}, seeds {', '.join(str(s) for s in sd)}": [ks[0] for ks in sd.values()]
+              for r, sd in recipes.items() if None not in sd}  # a re-run is not another seed
     md = ""
     for mode, res in by_mode.items():
         if len(by_mode) > 1 or mode != "ideal":
             md += f"\n**{mode} execution**\n\n"
-        md += markdown_table(res, labels, env.kind) + paired_markdown(res, labels, PLANNERS)
+        md += markdown_table(res, labels, env.kind) + paired_markdown(res, labels, PLANNERS) \
+            + seeds_markdown(res, labels, groups, PLANNERS)
     out = Path(a.out)
     if len(by_mode) > 1 or set(by_mode) & {"flown", "skill"}:
         from .metrics import execution_markdown
@@ -423,6 +433,8 @@ def _variant_labels(labels: dict, names, pc) -> dict:
             tags.append(f"{'' if pc.budget_aware else 'not '}budget-aware")
         if pc.scoring == "additive":
             tags.append(f"additive, w = {pc.cost_weight:g}")
+        if n == "detect" and pc.info_weight > 0:
+            tags.append(f"+ {pc.info_weight:g} x information gain")
         if n == "prio_coverage" and not pc.prio_revisit:
             tags.append("no revisits")
         if n == "cmaes" and (pc.popsize, pc.generations) != (12, 15):

@@ -145,6 +145,47 @@ def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines: 
     return head + "\n".join(rows) + "\n"
 
 
+def seeds_markdown(results: dict[str, dict], names: dict[str, str], groups: dict[str, list[str]],
+                   baselines: Collection[str], metric: str = "search_efficiency") -> str:
+    """A learned recipe as a claim over seeds ('' if no group has 2 or more runs).
+
+    ``groups`` maps a recipe's name to its rows in ``results`` (one trained run each).
+    Per recipe: the per-seed means, their mean ± std over seeds (ddof 1), each seed's
+    paired difference to the best baseline, and the seed-averaged policy (per world, the
+    mean over seeds) paired with **every** baseline: mean ± standard error, worlds better
+    / worse, paired t-test p (scipy). The last is what "ahead with paired significance
+    over the same worlds" means for a recipe rather than for one lucky seed."""
+    base = [p for p in results if p in baselines]
+    groups = {g: ks for g, ks in groups.items() if len(ks) >= 2}
+    if not base or not groups:
+        return ""
+    best = max(base, key=lambda p: float(np.mean(results[p]["per_env"][metric])))
+    ids = results[best]["env_ids"]
+    lines = ["\nOver seeds (search efficiency %; seed mean: per world, the mean over the "
+             "seeds' runs, paired with each baseline: mean ± s.e., worlds better / worse, "
+             "paired t-test p)\n",
+             "| recipe | seeds | per seed | mean ± std over seeds | per seed − best baseline ("
+             + names.get(best, best) + ") | " + " | ".join(f"seed mean − {names.get(q, q)}" for q in base)
+             + " |", "|---|---|---|---|---|" + "---|" * len(base)]
+    for g, ks in groups.items():
+        for k in ks:
+            if not np.array_equal(results[k]["env_ids"], ids):
+                raise ValueError(f"{k} and {best} ran on different environments")
+        per = np.array([results[k]["per_env"][metric] for k in ks])  # (seeds, worlds)
+        means = per.mean(1)
+        pooled = dict(zip(ids.tolist(), per.mean(0).tolist()))
+        cells = []
+        for q in base:
+            c = paired_comparison(pooled, dict(zip(ids.tolist(), results[q]["per_env"][metric].tolist())))
+            cells.append(f"{c['diff']:+.2f} ± {c['se']:.2f} ({c['better']}/{c['worse']}, "
+                         f"p = {c['p_t']:.3g})")
+        d_best = means - float(np.mean(results[best]["per_env"][metric]))
+        lines.append(f"| {g} | {len(ks)} | " + " / ".join(f"{m:.1f}" for m in means)
+                     + f" | {means.mean():.1f} ± {means.std(ddof=1):.1f} | "
+                     + " / ".join(f"{d:+.2f}" for d in d_best) + " | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
     """Per planner: the number of worlds and each metric's mean and std, as CSV."""
     buf = io.StringIO()

@@ -128,3 +128,21 @@ def test_cmaes_tolerance_stops_early(lat):
     tol = make_planner("cmaes", env2, PlannerConfig(popsize=6, generations=30, cmaes_tol=1e9))
     tol.act()
     assert full.evaluations == 2 * 6 * 30 and tol.evaluations == 2 * 6 * 10
+
+
+def test_detect_info_weight_adds_information_gain(lat):
+    """--info-weight: the detect tree's cell utility is new detections + w x information
+    gain, exactly; w = 0 is the teacher; a negative or NaN weight is refused."""
+    from aerohrl.ipp.baselines import TreePlanner
+    env, _ = make_env(EnvConfig(budget=1500.0), lat, 21, range(2))
+    b = np.array([0.02, 0.3, 0.6, 0.97])
+    lp, lam = np.array([0.0, 1.3, 0.0, 0.0]), np.array([4.6, 2.1, 1.3, 4.6])
+    plain = TreePlanner(env, PlannerConfig(), "detect")
+    mixed = TreePlanner(env, PlannerConfig(info_weight=0.5), "detect")
+    ig = info_gain(b, lp + lam) - np.where(lp > 0, info_gain(b, lp), 0.0)
+    np.testing.assert_allclose(mixed._util(b, None, lp, lam),
+                               plain._util(b, None, lp, lam) + 0.5 * ig, atol=1e-12)
+    assert ig[0] > 0 and plain._util(b, None, lp, lam)[0] < 1e-3  # a low-belief look: IG only
+    for w in (-1.0, float("nan")):
+        with pytest.raises(UserError, match="--info-weight"):
+            PlannerConfig(info_weight=w).validate()

@@ -276,3 +276,43 @@ def test_resume_rejects_damaged_runs(full_run, tmp_path, capsys):
     (run / "metrics.jsonl").write_text("{\"iteration\": 1}\n")
     assert main(["curve", str(run)]) == 2
     assert "not a metrics line" in capsys.readouterr().err
+
+
+def test_seeds_markdown_by_hand():
+    """A recipe over seeds: per-seed means, mean ± std over seeds, and the seed-averaged
+    policy paired with every baseline (t-test p from scipy)."""
+    from scipy import stats
+
+    from aerohrl.ipp.metrics import seeds_markdown
+    ids = np.arange(4)
+    dp = np.array([50.0, 60.0, 70.0, 80.0])
+    s1, s2 = dp + [1.0, 3.0, 2.0, 2.0], dp + [3.0, 1.0, 2.0, 0.0]
+    res = {"dp": {"per_env": {"search_efficiency": dp}, "env_ids": ids},
+           "rl": {"per_env": {"search_efficiency": s1}, "env_ids": ids},
+           "rl_2": {"per_env": {"search_efficiency": s2}, "env_ids": ids}}
+    names = {"dp": "DP-IPP"}
+    md = seeds_markdown(res, names, {"recipe, seeds 7, 8": ["rl", "rl_2"]}, ("dp",))
+    row = next(line for line in md.splitlines() if line.startswith("| recipe, seeds"))
+    p = stats.ttest_rel((s1 + s2) / 2, dp).pvalue
+    assert f"| 2 | {s1.mean():.1f} / {s2.mean():.1f} | " in row
+    assert f"{np.std([s1.mean(), s2.mean()], ddof=1):.1f} |" in row
+    assert row.endswith(f"+1.75 ± 0.25 (4/0, p = {p:.3g}) |")  # seed mean: +2, +2, +2, +1
+    assert "per seed − best baseline (DP-IPP)" in md
+    assert seeds_markdown(res, names, {"one seed": ["rl"]}, ("dp",)) == ""
+
+
+def test_bench_groups_a_recipe_over_seeds(full_run, tmp_path, capsys):
+    """bench --run A --run B of one recipe trained with two seeds prints the over-seeds
+    table; the same seed twice (a re-run) is not a seed spread and prints none."""
+    s8 = tmp_path / "s8"
+    train(preset("test", seed=8), default_lattice(), s8)
+    argv = ["bench", "--envs", "2", "--budget", "1500", "--quiet", "--out", str(tmp_path / "b")]
+    assert main(argv + ["--planner", "rl", "--run", str(full_run), "--run", str(s8)]) == 0
+    assert "Over seeds" not in capsys.readouterr().out  # no baseline to pair with
+    assert main(argv + ["--all", "--run", str(full_run), "--run", str(s8)]) == 0
+    out = capsys.readouterr().out
+    assert "Over seeds" in out
+    assert "| Imitation of detect planner + PPO 1 it. (DAgger; its features, GRU), model.pt, " \
+           "seeds 7, 8 | 2 |" in out
+    assert main(argv + ["--all", "--run", str(full_run), "--run", str(full_run)]) == 0
+    assert "Over seeds" not in capsys.readouterr().out
