@@ -392,7 +392,10 @@ def _bench(a) -> int:
     recipes: dict[str, dict] = {}  # one recipe, several training seeds: a claim over seeds
     for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
         labels[k] = f"{describe_policy(m)} ({m.run_label})"
-        seeds = recipes.setdefault(f"{describe_policy(m)}, {m.checkpoint_name}", {})
+        desc, it = describe_policy(m), m.train_info.get("iterations")
+        if it and "PPO" not in desc:  # actor-critic runs differ by their PPO iterations
+            desc += f", {it} PPO it."
+        seeds = recipes.setdefault(f"{desc}, {m.checkpoint_name}", {})
         seeds.setdefault(m.train_info.get("seed"), []).append(k)
     groups = {f"{r}, seeds {', '.join(str(s) for s in sd)}": [ks[0] for ks in sd.values()]
               for r, sd in recipes.items() if None not in sd}  # a re-run is not another seed
@@ -564,7 +567,8 @@ def _compare(a) -> int:
     c = paired_comparison(va, vb)
     print(f"{a.metric}: {pa} ({a.bench_a}) - {pb} ({a.bench_b}) = {c['diff']:+.2f} ± {c['se']:.2f} points "
           f"(mean ± s.e. over {c['n']} worlds; better on {c['better']}, worse on {c['worse']}; "
-          f"paired t-test p = {c['p_t']:.3f}, Wilcoxon p = {c['p_wilcoxon']:.3f})")
+          f"paired t-test p = {c['p_t']:.3g}, Wilcoxon p = {c['p_wilcoxon']:.3g})")  # 3 significant
+    # digits: a tiny p stays readable (1.2e-12), not "0.000"
     return 0
 
 
