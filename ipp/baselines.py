@@ -16,7 +16,8 @@ cmaes          5      the same information gain; CMA-ES (``cmaes`` package) over
 coverage       2      1 for a cell neither covered nor sensed earlier in the sequence
 prio_coverage  2      ``eps + b`` for such a cell (coverage prioritised by belief)
 detect         2      expected *new detections* of the sequence (``env.plan_detect_gain``,
-                      overlap exact as for ``dp``), budget-aware (below): not a thesis
+                      overlap exact as for ``dp``; ``+ info_weight x`` the information
+                      gain if set, default 0), budget-aware (below): not a thesis
                       baseline; the teacher of the learned planner's warm start (train.py)
 =============  =====  =================================================================
 

@@ -565,10 +565,10 @@ def _compare(a) -> int:
     if any(ka[i] != kb[i] for i in common):  # same index, another world: a different --seed or map
         raise UserError(f"{a.bench_a} and {a.bench_b} ran different worlds under the same ids (same --seed and world flags?)")
     c = paired_comparison(va, vb)
+    # p to 3 significant digits: a tiny p stays readable (1.2e-12), not "0.000"
     print(f"{a.metric}: {pa} ({a.bench_a}) - {pb} ({a.bench_b}) = {c['diff']:+.2f} ± {c['se']:.2f} points "
           f"(mean ± s.e. over {c['n']} worlds; better on {c['better']}, worse on {c['worse']}; "
-          f"paired t-test p = {c['p_t']:.3g}, Wilcoxon p = {c['p_wilcoxon']:.3g})")  # 3 significant
-    # digits: a tiny p stays readable (1.2e-12), not "0.000"
+          f"paired t-test p = {c['p_t']:.3g}, Wilcoxon p = {c['p_wilcoxon']:.3g})")
     return 0
 
 
