@@ -391,8 +391,8 @@ def _bench(a) -> int:
     from .policy import describe_policy
     recipes: dict[str, dict] = {}  # one recipe, several training seeds: a claim over seeds
     for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
-        labels[k] = f"{describe_policy(m)} ({m.run_label})"
         desc, it = describe_policy(m), m.train_info.get("iterations")
+        labels[k] = f"{desc} ({m.run_label})"
         if it and "PPO" not in desc:  # actor-critic runs differ by their PPO iterations
             desc += f", {it} PPO it."
         seeds = recipes.setdefault(f"{desc}, {m.checkpoint_name}", {})

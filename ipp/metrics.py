@@ -106,6 +106,11 @@ def _standard_error(d: np.ndarray) -> float:
     return float(np.std(d, ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
 
 
+def _best(results: dict[str, dict], rows: list[str], metric: str) -> str:
+    """The row of ``rows`` with the highest mean ``metric`` (the best baseline)."""
+    return max(rows, key=lambda p: float(np.mean(results[p]["per_env"][metric])))
+
+
 def paired_differences(results: dict[str, dict], baselines: Collection[str],
                        metric: str = "search_efficiency") -> tuple[dict[str, dict[str, tuple[float, float, int]]],
                                                                    str | None]:
@@ -116,7 +121,7 @@ def paired_differences(results: dict[str, dict], baselines: Collection[str],
     others = [p for p in results if p not in baselines]
     if not base or not others:
         return {}, None
-    best = max(base, key=lambda p: float(np.mean(results[p]["per_env"][metric])))
+    best = _best(results, base, metric)
     out = {}
     for p in others:
         out[p] = {}
@@ -159,7 +164,7 @@ def seeds_markdown(results: dict[str, dict], names: dict[str, str], groups: dict
     groups = {g: ks for g, ks in groups.items() if len(ks) >= 2}
     if not base or not groups:
         return ""
-    best = max(base, key=lambda p: float(np.mean(results[p]["per_env"][metric])))
+    best = _best(results, base, metric)
     ids = results[best]["env_ids"]
     lines = ["\nOver seeds (search efficiency %; seed mean: per world, the mean over the "
              "seeds' runs, paired with each baseline: mean ± s.e., worlds better / worse, "
@@ -173,10 +178,9 @@ def seeds_markdown(results: dict[str, dict], names: dict[str, str], groups: dict
                 raise ValueError(f"{k} and {best} ran on different environments")
         per = np.array([results[k]["per_env"][metric] for k in ks])  # (seeds, worlds)
         means = per.mean(1)
-        pooled = dict(zip(ids.tolist(), per.mean(0).tolist()))
         cells = []
-        for q in base:
-            c = paired_comparison(pooled, dict(zip(ids.tolist(), results[q]["per_env"][metric].tolist())))
+        for q in base:  # same env_ids (checked above): pair the arrays as they are
+            c = _paired_stats(per.mean(0), results[q]["per_env"][metric])
             cells.append(f"{c['diff']:+.2f} ± {c['se']:.2f} ({c['better']}/{c['worse']}, "
                          f"p = {c['p_t']:.3g})")
         d_best = means - float(np.mean(results[best]["per_env"][metric]))
@@ -415,12 +419,16 @@ def read_per_env(path: str | Path, metric: str = "search_efficiency") -> tuple[s
 def paired_comparison(a: dict[int, float], b: dict[int, float]) -> dict:
     """``a - b`` paired over the worlds both ran: mean, standard error, n, worlds better /
     worse, and the paired t-test's and Wilcoxon signed-rank test's p-values (scipy)."""
-    from scipy import stats
-
     ids = sorted(set(a) & set(b))
     if len(ids) < 2:
         raise ValueError("fewer than 2 worlds in common")
-    x, y = np.array([a[i] for i in ids]), np.array([b[i] for i in ids])
+    return _paired_stats(np.array([a[i] for i in ids]), np.array([b[i] for i in ids]))
+
+
+def _paired_stats(x: np.ndarray, y: np.ndarray) -> dict:
+    """:func:`paired_comparison` of two arrays already aligned world by world."""
+    from scipy import stats
+
     d = x - y
     nz = d[d != 0]
     return {"diff": float(d.mean()), "se": _standard_error(d), "n": len(d),
