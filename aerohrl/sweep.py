@@ -311,7 +311,9 @@ def config_differences(run_dir: str | Path, cfg: TrainConfig) -> str:
     except (UserError, KeyError, TypeError):  # no run there, or a damaged one: resume_run says so
         return ""
     new = C.to_dict(cfg)
-    keys = [k for k in new if k not in ("steps", "checkpoint_every", "device", "dataset") and old.get(k) != new[k]]
+    # amp "auto" asked is met by whichever precision the run resolved it to
+    keys = [k for k in new if k not in ("steps", "checkpoint_every", "device", "dataset") and old.get(k) != new[k]
+            and not (k == "amp" and new[k] == "auto")]
     return f" (kept its own config: {', '.join(f'{k} {old.get(k)} -> {new[k]}' for k in keys)})" if keys else ""
 
 

@@ -51,7 +51,7 @@ HELP = {
     "critic_random_goal_prob": "critics only: probability that a goal is a random frame's achieved goal (OGBench value_p_randomgoal)",
     "augment": "none | mirror: train on the 4 mirror images of every transition (exact symmetries of the vehicle)",
     "mc_lower_bound": "critic targets max(clipped TD target, discounted return observed in the data)",
-    "amp": "mixed precision: none | bf16 (autocast; about 2x faster on CPUs with AVX512-BF16)",
+    "amp": "mixed precision: auto (bf16 where the device runs it natively, else float32) | none (float32) | bf16 (autocast)",
     "ema_decay": "act with an exponential moving average of the policy weights (0: off)",
     "tau": "soft target update rate",
     "num_critics": "size of the goal-conditioned critic ensemble",
@@ -185,6 +185,7 @@ def run(a: argparse.Namespace) -> int:
         run_dir = new_run_dir(cfg, a.out, a.name)
         tr = start_run(cfg, run_dir, progress=bar, logger=a.logger or "tensorboard", **kw)
         print(f"run {run_dir}: {cfg.algo}, preset {cfg.preset}, dataset {tr.dataset['version']}", file=sys.stderr)
+    print(f"precision: {tr.precision}", file=sys.stderr)
     step = tr.train()
     print(f"done: {tr.run_dir} at step {step}")
     return 0

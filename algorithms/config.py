@@ -3,8 +3,8 @@
 ``thesis`` is the setting of thesis §3.5 (MLP 512-2048-2048-512 for actor and critics,
 batch 1048, 2M steps, Adam 3e-4, float32, TD3-BC alpha 2.5; a GPU job). ``cpu`` (the
 dataclass defaults) trains GCSL on one CPU core in about 12 minutes: actor 512-512-512,
-critics 128-128, batch 512, 30k steps under bf16 autocast (41 steps/s on one
-AVX512-BF16 core), actor learning rate 1e-3 with cosine decay, an EMA of the policy
+critics 128-128, batch 512, 30k steps under bf16 autocast where the CPU multiplies bf16
+natively and float32 elsewhere (``amp = "auto"``, aerohrl.hardware), actor learning rate 1e-3 with cosine decay, an EMA of the policy
 weights (0.999), critic targets bounded below by the data's discounted return,
 relabelling probability 0.05 (GCSL 0.01, ``ALGO_PRESETS``) with a geometric offset of
 mean 30 steps, TD3-BC and TD3-AWBC alpha 0.001 annealed linearly to 0 with an actor
@@ -28,7 +28,7 @@ ALGORITHMS = ("gcsl", "td3bc", "td3awbc", "cql")
 ALPHA_SCHEDULES = ("constant", "linear")
 AWR_NORMALIZE = ("std", "none")
 LR_SCHEDULES = ("constant", "cosine")
-AMP_MODES = ("none", "bf16")
+from aerohrl.hardware import AMP_MODES  # auto | none | bf16
 AUGMENTATIONS = ("none", "mirror")  # = augment.AUGMENTATIONS
 RELABEL_OFFSETS = ("uniform", "geometric")  # = relabel.FUTURE_STRATEGIES
 BC_TARGETS = ("expert", "executed")
@@ -50,7 +50,10 @@ class TrainConfig:
     lr_actor: float = 1e-3
     lr_critic: float = 3e-4
     lr_schedule: str = "cosine"  # constant | cosine (to 5% of the base rate at the last step)
-    amp: str = "bf16"  # none | bf16: mixed-precision training (torch.autocast); weights, EMA and act() stay float32
+    # auto | none | bf16: mixed-precision training (torch.autocast); weights, EMA and act() stay
+    # float32. auto: bf16 where the device multiplies bf16 natively (aerohrl.hardware), float32
+    # elsewhere; a run records the precision it chose, so its resume trains the same way
+    amp: str = "auto"
     ema_decay: float = 0.999  # > 0: act() with an exponential moving average of the policy weights (0 = the weights as trained)
     # goal-conditioned RL (thesis Alg. 2)
     relabel_prob: float = 0.05  # delta: probability that a goal becomes a later achieved goal

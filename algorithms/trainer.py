@@ -52,6 +52,7 @@ from aerohrl.algorithms.networks import Normalizer
 from aerohrl import atomic
 from aerohrl.atomic import CheckpointDamaged
 from aerohrl.errors import UserError, warn
+from aerohrl.hardware import resolve_amp
 
 CHECKPOINT_FORMAT = "aerohrl-checkpoint/1"
 CKPT_DIR = "checkpoints"
@@ -428,6 +429,9 @@ class Trainer:
         # without the bar: a progress line every progress_every_s seconds / progress_every_steps steps (0: never)
         self.progress_every = (progress_every_s, progress_every_steps)
         self.device = resolve_device(cfg.device)
+        if cfg.amp not in ("none", "bf16"):  # start_run resolves "auto"; a Trainer trains in one precision
+            cfg = self.cfg = dataclasses.replace(cfg, amp=resolve_amp(cfg.amp, self.device)[0])
+        self.precision = f"{cfg.amp} (the run's own)"
         self._lock = lock or RunLock(self.run_dir)  # held until train() returns
         self.evaluators = evaluators
         self.step = 0
@@ -589,8 +593,8 @@ class Trainer:
                         for g, lr in zip(o.param_groups, lrs):
                             g["lr"] = lr * f
                 batch = self.sampler.sample()
-                # bf16 autocast (--amp bf16): ~2x faster matrix products on CPUs with AVX512-BF16 and on
-                # GPUs; parameters, optimiser states and the EMA stay float32
+                # bf16 autocast (--amp bf16, or auto on a device with native bf16): faster matrix
+                # products; parameters, optimiser states and the EMA stay float32
                 with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=cfg.amp == "bf16"):
                     metrics = self.algo.update(batch)
                 vals = torch.stack([v.float() for v in metrics.values()])
@@ -651,10 +655,16 @@ def start_run(cfg: C.TrainConfig, run_dir: str | Path, *, data: Dataset | None =
         data = load_dataset(cfg.dataset)
     if cfg.dataset:  # config.json and the checkpoints name it absolutely: eval and resume work from any folder
         cfg = dataclasses.replace(cfg, dataset=str(Path(cfg.dataset).resolve()))
+    # "auto" precision becomes what this device runs fastest; the run records the choice, so
+    # that its resume (and `train --config run.toml`) trains the same way
+    amp, why = resolve_amp(cfg.amp, resolve_device(cfg.device))
+    cfg = dataclasses.replace(cfg, amp=amp)
     claim_run_dir(run_dir)
     lock = RunLock(run_dir)
     try:
-        return Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock, **trainer_kw)
+        tr = Trainer(run_dir, cfg, data, progress=progress, evaluators=evaluators, lock=lock, **trainer_kw)
+        tr.precision = f"{amp} ({why})"
+        return tr
     except BaseException:
         lock.release()
         shutil.rmtree(run_dir, ignore_errors=True)  # ours alone (claimed above), and nothing trained yet

@@ -80,7 +80,9 @@ def main():
     a = ap.parse_args()
     if a.workers:
         return sharded(a)
-    print(f"cores: {os.cpu_count()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}")
+    from aerohrl.hardware import describe_cpu
+
+    print(f"cpu: {describe_cpu()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}")
     print(f"{'goals':>7} {'wall s':>8} {'ms/goal':>8} {'cpu s':>8} {'peak RSS GB':>12}  frames")
     rows = []
     for n in sorted(a.goals):
@@ -105,7 +107,9 @@ def main():
 
 
 def sharded(a):
-    print(f"cores: {os.cpu_count()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}   "
+    from aerohrl.hardware import describe_cpu
+
+    print(f"cpu: {describe_cpu()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}   "
           f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}   load average at start: {os.getloadavg()[0]:.2f}")
     print(f"{'goals':>7} {'workers':>7} {'wall s':>8} {'ms/goal':>8} {'speed-up':>8} {'peak RSS GB (tree)':>19}  frames")
     for n in sorted(a.goals):

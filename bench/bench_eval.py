@@ -58,6 +58,9 @@ def main(argv=None) -> int:
         cfg = make_config("cpu", algo="gcsl")
         algo = build_algorithm(cfg, fit_normalizer(data, cfg.relabel_prob)).eval()
         what = f"random cpu-preset GCSL weights (actor {cfg.hidden}, critics {cfg.num_critics} x {cfg.critic_hidden})"
+    from aerohrl.hardware import describe_cpu
+
+    print(f"cpu: {describe_cpu()}")
     n = a.episodes
     goals = data.desired_goals().numpy().astype(np.float64)[:n] if a.dataset else \
         goal_vectors(sample_goals(np.random.default_rng(0), n))

@@ -102,6 +102,9 @@ def main() -> None:
     ap.add_argument("--sem-only", action="store_true", help="only the semantic table")
     ap.add_argument("--planners", help="comma-separated subset of the planners to time")
     a = ap.parse_args()
+    from aerohrl.hardware import describe_cpu
+
+    print(f"cpu: {describe_cpu()}")
     names = PLANNERS + TEACHERS + ("rl",)
     if a.planners:
         names = tuple(x for x in a.planners.split(",") if x)

@@ -64,7 +64,9 @@ def main() -> int:
     ap.add_argument("--qp-refs", type=int, default=50, help="references for the QP timings (default 50)")
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
+    from aerohrl.hardware import describe_cpu
 
+    print(f"cpu: {describe_cpu()}")
     print(f"bisection: [{ref.T_LO}, {ref.T_HI}] s, tol {ref.TOL} s, a_max {ref.A_MAX} m/s^2, "
           f"n_samples {ref.N_SAMPLES}, OSQP eps {ref.OSQP_SETTINGS['eps_abs']}, max_iter {ref.OSQP_SETTINGS['max_iter']}")
     for n in (250, 10_000):

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 
 import numpy as np
@@ -54,7 +53,9 @@ def main() -> int:
     ap.add_argument("--preset", default="hummingbird")
     args = ap.parse_args()
     load = os.getloadavg()
-    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, numpy {np.__version__}, "
+    from aerohrl.hardware import describe_cpu
+
+    print(f"# {describe_cpu()}, numpy {np.__version__}, "
           f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     print(f"# preset {args.preset}, dt 0.01 s, 5 RK4 substeps, CTBR rate loop at 500 Hz")
     print(f"{'batch':>7} {'split':>7} {'ms/step':>9} {'veh-steps/s (best)':>19} {'(median)':>12}")

@@ -30,6 +30,7 @@ ms``; its compile time, spent in the 10 warm-up steps, is printed beside it).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import resource
 import sys
@@ -56,7 +57,7 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="cpu")
     ap.add_argument("--steps", type=int, default=300, help="timed steps per measurement")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--amp", default=None, help="override the preset's mixed precision (none | bf16)")
+    ap.add_argument("--amp", default=None, help="override the preset's mixed precision (auto | none | bf16)")
     ap.add_argument("--device", default="cpu", help="cpu | cuda | cuda:N [cpu]")
     ap.add_argument("--compile", action="store_true", help="also time torch.compile(algo.update)")
     ap.add_argument("--flops", action="store_true", help="count FLOPs and operators of one update, then stop")
@@ -74,6 +75,9 @@ def main(argv=None) -> int:
         return flops(a, device)
     data = load_dataset(a.dataset) if a.dataset else load_dataset(straight_columns(n_eps=250, length=200))
     gpu = f" ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else ""
+    from aerohrl.hardware import describe_cpu, resolve_amp
+
+    print(f"cpu: {describe_cpu()}; torch capability {torch.backends.cpu.get_cpu_capability()}")
     print(f"torch {torch.__version__}, device {device}{gpu}, {a.threads} threads, amp {a.amp or 'preset'}, dataset "
           f"{data.info['version']} ({len(data)} frames), preset {a.preset}")
     print(f"resident after loading the dataset: {_peak_gb():.2f} GB (peak so far)")
@@ -83,6 +87,7 @@ def main(argv=None) -> int:
     for algo in a.algos:
         cfg = make_config(a.preset, algo=algo, steps=10**9, eval_every=0, log_every=200, checkpoint_every=10**9, amp=a.amp,
                           device=str(device))
+        cfg = dataclasses.replace(cfg, amp=resolve_amp(cfg.amp, device)[0])
         amp = torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.amp == "bf16")
         with tempfile.TemporaryDirectory() as tmp:
             tr = start_run(cfg, f"{tmp}/run", data=data, progress=False)
@@ -153,7 +158,9 @@ def flops(a, device) -> int:
         norm = fit_normalizer(data, cfg.relabel_prob)
         alg = build_algorithm(cfg, norm).to(device)
         s = GoalBatchSampler(data, norm, cfg.batch_size, cfg.relabel_prob, torch.Generator().manual_seed(0), device=device)
-        amp = torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.amp == "bf16")
+        from aerohrl.hardware import resolve_amp
+
+        amp = torch.autocast(device.type, dtype=torch.bfloat16, enabled=resolve_amp(cfg.amp, device)[0] == "bf16")
         with amp:
             for _ in range(3):
                 alg.update(s.sample())

@@ -287,3 +287,35 @@ def test_learning_curve_reads_harness_results(tmp_path):
     (tmp_path / "eval" / "broken").mkdir()
     (tmp_path / "eval" / "broken" / "summary.json").write_text("{not json")
     assert runs._harness_curves(tmp_path) == {"reach-desired": [(1000, 25.0, 50.0), (2000, 50.0, 80.0)]}
+
+
+def test_auto_precision_follows_the_hardware_and_is_recorded(data, tmp_path, monkeypatch):
+    """amp "auto" trains in bf16 only where the device multiplies bf16 natively; the run's
+    config records the precision chosen, so its resume trains the same way on any machine."""
+    from aerohrl import hardware
+    from aerohrl.algorithms import trainer
+
+    for native, want in ((True, "bf16"), (False, "none")):
+        monkeypatch.setattr(hardware, "native_bf16", lambda device, native=native: native)
+        cfg = make_config("cpu", **{**TINY, "steps": 20}, amp="auto")
+        tr = trainer.start_run(cfg, tmp_path / want, data=data, progress=False)
+        assert tr.cfg.amp == want and tr.precision.startswith(want)
+        tr.train()
+        saved = json.loads((tmp_path / want / "config.json").read_text())["config"]
+        assert saved["amp"] == want
+        monkeypatch.setattr(hardware, "native_bf16", lambda device, native=not native: native)
+        assert resume_run(tmp_path / want, progress=False, overrides={"steps": 30}).cfg.amp == want
+    assert make_config("cpu").amp == "auto" and make_config("thesis").amp == "none"
+    with pytest.raises(ValueError, match="unknown amp mode"):
+        hardware.resolve_amp("fp8")
+
+
+def test_native_bf16_honours_the_isa_cap():
+    """A CPU capped at AVX2 (ONEDNN_MAX_CPU_ISA, ATEN_CPU_CAPABILITY: what an AVX2-only CPU
+    reports) has no native bf16; the describe line names the CPU's extensions."""
+    code = "from aerohrl.hardware import native_bf16, describe_cpu; print(native_bf16('cpu')); print(describe_cpu())"
+    env = {**os.environ, "ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2"}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    native, line = r.stdout.splitlines()
+    assert native == "False" and "cores" in line and "bf16" in line
