@@ -1,20 +1,25 @@
-"""The one error type a user sees.
+"""How errors reach a user: one line, never a traceback.
 
-Every command-line entry point catches :class:`UserError` (and a few standard ones,
-see :func:`run_cli`: interrupts, broken pipes, any ``OSError`` such as a full disk) and
-prints ``<prog>: error: <message>`` on one line with a non-zero exit instead of a
-traceback; :func:`warn` prints ``<prog>: warning: <message>`` and goes on. Code raises it for anything the user can fix:
-bad flags, missing or damaged files, inconsistent inputs.
+Library code raises ``ValueError`` or ``TypeError`` (or subclasses) for anything the
+caller can fix: bad values, missing or damaged files, inconsistent inputs. Code that
+reads the user's files and flags raises :class:`UserError`, a ``ValueError`` whose
+message is written for the command line; planners, environments and the simulator raise
+plain ``ValueError``. Every command-line entry point runs through :func:`run_cli`, which
+turns both (and a few standard failures: interrupts, broken pipes, any ``OSError`` such
+as a full disk) into ``<prog>: error: <message>`` on one line with a non-zero exit;
+``AEROHRL_TRACEBACK=1`` shows the traceback of a ``ValueError``/``TypeError`` instead.
+:func:`warn` prints ``<prog>: warning: <message>`` and goes on.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Any, Callable, NoReturn, Sequence
 
 
-class UserError(Exception):
+class UserError(ValueError):
     """Bad input or a damaged file: reported in one line, exit status 2."""
 
     exit_code = 2
@@ -42,6 +47,11 @@ def run_cli(prog: str, fn: Callable[[], int | None]) -> int:
     except UserError as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return e.exit_code
+    except (ValueError, TypeError) as e:  # a library's refusal of a value (planners, environments, the simulator)
+        if os.environ.get("AEROHRL_TRACEBACK"):
+            raise
+        print(f"{prog}: error: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        return 2
     except ModuleNotFoundError as e:  # an optional dependency of a core-only install (pyproject extras)
         extra = EXTRAS.get((e.name or "").split(".")[0])
         if extra is None:

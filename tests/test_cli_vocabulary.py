@@ -395,3 +395,23 @@ def test_a_run_is_positional_or_a_flag(name, capsys):
     for argv in (prefix, prefix + ["runs/a", "--run", "runs/b"]):
         with pytest.raises((SystemExit, UserError)):
             p.parse_args(argv)
+
+
+def test_library_value_errors_are_one_line(capsys, monkeypatch):
+    """A library's ValueError or TypeError reaches the user as one line and exit 2 (a
+    UserError is a ValueError); AEROHRL_TRACEBACK=1 shows the traceback instead."""
+    from aerohrl.errors import UserError, run_cli
+
+    assert issubclass(UserError, ValueError)
+
+    def bad():
+        raise ValueError("waypoint count must be >= 1, got 0\nsecond line")
+
+    monkeypatch.delenv("AEROHRL_TRACEBACK", raising=False)
+    assert run_cli("demo", bad) == 2
+    assert capsys.readouterr().err == "demo: error: waypoint count must be >= 1, got 0\n"
+    monkeypatch.setenv("AEROHRL_TRACEBACK", "1")
+    with pytest.raises(ValueError, match="waypoint count"):
+        run_cli("demo", bad)
+    with pytest.raises(ZeroDivisionError):  # a bug is not a refusal: its traceback stays
+        run_cli("demo", lambda: 1 / 0)
