@@ -134,7 +134,7 @@ def _done(out_dir: Path, opt) -> bool:
 
 
 def _subset(eps, idx: np.ndarray):
-    from aerohrl.eval.tasks import EpisodeSet
+    from aerohrl.envs.episodes import EpisodeSet
 
     return EpisodeSet(eps.task, eps.start_states[idx], eps.goals[idx], eps.horizons[idx], eps.source_episode[idx],
                       eps.start_frame[idx], eps.steps_ahead[idx], eps.seed, dict(eps.meta))
@@ -150,9 +150,10 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     them), and write each ring's evaluation as ``aerohrl eval`` would (episodes CSV,
     trajectories, summary.json). Rings already evaluated with these options are skipped."""
     from aerohrl.eval import results
-    from aerohrl.eval.harness import (build_episodes, check_checkpoint_dataset, check_options, load_policy, make_planner,
-                                      run_checkpoints, sim_kwargs)
-    from aerohrl.eval.rollout import rollout
+    from aerohrl.algorithms.base import load_policy
+    from aerohrl.envs.rollout import rollout
+    from aerohrl.eval.harness import (build_episodes, check_checkpoint_dataset, check_options, make_planner, run_checkpoints,
+                                      sim_kwargs)
 
     outs = [eval_root(run, opts[0].episodes if not heldout else base_episodes) / ("heldout" if heldout else "") / o.name()
             for o in opts]
@@ -167,7 +168,7 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     if len(horizons) != 1:
         raise UserError(f"fly_group needs rings of one horizon, got {sorted(horizons)}")
     bounds = np.cumsum([0] + [len(e) for e in sets])
-    from aerohrl.eval.tasks import EpisodeSet
+    from aerohrl.envs.episodes import EpisodeSet
 
     allset = EpisodeSet("ood", *(np.concatenate([getattr(e, f) for e in sets]) for f in
                                  ("start_states", "goals", "horizons", "source_episode", "start_frame", "steps_ahead")),

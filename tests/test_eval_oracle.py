@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from aerohrl.algorithms.data import load_dataset
-from aerohrl.eval.oracle import oracle_single, roc_auc
-from aerohrl.eval.tasks import hover_states
+from aerohrl.envs.episodes import hover_states
+from aerohrl.planning.oracle import oracle_single, roc_auc
 
 from test_eval_planner import FakeAlgo
 
