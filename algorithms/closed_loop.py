@@ -42,4 +42,4 @@ def make_reach_desired_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[A
     return evaluate
 
 
-__all__ = ["rollout_reach", "make_reach_desired_evaluator"]
+__all__ = ["make_reach_desired_evaluator"]

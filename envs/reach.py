@@ -43,11 +43,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from aerohrl import task
-from aerohrl.errors import UserError
+from aerohrl.envs import REACH_ID
 from aerohrl.envs.episodes import hover_states
+from aerohrl.errors import UserError
 from aerohrl.sim.params import GRAVITY
 
-ENV_ID = "aerohrl/QuadrotorReach-v0"  # registered by aerohrl.envs.register
+ENV_ID = REACH_ID  # registered by aerohrl.envs.register
 RATE_LIMIT = 20.0  # rad/s, commanded body-rate bound of the action space
 
 

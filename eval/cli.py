@@ -8,7 +8,7 @@
     aerohrl eval table runs/gcsl runs/td3bc runs/td3awbc runs/cql -o results/table   # Markdown + CSV
     aerohrl eval plot --task ood --run runs/<run> -o ood.png     # 3D trajectories (Fig. 3.5 / 3.6)
     aerohrl eval plot --curves runs/gcsl runs/td3bc -o curves.png   # learning curves (Fig. 3.3 / 3.4)
-    aerohrl eval oracle --run runs/<run>                         # what any Eq. 3.7 planner could reach (eval/oracle.py)
+    aerohrl eval oracle --run runs/<run>                         # what any Eq. 3.7 planner could reach (planning/oracle.py)
 
 Exit status: 0 done, 2 bad input (one line ``aerohrl eval: error: ...``), 130 interrupted.
 """

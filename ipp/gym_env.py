@@ -32,11 +32,13 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from aerohrl.envs import IPP_SEARCH_ID
+
 from .env import BUDGETS, EnvConfig, SearchEnv
 from .lattice import Lattice, get_lattice
 from .world import sample_worlds
 
-ENV_ID = "aerohrl/IPPSearch-v0"  # registered by aerohrl.envs.register
+ENV_ID = IPP_SEARCH_ID  # registered by aerohrl.envs.register
 TRAIN_SEED = 7
 
 

@@ -1,4 +1,4 @@
-"""Chain planner over synthetic candidates (eval/planner.py ChainPlanner): Eq. 3.6 beam
+"""Chain planner over synthetic candidates (planning/planner.py ChainPlanner): Eq. 3.6 beam
 search against brute force, depth, early stopping, the bias toward G, and the harness
 wiring; with hand-made critics whose values are a known function of the relative goal."""
 

@@ -1,4 +1,4 @@
-"""The oracle bound of the single-goal planner (eval/oracle.py), with a policy that hovers
+"""The oracle bound of the single-goal planner (planning/oracle.py), with a policy that hovers
 in place, so which legs succeed is known by hand."""
 
 import numpy as np
