@@ -13,14 +13,14 @@ The pipeline from Python (:mod:`aerohrl.api`, re-exported here)::
 One import namespace over the repository's folders:
 ``aerohrl.sim`` (sim/), ``aerohrl.datagen`` (datagen/), ``aerohrl.envs`` (envs/),
 ``aerohrl.algorithms`` (algorithms/), ``aerohrl.planning`` (planning/), ``aerohrl.eval``
-(eval/), ``aerohrl.ipp`` (ipp/). This package itself
-holds what every stage shares: the user-facing error type (:mod:`aerohrl.errors`) and
-the reach-task vocabulary (:mod:`aerohrl.task`).
+(eval/), ``aerohrl.ipp`` (ipp/). This package itself holds what every stage shares: the
+user-facing error type (:mod:`aerohrl.errors`) and the reach-task vocabulary
+(:mod:`aerohrl.task`).
 
 ``import aerohrl`` is light: the API's functions load numpy, torch or lerobot when
 called. It also registers the Gymnasium environments (``aerohrl/QuadrotorReach-v0``,
-``aerohrl/IPPSearch-v0``; :func:`aerohrl.envs.register`) without importing Gymnasium itself: right away when Gymnasium is already imported,
-else the moment it is, so ``gymnasium.make("aerohrl/QuadrotorReach-v0")`` works after
+``aerohrl/IPPSearch-v0``; :func:`aerohrl.envs.register`) without importing Gymnasium
+itself: right away when Gymnasium is already imported, else the moment it is, so ``gymnasium.make("aerohrl/QuadrotorReach-v0")`` works after
 ``import aerohrl`` in either order, and ``gymnasium.make("aerohrl:aerohrl/QuadrotorReach-v0")``
 works with no import at all (Gymnasium 1.x imports the module named before the colon;
 it has no entry-point plugins any more).
@@ -66,7 +66,7 @@ def _register_env() -> None:
 
 
 class _AfterGymnasiumImport:  # a MetaPathFinder and Loader (duck-typed: importlib.abc costs 35 ms)
-    """A post-import hook: once ``gymnasium`` has been imported (by anyone), register the env.
+    """A post-import hook: once ``gymnasium`` has been imported (by anyone), register the envs.
 
     It stays in ``sys.meta_path`` until that import has run: a mere
     ``importlib.util.find_spec("gymnasium")`` (torchrl makes one) also asks it."""
