@@ -11,15 +11,16 @@ The pipeline from Python (:mod:`aerohrl.api`, re-exported here)::
     env = aerohrl.make_env()                               # the Gymnasium goal env
 
 One import namespace over the repository's folders:
-``aerohrl.sim`` (sim/), ``aerohrl.datagen`` (datagen/), ``aerohrl.algorithms``
-(algorithms/), ``aerohrl.eval`` (eval/), ``aerohrl.ipp`` (ipp/). This package itself
-holds what every stage shares: the user-facing error type (:mod:`aerohrl.errors`) and
-the reach-task vocabulary (:mod:`aerohrl.task`).
+``aerohrl.sim`` (sim/), ``aerohrl.datagen`` (datagen/), ``aerohrl.envs`` (envs/),
+``aerohrl.algorithms`` (algorithms/), ``aerohrl.planning`` (planning/), ``aerohrl.eval``
+(eval/), ``aerohrl.ipp`` (ipp/). This package itself holds what every stage shares: the
+user-facing error type (:mod:`aerohrl.errors`) and the reach-task vocabulary
+(:mod:`aerohrl.task`).
 
 ``import aerohrl`` is light: the API's functions load numpy, torch or lerobot when
-called. It also registers the Gymnasium environment ``aerohrl/QuadrotorReach-v0``
-without importing Gymnasium itself: right away when Gymnasium is already imported,
-else the moment it is, so ``gymnasium.make("aerohrl/QuadrotorReach-v0")`` works after
+called. It also registers the Gymnasium environments (``aerohrl/QuadrotorReach-v0``,
+``aerohrl/IPPSearch-v0``; :func:`aerohrl.envs.register`) without importing Gymnasium
+itself: right away when Gymnasium is already imported, else the moment it is, so ``gymnasium.make("aerohrl/QuadrotorReach-v0")`` works after
 ``import aerohrl`` in either order, and ``gymnasium.make("aerohrl:aerohrl/QuadrotorReach-v0")``
 works with no import at all (Gymnasium 1.x imports the module named before the colon;
 it has no entry-point plugins any more).
@@ -53,20 +54,19 @@ def __dir__() -> list[str]:
 
 # ----------------------------------------------------------------------------- Gymnasium
 
-ENV_ID = "aerohrl/QuadrotorReach-v0"
+ENV_ID = "aerohrl/QuadrotorReach-v0"  # = aerohrl.envs.REACH_ID
 
 
 def _register_env() -> None:
-    """Register ``aerohrl/QuadrotorReach-v0`` by name (the env module loads on ``make``)."""
-    import gymnasium as gym
+    """Register the project's Gymnasium ids by name (:func:`aerohrl.envs.register`; an env
+    module loads on ``make``)."""
+    from aerohrl.envs import register
 
-    if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="aerohrl.eval.gym_env:QuadrotorReachEnv",
-                     vector_entry_point="aerohrl.eval.gym_env:QuadrotorReachVectorEnv", max_episode_steps=None)
+    register()
 
 
 class _AfterGymnasiumImport:  # a MetaPathFinder and Loader (duck-typed: importlib.abc costs 35 ms)
-    """A post-import hook: once ``gymnasium`` has been imported (by anyone), register the env.
+    """A post-import hook: once ``gymnasium`` has been imported (by anyone), register the envs.
 
     It stays in ``sys.meta_path`` until that import has run: a mere
     ``importlib.util.find_spec("gymnasium")`` (torchrl makes one) also asks it."""

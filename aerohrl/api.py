@@ -306,7 +306,7 @@ def load_policy(source: "Run | PathLike", *, step: int | None = None, device: st
         A :class:`Policy` in eval mode; the checkpoint's checksum has been verified.
     """
     from aerohrl.algorithms.trainer import checkpoint_paths
-    from aerohrl.eval.harness import load_policy as load_algo
+    from aerohrl.algorithms.base import load_policy as load_algo
 
     p = Path(source.path if isinstance(source, Run) else source)
     if p.is_dir():
@@ -376,15 +376,15 @@ def make_env(num_envs: int | None = None, *, dataset: PathLike | None = None, no
         The environment; observations are dicts ``observation`` (18), ``achieved_goal``
         (15), ``desired_goal`` (15); reward 1 when the goal is reached.
     """
-    from aerohrl.eval import gym_env
+    from aerohrl.envs import reach
 
     if dataset is not None:
         kwargs["dataset"] = str(dataset)
     if num_envs is None:
-        env = gym_env.QuadrotorReachEnv(**kwargs)
+        env = reach.QuadrotorReachEnv(**kwargs)
     else:
-        env = gym_env.QuadrotorReachVectorEnv(num_envs, **kwargs)
-    return gym_env.normalize_actions(env) if normalize_actions else env
+        env = reach.QuadrotorReachVectorEnv(num_envs, **kwargs)
+    return reach.normalize_actions(env) if normalize_actions else env
 
 
 __all__ = ["build_dataset", "load_dataset", "open_lerobot", "train", "Run", "load_policy", "Policy", "evaluate", "make_env"]

@@ -37,7 +37,7 @@ def _train(argv):
 
 
 def _runs(argv):
-    from aerohrl.algorithms.runs import main
+    from aerohrl.runs import main
 
     return main(argv)
 

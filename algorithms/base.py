@@ -21,8 +21,11 @@ import torch
 from torch import nn
 
 from aerohrl.algorithms.networks import Normalizer, ensemble_values
+from aerohrl.errors import UserError
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from tensordict import TensorDict
 
     from aerohrl.algorithms.config import TrainConfig
@@ -127,4 +130,20 @@ def build_algorithm(cfg: TrainConfig, normalizer: Normalizer) -> Algorithm:
     return algorithm_class(cfg.algo)(cfg, normalizer)
 
 
-__all__ = ["Algorithm", "build_algorithm", "algorithm_class"]
+def load_policy(ckpt_path: str | Path, device: str | torch.device = "cpu") -> tuple[Algorithm, dict]:
+    """(algo, checkpoint dict) from a checkpoint file, in eval mode."""
+    from aerohrl.algorithms import config as C
+    from aerohrl.algorithms.trainer import load_checkpoint
+
+    ck = load_checkpoint(ckpt_path, map_location=device)
+    try:
+        cfg = C.from_dict(ck["config"])
+        algo = build_algorithm(cfg, Normalizer()).to(device)
+        algo.load_state_dict(ck["model"])
+    except (KeyError, RuntimeError, ValueError, TypeError) as e:
+        raise UserError(f"checkpoint {ckpt_path} cannot be loaded as a policy: {e}") from None
+    algo.eval()
+    return algo, ck
+
+
+__all__ = ["Algorithm", "build_algorithm", "algorithm_class", "load_policy"]

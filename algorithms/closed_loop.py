@@ -1,11 +1,14 @@
 """The trainer's periodic closed-loop evaluation hook (Reach-Desired).
 
-The rollout itself is the evaluation harness's (:func:`aerohrl.eval.rollout.rollout`,
+The rollout itself is the evaluation harness's (:func:`aerohrl.envs.rollout.rollout`,
 through the Gymnasium vector environment), so training-time and ``aerohrl eval``
 numbers come from the same code. Reach-Desired (SPEC.md "Evaluation tasks"): every
 vehicle starts at hover at the origin, gets one of the dataset's desired goals and
 flies the policy for ``horizon`` steps; success = the goal-reached test holds at some
 step (the episode ends there), near success = the same with every tolerance x 2.5.
+
+A Reach-Intermediate hook needs the evaluation tasks, so it sits above, with them
+(:func:`aerohrl.eval.harness.make_reach_intermediate_evaluator`).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from aerohrl.eval.rollout import rollout_reach
+from aerohrl.envs.rollout import rollout_reach
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
@@ -39,23 +42,4 @@ def make_reach_desired_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[A
     return evaluate
 
 
-def make_reach_intermediate_evaluator(data: Dataset, cfg: TrainConfig,
-                                      episodes: int | None = None) -> Callable[[Algorithm, int], dict[str, float]]:
-    """Reach-Intermediate (SPEC.md; thesis Fig. 3.4: 75 episodes, a third to the desired
-    goal with 500 steps, two thirds to an achieved goal <= 45 steps ahead with 100 steps)
-    on a fixed, seeded episode set; default ``3 * cfg.eval_episodes`` episodes."""
-    from aerohrl.eval.rollout import rollout
-    from aerohrl.eval.tasks import reach_intermediate
-
-    eps = reach_intermediate(data, episodes or 3 * cfg.eval_episodes, seed=cfg.seed + 12345)
-    spec = data.info.get("spec") or {}
-    kw = {"vehicle": spec.get("vehicle", "hummingbird"), "fps": int(spec.get("fps", 100)), "substeps": int(spec.get("substeps", 5))}
-
-    def evaluate(algo, step):
-        r = rollout(algo, eps, **kw)
-        return {"success": float(r["success"].mean()), "near_success": float(r["near_success"].mean())}
-
-    return evaluate
-
-
-__all__ = ["rollout_reach", "make_reach_desired_evaluator", "make_reach_intermediate_evaluator"]
+__all__ = ["make_reach_desired_evaluator"]

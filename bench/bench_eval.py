@@ -5,7 +5,7 @@ cpu-preset policy in the batched closed loop (issue 4 target: <= 20 s on 2 cores
     .venv/bin/python bench/bench_eval.py --checkpoint runs/<run>/checkpoints/step-N.pt --dataset <dataset>
     .venv/bin/python bench/bench_eval.py --planner                # + Eq. 3.7 planning for 250 OOD goals
 
-What is measured: ``aerohrl.eval.rollout.rollout`` end to end (Gymnasium vector env,
+What is measured: ``aerohrl.envs.rollout.rollout`` end to end (Gymnasium vector env,
 one batched simulator step and one batched policy call per control step, outcome
 bookkeeping), the network built exactly as the cpu preset builds it. With random
 weights no episode succeeds, so all 250 x 500 steps are flown: the worst case (a
@@ -29,15 +29,15 @@ warnings.filterwarnings("ignore")
 
 
 def main(argv=None) -> int:
-    from aerohrl.algorithms.base import build_algorithm
+    from aerohrl.algorithms.base import build_algorithm, load_policy
     from aerohrl.algorithms.config import make_config
     from aerohrl.algorithms.data import fit_normalizer, load_dataset
     from aerohrl.algorithms.synthetic import straight_columns
     from aerohrl.datagen.goals import goal_vectors, sample_goals
-    from aerohrl.eval.harness import load_policy
-    from aerohrl.eval.planner import Planner, candidates_from_dataset
-    from aerohrl.eval.rollout import rollout
-    from aerohrl.eval.tasks import EpisodeSet, hover_states, ood_goals
+    from aerohrl.envs.episodes import EpisodeSet, hover_states
+    from aerohrl.envs.rollout import rollout
+    from aerohrl.eval.tasks import ood_goals
+    from aerohrl.planning.planner import Planner, candidates_from_dataset
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=250)

@@ -329,7 +329,7 @@ class BlockRunner:
         self._pool = None
         self._ray_fn = None
         if ray_address:
-            from aerohrl.sweep import ray_connect
+            from aerohrl.cluster import ray_connect
 
             ray = ray_connect(ray_address)
             self._ray = ray

@@ -107,8 +107,7 @@ def export_minari(root: str | Path, dataset_id: str | None = None, out: str | Pa
         target = Path(get_dataset_path(dataset_id))
         if target.exists():
             raise UserError(f"Minari dataset {dataset_id} exists at {target}; choose another --dataset-id or delete it")
-        aerohrl._register_env()
-        spec = gym.spec(ENV_ID)
+        spec = gym.spec(ENV_ID)  # registered by `import aerohrl` once gymnasium is imported (aerohrl/__init__.py)
         env_spec = gym.envs.registration.EnvSpec(id=spec.id, entry_point=spec.entry_point, kwargs=env_kwargs(meta),
                                                  max_episode_steps=None)
         buffers = _minari_buffers(cols, EpisodeBuffer)

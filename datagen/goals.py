@@ -31,6 +31,7 @@ acceleration range ``f_z >= 9.81 - 5 > 0``, so neither happens for sampled goals
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -41,7 +42,9 @@ from aerohrl.sim.params import GRAVITY  # one value everywhere, SPEC.md "Units a
 _SINGULAR = 1e-9  # |f| or |z_B x x_C| below this is treated as singular
 
 
-def _check_range(name: str, r, *, non_negative: bool = False) -> tuple[float, float]:
+def check_range(name: str, r: Any, *, non_negative: bool = False) -> tuple[float, float]:
+    """``(low, high)`` of the range ``r`` named ``name``: two finite numbers, ``low < high``
+    (and ``low >= 0`` with ``non_negative``); else a one-line UserError naming it."""
     try:
         lo, hi = (float(x) for x in r)
     except (TypeError, ValueError):
@@ -106,9 +109,9 @@ def sample_goals(
         raise UserError(f"sample_goals needs a numpy.random.Generator, got {type(rng).__name__}")
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n <= 0:
         raise UserError(f"number of goals must be a positive integer, got {n!r}")
-    p_lo, p_hi = _check_range("pos_range", pos_range, non_negative=True)
-    v_lo, v_hi = _check_range("vel_range", vel_range)
-    a_lo, a_hi = _check_range("acc_range", acc_range)
+    p_lo, p_hi = check_range("pos_range", pos_range, non_negative=True)
+    v_lo, v_hi = check_range("vel_range", vel_range)
+    a_lo, a_hi = check_range("acc_range", acc_range)
     yaw = float(yaw)
     if not math.isfinite(yaw):
         raise UserError(f"yaw must be finite, got {yaw}")

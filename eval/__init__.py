@@ -1,5 +1,7 @@
-"""Evaluation harness and goal planner (thesis §3.4.3-3.5).
+"""Evaluation of training runs (thesis §3.4.3-3.5): task episode sets, the harness over a
+run's checkpoints, robustness families, tables and plots.
 
-The Gymnasium environment ``aerohrl/QuadrotorReach-v0`` (:mod:`aerohrl.eval.gym_env`) is
-registered by ``import aerohrl`` itself (by name: this package is imported only when
-the env is made), so ``import aerohrl.eval`` stays quick for the command line."""
+The batched closed loop and the Gymnasium environment are :mod:`aerohrl.envs`, the
+intermediate-goal planner is :mod:`aerohrl.planning`; this package imports them, never
+the reverse. This file imports nothing, so ``import aerohrl.eval`` stays quick for the
+command line."""

@@ -8,7 +8,7 @@
     aerohrl eval table runs/gcsl runs/td3bc runs/td3awbc runs/cql -o results/table   # Markdown + CSV
     aerohrl eval plot --task ood --run runs/<run> -o ood.png     # 3D trajectories (Fig. 3.5 / 3.6)
     aerohrl eval plot --curves runs/gcsl runs/td3bc -o curves.png   # learning curves (Fig. 3.3 / 3.4)
-    aerohrl eval oracle --run runs/<run>                         # what any Eq. 3.7 planner could reach (eval/oracle.py)
+    aerohrl eval oracle --run runs/<run>                         # what any Eq. 3.7 planner could reach (planning/oracle.py)
 
 Exit status: 0 done, 2 bad input (one line ``aerohrl eval: error: ...``), 130 interrupted.
 """
@@ -172,10 +172,11 @@ def cmd_oracle(a: argparse.Namespace) -> int:
     """``aerohrl eval oracle``: the single-goal planner's oracle on a run's checkpoint; exit code."""
     import json
 
+    from aerohrl.algorithms.base import load_policy
     from aerohrl.eval import results
-    from aerohrl.eval.harness import load_policy, load_run_dataset, run_checkpoints, sim_kwargs
-    from aerohrl.eval.oracle import format_report, oracle_single
+    from aerohrl.eval.harness import load_run_dataset, run_checkpoints, sim_kwargs
     from aerohrl.eval.tasks import make_episodes
+    from aerohrl.planning.oracle import format_report, oracle_single
 
     if a.task not in ("ood", "reach-novel"):
         raise UserError(f"oracle --task must be ood or reach-novel, got {a.task!r}")
@@ -199,7 +200,7 @@ def cmd_oracle(a: argparse.Namespace) -> int:
         goals = make_episodes(a.task, data, a.goals, a.seed).goals
     cand = None
     if a.candidate_source == "synthetic":
-        from aerohrl.eval.oracle import synthetic_candidates
+        from aerohrl.planning.oracle import synthetic_candidates
 
         cand = synthetic_candidates(data.info.get("spec"), a.candidates, a.seed)
         name += "-synth"

@@ -4,7 +4,7 @@
 path when the data moved), checks that every evaluated checkpoint was trained on
 exactly that dataset (version, manifest checksum, feature shapes), builds the task's
 episodes once (seeded: every checkpoint and algorithm flies the same ones), and for
-each checkpoint runs the batched closed loop (:func:`aerohrl.eval.rollout.rollout`),
+each checkpoint runs the batched closed loop (:func:`aerohrl.envs.rollout.rollout`),
 writing per-episode records and a summary under ``RUN/eval/<task>[-<planner>]/``
 (:mod:`aerohrl.eval.results`).
 """
@@ -14,7 +14,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -22,13 +22,12 @@ from aerohrl import atomic
 from aerohrl.errors import UserError
 
 if TYPE_CHECKING:
-    import torch
-
     from aerohrl.algorithms.base import Algorithm
+    from aerohrl.algorithms.config import TrainConfig
     from aerohrl.algorithms.data import Dataset
     from aerohrl.eval.families import Ring
-    from aerohrl.eval.planner import ChainPlanner, Planner
-    from aerohrl.eval.tasks import EpisodeSet
+    from aerohrl.envs.episodes import EpisodeSet
+    from aerohrl.planning.planner import ChainPlanner, Planner
 
 PLANNERS = ("none", "single", "multi")
 OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or not
@@ -91,24 +90,6 @@ class EvalOptions:
             + ("-synth" if self.candidate_source == "synthetic" and self.planner != "none" else "") + tol
 
 
-def load_policy(ckpt_path: str | Path, device: str | torch.device = "cpu") -> tuple[Algorithm, dict]:
-    """(algo, checkpoint dict) from a checkpoint file, in eval mode."""
-    from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.base import build_algorithm
-    from aerohrl.algorithms.networks import Normalizer
-    from aerohrl.algorithms.trainer import load_checkpoint
-
-    ck = load_checkpoint(ckpt_path, map_location=device)
-    try:
-        cfg = C.from_dict(ck["config"])
-        algo = build_algorithm(cfg, Normalizer()).to(device)
-        algo.load_state_dict(ck["model"])
-    except (KeyError, RuntimeError, ValueError, TypeError) as e:
-        raise UserError(f"checkpoint {ckpt_path} cannot be loaded as a policy: {e}") from None
-    algo.eval()
-    return algo, ck
-
-
 def run_checkpoints(run_dir: str | Path, k: int) -> list[Path]:
     """The last ``k`` checkpoints of a run, oldest first; UserError without a run or checkpoints."""
     from aerohrl.algorithms.trainer import checkpoint_paths
@@ -161,12 +142,12 @@ def sim_kwargs(data: Dataset) -> dict:
 def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Planner | ChainPlanner | None, int]:
     """The planner of ``opt.planner`` over ``data``'s achieved goals (or synthetic offsets)
     and its number of intermediate goals; ``(None, 0)`` without one."""
-    from aerohrl.eval.planner import Planner, candidates_from_dataset
+    from aerohrl.planning.planner import Planner, candidates_from_dataset
 
     if opt.planner == "none":
         return None, 0
     if opt.candidate_source == "synthetic":  # C = --candidates offsets (0: 256) from the dataset spec's ranges
-        from aerohrl.eval.planner import ChainPlanner, offsets_from_spec
+        from aerohrl.planning.planner import ChainPlanner, offsets_from_spec
 
         n = 1 if opt.planner == "single" else opt.waypoints
         off = offsets_from_spec(data.info.get("spec"), opt.candidates or 256, seed=opt.seed)
@@ -240,9 +221,10 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
     evaluates one run many times (a large dataset is then loaded once)."""
     from tqdm import tqdm
 
-    from aerohrl.eval import results
-    from aerohrl.eval.rollout import rollout
+    from aerohrl.algorithms.base import load_policy
     from aerohrl.algorithms.trainer import resolve_device
+    from aerohrl.envs.rollout import rollout
+    from aerohrl.eval import results
     from aerohrl.eval.floors import wrap as wrap_floor
 
     check_options(opt)
@@ -287,4 +269,25 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
     return summary
 
 
-__all__ = ["EvalOptions", "evaluate_run", "load_policy", "run_checkpoints", "load_run_dataset", "PLANNERS"]
+def make_reach_intermediate_evaluator(data: Dataset, cfg: TrainConfig,
+                                      episodes: int | None = None) -> Callable[[Algorithm, int], dict[str, float]]:
+    """Reach-Intermediate (SPEC.md; thesis Fig. 3.4: 75 episodes, a third to the desired
+    goal with 500 steps, two thirds to an achieved goal <= 45 steps ahead with 100 steps)
+    on a fixed, seeded episode set; default ``3 * cfg.eval_episodes`` episodes: a trainer
+    evaluation hook (``Trainer(..., evaluators={"reach_intermediate": ...})``)."""
+    from aerohrl.envs.rollout import rollout
+    from aerohrl.eval.tasks import reach_intermediate
+
+    eps = reach_intermediate(data, episodes or 3 * cfg.eval_episodes, seed=cfg.seed + 12345)
+    spec = data.info.get("spec") or {}
+    kw = {"vehicle": spec.get("vehicle", "hummingbird"), "fps": int(spec.get("fps", 100)), "substeps": int(spec.get("substeps", 5))}
+
+    def evaluate(algo, step):
+        r = rollout(algo, eps, **kw)
+        return {"success": float(r["success"].mean()), "near_success": float(r["near_success"].mean())}
+
+    return evaluate
+
+
+__all__ = ["EvalOptions", "evaluate_run", "run_checkpoints", "load_run_dataset", "PLANNERS",
+           "make_reach_intermediate_evaluator"]

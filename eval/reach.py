@@ -18,7 +18,7 @@ eval/families.py, ``aerohrl eval --task ood --family F --ring K`` flies the newe
   straight flight flew, and the flights of a batch are independent; a test checks it
   against flying ``--decline-margin M``); ``--fly-declines`` flies them instead;
 * ``chain`` / ``chain-decline``: Eq. 3.6 with synthetic candidates (any state within
-  rho_D relative to the current waypoint, eval/planner.py), ``n`` waypoints scaled to
+  rho_D relative to the current waypoint, planning/planner.py), ``n`` waypoints scaled to
   the distance, re-planned at every reached waypoint (when this code has the synthetic
   source).
 
@@ -69,7 +69,7 @@ PLANNED = {"single": "single", "chain": "chain"}  # planner variants that get a 
 
 
 def has_chain() -> bool:
-    """Does this code have the synthetic candidate source (eval/planner.py)?"""
+    """Does this code have the synthetic candidate source (planning/planner.py)?"""
     from aerohrl.eval.harness import EvalOptions
 
     return hasattr(EvalOptions(), "candidate_source")
@@ -80,7 +80,7 @@ CHAIN_CANDIDATES, CHAIN_BEAM = 64, 4  # synthetic offsets per extension and beam
 
 def chain_waypoints(ring: Ring) -> int:
     """At most this many waypoints in a chain to a ring's goals: one per 2 m of the ring's
-    largest |p_i| less one (eval/planner.py chain_length), >= 2; the beam search may stop earlier."""
+    largest |p_i| less one (planning/planner.py chain_length), >= 2; the beam search may stop earlier."""
     hi = ring.ranges["pos"][1] if "pos" in ring.ranges else 2.0
     return max(2, math.ceil(hi / 2.0 - 1e-9) - 1)
 
@@ -134,7 +134,7 @@ def _done(out_dir: Path, opt) -> bool:
 
 
 def _subset(eps, idx: np.ndarray):
-    from aerohrl.eval.tasks import EpisodeSet
+    from aerohrl.envs.episodes import EpisodeSet
 
     return EpisodeSet(eps.task, eps.start_states[idx], eps.goals[idx], eps.horizons[idx], eps.source_episode[idx],
                       eps.start_frame[idx], eps.steps_ahead[idx], eps.seed, dict(eps.meta))
@@ -150,9 +150,10 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     them), and write each ring's evaluation as ``aerohrl eval`` would (episodes CSV,
     trajectories, summary.json). Rings already evaluated with these options are skipped."""
     from aerohrl.eval import results
-    from aerohrl.eval.harness import (build_episodes, check_checkpoint_dataset, check_options, load_policy, make_planner,
-                                      run_checkpoints, sim_kwargs)
-    from aerohrl.eval.rollout import rollout
+    from aerohrl.algorithms.base import load_policy
+    from aerohrl.envs.rollout import rollout
+    from aerohrl.eval.harness import (build_episodes, check_checkpoint_dataset, check_options, make_planner, run_checkpoints,
+                                      sim_kwargs)
 
     outs = [eval_root(run, opts[0].episodes if not heldout else base_episodes) / ("heldout" if heldout else "") / o.name()
             for o in opts]
@@ -167,7 +168,7 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     if len(horizons) != 1:
         raise UserError(f"fly_group needs rings of one horizon, got {sorted(horizons)}")
     bounds = np.cumsum([0] + [len(e) for e in sets])
-    from aerohrl.eval.tasks import EpisodeSet
+    from aerohrl.envs.episodes import EpisodeSet
 
     allset = EpisodeSet("ood", *(np.concatenate([getattr(e, f) for e in sets]) for f in
                                  ("start_states", "goals", "horizons", "source_episode", "start_frame", "steps_ahead")),
@@ -549,7 +550,7 @@ def main(argv: list[str] | None = None) -> int:
         if bad:
             raise UserError(f"unknown variant {bad[0]!r} (choose from {', '.join(VARIANT_LABEL)})")
         if any(v.startswith("chain") for v in variants) and not has_chain():
-            raise UserError("this code has no synthetic candidate source for chains (eval/planner.py)")
+            raise UserError("this code has no synthetic candidate source for chains (planning/planner.py)")
         base = EvalOptions(task="ood", episodes=a.episodes, checkpoints=a.checkpoints, candidates=a.candidates,
                            progress=sys.stderr.isatty())
         a.out.mkdir(parents=True, exist_ok=True)

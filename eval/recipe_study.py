@@ -157,10 +157,11 @@ def critics_auc(rd: Path) -> float:
 
     import torch
 
+    from aerohrl.algorithms.base import load_policy
     from aerohrl.algorithms.trainer import read_json
-    from aerohrl.eval.harness import load_policy, run_checkpoints
-    from aerohrl.eval.oracle import roc_auc
+    from aerohrl.eval.harness import run_checkpoints
     from aerohrl.eval.tasks import reach_novel
+    from aerohrl.planning.oracle import roc_auc
 
     ck = run_checkpoints(rd, 1)[-1]
     f = rd / "eval" / "reach-novel" / f"episodes-{ck.stem}.csv"
@@ -343,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
         # everything the report needs, imported now: a study runs for hours, and modules
         # edited meanwhile must not be mixed with the ones already loaded
         import aerohrl.eval.harness  # noqa: F401
-        import aerohrl.eval.oracle  # noqa: F401
+        import aerohrl.planning.oracle  # noqa: F401
         import aerohrl.eval.tasks  # noqa: F401
         import aerohrl.datagen.manifest  # noqa: F401
 

@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
                     rep = _run(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
                                      str(a.oracle_candidates), "--quiet"], log)
                     oracles.append(f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
-                                   f"{a.oracle_goals} --candidates {a.oracle_candidates}`, eval/oracle.py):\n\n```\n"
+                                   f"{a.oracle_goals} --candidates {a.oracle_candidates}`, planning/oracle.py):\n\n```\n"
                                    + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:")) + "\n```\n")
                     _run(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")], log)
                 _run(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log)

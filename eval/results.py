@@ -30,7 +30,7 @@ from aerohrl.errors import UserError
 
 if TYPE_CHECKING:
     from aerohrl.eval.harness import EvalOptions
-    from aerohrl.eval.tasks import EpisodeSet
+    from aerohrl.envs.episodes import EpisodeSet
 
 # thesis Table 3.1 (success %, mean ± std over the last 10 checkpoints) and Table 3.2
 THESIS_T31 = {

@@ -1,10 +1,9 @@
 """Episode sets of the evaluation tasks (SPEC.md "Evaluation tasks", thesis §3.5).
 
-An :class:`EpisodeSet` is everything a closed-loop evaluation needs, fixed before any
-policy runs: per episode a start state (18), a goal (15) and a horizon (steps), plus
-where they came from (dataset episode, start frame, steps ahead). Sets are a function
-of the dataset and the seed alone, so every checkpoint of every algorithm flies the
-same episodes.
+Each task maker returns an :class:`~aerohrl.envs.episodes.EpisodeSet`: everything a
+closed-loop evaluation needs, fixed before any policy runs (per episode a start state,
+a goal, a horizon and where they came from). Sets are a function of the dataset and the
+seed alone, so every checkpoint of every algorithm flies the same episodes.
 
 * ``reach-desired``: hover at the origin, a desired goal of rho_D (the dataset's
   episodes' goals), horizon 500. With ``n`` equal to the dataset's goal count (250)
@@ -31,12 +30,12 @@ same episodes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from aerohrl import task
+from aerohrl.envs.episodes import EpisodeSet, hover_states
 from aerohrl.errors import UserError
 
 if TYPE_CHECKING:
@@ -53,37 +52,6 @@ NOVEL_SEED_OFFSET = 2_000_003
 DEFAULT_POS_RANGE = (1.0, 2.0)
 DEFAULT_VEL_RANGE = (-2.5, 2.5)
 DEFAULT_ACC_RANGE = (-5.0, 5.0)
-
-
-@dataclass
-class EpisodeSet:
-    """The episodes of one task (all arrays have ``n`` rows)."""
-
-    task: str
-    start_states: np.ndarray  # (n, 18) float64
-    goals: np.ndarray  # (n, 15) float64
-    horizons: np.ndarray  # (n,) int64, steps
-    source_episode: np.ndarray  # (n,) int64, dataset episode (-1: none)
-    start_frame: np.ndarray  # (n,) int64, frame within that episode (-1: none)
-    steps_ahead: np.ndarray  # (n,) int64, achieved goal this many steps ahead (0: desired goal / none)
-    seed: int = 0
-    meta: dict = field(default_factory=dict)
-
-    def __len__(self) -> int:
-        return len(self.goals)
-
-    def kind(self) -> np.ndarray:
-        """Per episode: 'desired', 'intermediate' or 'ood'."""
-        if self.task == "ood":
-            return np.full(len(self), "ood")
-        return np.where(self.steps_ahead > 0, "intermediate", "desired")
-
-
-def hover_states(n: int) -> np.ndarray:
-    """``n`` hover states at the origin (n, 18): zero position, velocity and rates, ``R = I``."""
-    s = np.zeros((n, task.STATE_DIM))
-    s[:, task.ROT] = np.eye(3).ravel()
-    return s
 
 
 def _check_n(n) -> int:
@@ -214,5 +182,4 @@ def make_episodes(name: str, data: Dataset | None, n: int = 250, seed: int = 0, 
     return fn(data, n, seed, **kw)
 
 
-__all__ = ["EpisodeSet", "TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "ood_family", "reach_novel", "ood_goals",
-           "hover_states"]
+__all__ = ["TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "ood_family", "reach_novel", "ood_goals"]

@@ -22,7 +22,7 @@ _EXPORTS = {
     "SensorConfig": "sensor",
     "WorldConfig": "world", "Worlds": "world", "sample_worlds": "world",
 }
-ENV_ID = "aerohrl/IPPSearch-v0"  # = gym_env.ENV_ID
+ENV_ID = "aerohrl/IPPSearch-v0"  # = aerohrl.envs.IPP_SEARCH_ID = gym_env.ENV_ID
 
 
 def __getattr__(name: str):
@@ -38,17 +38,10 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def _register() -> None:
-    """Register ``aerohrl/IPPSearch-v0`` by name: its module loads on ``gymnasium.make``."""
-    import gymnasium as gym
+try:  # gymnasium is a dependency; registration (by name, of every id) must never break `import aerohrl.ipp`
+    from aerohrl.envs import register as _register_envs
 
-    if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="aerohrl.ipp.gym_env:IPPSearchEnv",
-                     vector_entry_point="aerohrl.ipp.gym_env:IPPSearchVectorEnv", max_episode_steps=None)
-
-
-try:  # gymnasium is a dependency; registration must never break `import aerohrl.ipp`
-    _register()
+    _register_envs()
 except ImportError:  # pragma: no cover
     pass
 

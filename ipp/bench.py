@@ -24,7 +24,7 @@ from .factory import create_env, sample_for
 from .lattice import Lattice
 
 if TYPE_CHECKING:
-    from aerohrl.eval.rollout import PolicyFn
+    from aerohrl.envs.rollout import PolicyFn
 
     from .policy import ActorCritic
 

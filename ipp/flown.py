@@ -42,7 +42,7 @@ from .lattice import Lattice, poly_eval
 if TYPE_CHECKING:
     from pathlib import Path
 
-    from aerohrl.eval.rollout import PolicyFn
+    from aerohrl.envs.rollout import PolicyFn
 
     from .world import Worlds
 
@@ -71,7 +71,7 @@ class FlownEnv(SearchEnv):
         """Reset as :meth:`SearchEnv.reset` and put every vehicle at hover over its start cell;
         returns the observation."""
         obs = super().reset(worlds, start)
-        from aerohrl.eval.tasks import hover_states
+        from aerohrl.envs.episodes import hover_states
         from aerohrl.sim import BatchedQuadrotor
         if self.sim is None or self.sim.num_vehicles != self.n:
             self.sim = BatchedQuadrotor(self.params, self.n, dt=self.dt, substeps=SUBSTEPS)
@@ -368,8 +368,8 @@ def load_skill(run: str | Path | None) -> tuple:
         raise UserError(f"no skill policy run at {run}")
     import torch
 
-    from aerohrl.eval.harness import load_policy
-    from aerohrl.eval.rollout import PolicyFn
+    from aerohrl.algorithms.base import load_policy
+    from aerohrl.envs.rollout import PolicyFn
     torch.set_num_threads(1)
     algo, ck = load_policy(p)
     return PolicyFn(algo), f"{p.parent.parent.name}/{p.name}"

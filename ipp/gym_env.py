@@ -32,11 +32,13 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from aerohrl.envs import IPP_SEARCH_ID
+
 from .env import BUDGETS, EnvConfig, SearchEnv
 from .lattice import Lattice, get_lattice
 from .world import sample_worlds
 
-ENV_ID = "aerohrl/IPPSearch-v0"
+ENV_ID = IPP_SEARCH_ID  # registered by aerohrl.envs.register
 TRAIN_SEED = 7
 
 
@@ -202,13 +204,4 @@ class IPPSearchEnv(gym.Env):
         return self._one(obs), float(r[0]), bool(te[0]), bool(tr[0]), out
 
 
-def register() -> None:
-    """Register ``aerohrl/IPPSearch-v0`` (single env and vector entry point); idempotent."""
-    if ENV_ID in gym.registry:
-        return
-    gym.register(id=ENV_ID, entry_point="aerohrl.ipp.gym_env:IPPSearchEnv",
-                 vector_entry_point="aerohrl.ipp.gym_env:IPPSearchVectorEnv",
-                 max_episode_steps=None)
-
-
-__all__ = ["IPPSearchVectorEnv", "IPPSearchEnv", "register", "ENV_ID"]
+__all__ = ["IPPSearchVectorEnv", "IPPSearchEnv", "ENV_ID"]

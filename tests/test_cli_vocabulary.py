@@ -41,7 +41,7 @@ def _eval(sub=None):
 
 
 def _runs():
-    from aerohrl.algorithms.runs import parser
+    from aerohrl.runs import parser
     return parser(), ["show", "runs/r"]
 
 

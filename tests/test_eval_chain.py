@@ -1,4 +1,4 @@
-"""Chain planner over synthetic candidates (eval/planner.py ChainPlanner): Eq. 3.6 beam
+"""Chain planner over synthetic candidates (planning/planner.py ChainPlanner): Eq. 3.6 beam
 search against brute force, depth, early stopping, the bias toward G, and the harness
 wiring; with hand-made critics whose values are a known function of the relative goal."""
 
@@ -10,8 +10,8 @@ import pytest
 import torch
 from torch import nn
 
-from aerohrl.eval.planner import ChainPlanner, Offsets, chain_length, synthetic_offsets
-from aerohrl.eval.tasks import EpisodeSet, hover_states
+from aerohrl.envs.episodes import EpisodeSet, hover_states
+from aerohrl.planning.planner import ChainPlanner, Offsets, chain_length, synthetic_offsets
 
 KS = torch.tensor([0.5, 1.0, 2.0])  # one scale per critic: they disagree on long legs
 KV = 0.1  # value lost per m/s of velocity change
@@ -172,7 +172,7 @@ def test_offsets_toward_the_goal_never_overshoot():
 
 
 def test_episode_blocks_equal_one_block(monkeypatch):
-    import aerohrl.eval.planner as P
+    import aerohrl.planning.planner as P
 
     rng = np.random.default_rng(5)
     off = synthetic_offsets(12, seed=5)
@@ -208,7 +208,7 @@ def test_harness_and_cli_reach_the_chain_planner():
 
 
 def test_rollout_flies_a_chain_with_replanning():
-    from aerohrl.eval.rollout import rollout
+    from aerohrl.envs.rollout import rollout
 
     algo = StubAlgo(free=2.0, base=0.9)
     G = hover_states(2)[:, :15]

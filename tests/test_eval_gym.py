@@ -4,10 +4,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import aerohrl.eval  # noqa: F401  (registers the environment)
+import aerohrl  # noqa: F401  (registers the environments)
 from aerohrl import task
-from aerohrl.eval.gym_env import ENV_ID, QuadrotorReachVectorEnv
-from aerohrl.eval.tasks import hover_states
+from aerohrl.envs.episodes import hover_states
+from aerohrl.envs.reach import ENV_ID, QuadrotorReachVectorEnv
 
 HOVER = [9.81, 0.0, 0.0, 0.0]
 
@@ -86,7 +86,7 @@ def test_tolerance_scale(tol):
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_non_finite_actions_are_refused_not_turned_into_motors_off(bad):
-    from aerohrl.eval.gym_env import NonFiniteAction
+    from aerohrl.envs.reach import NonFiniteAction
 
     env = QuadrotorReachVectorEnv(3, horizon=50)
     env.reset(seed=0)

@@ -1,12 +1,12 @@
-"""The oracle bound of the single-goal planner (eval/oracle.py), with a policy that hovers
+"""The oracle bound of the single-goal planner (planning/oracle.py), with a policy that hovers
 in place, so which legs succeed is known by hand."""
 
 import numpy as np
 import pytest
 
 from aerohrl.algorithms.data import load_dataset
-from aerohrl.eval.oracle import oracle_single, roc_auc
-from aerohrl.eval.tasks import hover_states
+from aerohrl.envs.episodes import hover_states
+from aerohrl.planning.oracle import oracle_single, roc_auc
 
 from test_eval_planner import FakeAlgo
 

@@ -8,9 +8,9 @@ import pytest
 import torch
 from torch import nn
 
-from aerohrl.eval.planner import Candidates, Planner, leg_values
-from aerohrl.eval.rollout import rollout
-from aerohrl.eval.tasks import EpisodeSet, hover_states
+from aerohrl.envs.episodes import EpisodeSet, hover_states
+from aerohrl.envs.rollout import rollout
+from aerohrl.planning.planner import Candidates, Planner, leg_values
 
 KS = torch.tensor([0.5, 1.0, 2.0])  # one length scale per critic: they disagree far away
 
@@ -162,7 +162,8 @@ def test_rollout_flies_to_the_intermediate_goal_then_to_the_goal():
 
 
 def test_trainer_hooks_use_the_harness_rollout():
-    from aerohrl.algorithms.closed_loop import make_reach_desired_evaluator, make_reach_intermediate_evaluator
+    from aerohrl.algorithms.closed_loop import make_reach_desired_evaluator
+    from aerohrl.eval.harness import make_reach_intermediate_evaluator
     from aerohrl.algorithms.data import load_dataset
     from aerohrl.algorithms.synthetic import straight_columns
 
@@ -176,7 +177,7 @@ def test_trainer_hooks_use_the_harness_rollout():
 
 
 def test_beam_search_in_episode_blocks_equals_one_block(monkeypatch):
-    import aerohrl.eval.planner as P
+    import aerohrl.planning.planner as P
 
     rng = np.random.default_rng(5)
     algo, cand = FakeAlgo(), _cands(rng, 12)

@@ -185,7 +185,7 @@ def test_oracle_on_a_family_ring_with_synthetic_candidates(run, tmp_path, capsys
 
 
 def test_synthetic_candidates_lie_in_rho_d():
-    from aerohrl.eval.oracle import synthetic_candidates
+    from aerohrl.planning.oracle import synthetic_candidates
 
     c = synthetic_candidates({"pos_range": [1, 2], "vel_range": [-2.5, 2.5], "acc_range": [-5, 5]}, 50, 0)
     assert len(c) == 50 and c.states.shape == (50, 18) and (c.goals[:, :3].abs() <= 2).all()

@@ -89,7 +89,7 @@ def test_ood_floors_and_tolerance_variants_are_labelled_not_compared_as_planners
 
 
 def test_kind_rates_split_intermediate_goals_by_steps_ahead_and_by_what_hover_misses():
-    from aerohrl.eval.tasks import EpisodeSet
+    from aerohrl.envs.episodes import EpisodeSet
 
     n = 6
     steps_ahead = np.array([0, 0, 2, 12, 30, 40])

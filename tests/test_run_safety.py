@@ -9,8 +9,8 @@ import warnings
 import pytest
 import torch
 
-from aerohrl import atomic
-from aerohrl.algorithms import cli, runs
+from aerohrl import atomic, runs
+from aerohrl.algorithms import cli
 from aerohrl.algorithms.config import make_config
 from aerohrl.algorithms.data import load_dataset
 from aerohrl.algorithms.synthetic import write_synthetic_dataset

@@ -193,7 +193,7 @@ def test_sweep_survives_a_killed_worker(tmp_path):
 def test_local_ray_workers_run_at_the_callers_priority():
     """Ray's default worker niceness (15) starves sweep tasks beside any ordinary process;
     the local Ray of ray_connect starts its workers at the caller's niceness."""
-    code = ("import os\nfrom aerohrl.sweep import ray_connect\n"
+    code = ("import os\nfrom aerohrl.cluster import ray_connect\n"
             "def niceness():\n    return os.nice(0)\n"
             "r = ray_connect(num_cpus=1)\nprint('NICE', r.get(r.remote(niceness).remote()), os.nice(0))\nr.shutdown()\n")
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)

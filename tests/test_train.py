@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from aerohrl.algorithms import cli, runs
+from aerohrl import runs
+from aerohrl.algorithms import cli
 from aerohrl.algorithms.config import ALGORITHMS, make_config
 from aerohrl.algorithms.data import load_dataset
 from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
@@ -286,7 +287,9 @@ def test_learning_curve_reads_harness_results(tmp_path):
     (d / "summary.json").write_text(json.dumps({"checkpoints": rows}))
     (tmp_path / "eval" / "broken").mkdir()
     (tmp_path / "eval" / "broken" / "summary.json").write_text("{not json")
-    assert runs._harness_curves(tmp_path) == {"reach-desired": [(1000, 25.0, 50.0), (2000, 50.0, 80.0)]}
+    from aerohrl.algorithms.runs import _harness_curves
+
+    assert _harness_curves(tmp_path) == {"reach-desired": [(1000, 25.0, 50.0), (2000, 50.0, 80.0)]}
 
 
 def test_auto_precision_follows_the_hardware_and_is_recorded(data, tmp_path, monkeypatch):

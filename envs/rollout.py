@@ -1,6 +1,6 @@
 """Batched closed-loop evaluation through the Gymnasium vector environment.
 
-All episodes of a task fly together in one :class:`~aerohrl.eval.gym_env.QuadrotorReachVectorEnv`
+All episodes of a task fly together in one :class:`~aerohrl.envs.reach.QuadrotorReachVectorEnv`
 (one batched simulator step and one policy call per control step; the Python loop is
 over time only). The policy sees the environment's ``desired_goal``: the task goal, or
 during a planned flight the current intermediate goal (the vehicle "flies to g, then
@@ -27,11 +27,11 @@ import numpy as np
 import torch
 
 from aerohrl import task
-from aerohrl.eval.tasks import EpisodeSet
+from aerohrl.envs.episodes import EpisodeSet, hover_states
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
-    from aerohrl.eval.planner import ChainPlanner, Planner
+    from aerohrl.planning.planner import ChainPlanner, Planner
 
 
 class PolicyFn:
@@ -60,7 +60,9 @@ def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPl
             desc: str = "rollout") -> dict:
     """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
 
-    ``planner`` (a :class:`~aerohrl.eval.planner.Planner`) with ``n_waypoints >= 1``
+    ``planner`` (a :class:`~aerohrl.planning.planner.Planner` or ``ChainPlanner``; used only
+    through ``planner.plan(states, goals, n=k)``, whose result has ``goals`` (E, k, 15),
+    ``frame``, ``score`` and ``direct_score``) with ``n_waypoints >= 1``
     plans intermediate goals before take-off (thesis Eq. 3.7 / 3.6). ``goal_tol`` scales
     the tolerances of the task goal's test (success, and near success = x 2.5 of it;
     0.5 = the precision variant of eval/README.md). ``decline_margin = m`` lets the
@@ -75,7 +77,7 @@ def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPl
     """
     from tqdm import tqdm
 
-    from aerohrl.eval.gym_env import QuadrotorReachVectorEnv
+    from aerohrl.envs.reach import QuadrotorReachVectorEnv
 
     was_training = algo.training
     algo.eval()
@@ -205,8 +207,6 @@ def rollout_reach(algo: Algorithm, goals: np.ndarray, *, horizon: int = 500, veh
                   fps: int = 100, substeps: int = 5, start_states: np.ndarray | None = None) -> dict:
     """Reach-Desired style summary (success, near success, mean steps to success) for
     ``goals`` (N, 15) from hover at the origin or ``start_states``: the trainer's hook."""
-    from aerohrl.eval.tasks import hover_states
-
     goals = np.asarray(goals, np.float64)
     n = len(goals)
     eps = EpisodeSet("reach-desired", hover_states(n) if start_states is None else np.asarray(start_states, np.float64), goals,

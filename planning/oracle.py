@@ -34,12 +34,12 @@ import numpy as np
 import torch
 
 from aerohrl import task
-from aerohrl.eval.tasks import EpisodeSet, hover_states
+from aerohrl.envs.episodes import EpisodeSet, hover_states
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
     from aerohrl.algorithms.data import Dataset
-    from aerohrl.eval.planner import Candidates
+    from aerohrl.planning.planner import Candidates
 
 
 def _flights(starts: np.ndarray, goals: np.ndarray, horizon: int) -> EpisodeSet:
@@ -65,12 +65,12 @@ def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidat
                   leg_horizon: int = 500, alpha: float = 1.0, chunk: int = 4096, sim: dict | None = None,
                   progress: bool = False, cand: Candidates | None = None) -> dict:
     """Fly every first and second leg of the single-goal planner (see the module docstring).
-    ``cand`` (:class:`~aerohrl.eval.planner.Candidates`) replaces the dataset's achieved
+    ``cand`` (:class:`~aerohrl.planning.planner.Candidates`) replaces the dataset's achieved
     goals, e.g. :func:`synthetic_candidates`."""
     from tqdm import tqdm
 
-    from aerohrl.eval.planner import Planner, candidates_from_dataset, leg_values
-    from aerohrl.eval.rollout import rollout
+    from aerohrl.planning.planner import Planner, candidates_from_dataset, leg_values
+    from aerohrl.envs.rollout import rollout
 
     sim = sim or {}
     G = np.asarray(goals, np.float64)
@@ -120,10 +120,10 @@ def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidat
 
 
 def synthetic_candidates(spec: dict | None, n: int, seed: int = 0) -> Candidates:
-    """``n`` synthetic waypoints relative to the start at the origin (eval/planner.py's
+    """``n`` synthetic waypoints relative to the start at the origin (planning/planner.py's
     offsets, none biased toward a goal): any state within rho_D of the start, as
-    :class:`~aerohrl.eval.planner.Candidates` (state = the waypoint with zero body rates)."""
-    from aerohrl.eval.planner import Candidates, offsets_from_spec
+    :class:`~aerohrl.planning.planner.Candidates` (state = the waypoint with zero body rates)."""
+    from aerohrl.planning.planner import Candidates, offsets_from_spec
 
     off = offsets_from_spec(spec, n, seed, toward=0.0)
     goals = torch.cat([off.pos, off.vel, off.rot], dim=1).float()

@@ -43,11 +43,12 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from aerohrl import task
+from aerohrl.envs import REACH_ID
+from aerohrl.envs.episodes import hover_states
 from aerohrl.errors import UserError
-from aerohrl.eval.tasks import hover_states
 from aerohrl.sim.params import GRAVITY
 
-ENV_ID = "aerohrl/QuadrotorReach-v0"
+ENV_ID = REACH_ID  # registered by aerohrl.envs.register
 RATE_LIMIT = 20.0  # rad/s, commanded body-rate bound of the action space
 
 
@@ -273,12 +274,4 @@ def normalize_actions(env: gym.Env | VectorEnv) -> gym.Env | VectorEnv:
     return gym.wrappers.RescaleAction(env, -1.0, 1.0)
 
 
-def register() -> None:
-    """Register ``aerohrl/QuadrotorReach-v0`` (single env and vector entry point)."""
-    if ENV_ID in gym.registry:
-        return
-    gym.register(id=ENV_ID, entry_point="aerohrl.eval.gym_env:QuadrotorReachEnv",
-                 vector_entry_point="aerohrl.eval.gym_env:QuadrotorReachVectorEnv", max_episode_steps=None)
-
-
-__all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "NonFiniteAction", "compute_reward", "normalize_actions", "register", "ENV_ID"]
+__all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "NonFiniteAction", "compute_reward", "normalize_actions", "ENV_ID"]

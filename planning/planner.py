@@ -271,7 +271,7 @@ def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_r
     """C seeded offsets (module docstring): the first ``round(toward * C)`` biased toward G
     (position magnitude ``U(toward_range)`` per axis, signed at planning time), the rest
     ``dp ~ U(-pos_hi, pos_hi)``; all with ``v ~ U(vel_range)``, ``R = flat_attitude(a ~ U(acc_range))``."""
-    from aerohrl.datagen.goals import _check_range, flat_attitude
+    from aerohrl.datagen.goals import check_range, flat_attitude
 
     if isinstance(C, bool) or int(C) != C or C < 1:
         raise UserError(f"the number of synthetic offsets must be a positive integer, got {C!r}")
@@ -279,9 +279,9 @@ def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_r
         raise UserError(f"the offsets' position range must be > 0 m, got {pos_hi}")
     if not 0 <= toward <= 1:
         raise UserError(f"the fraction of offsets toward the goal must be in [0, 1], got {toward}")
-    v_lo, v_hi = _check_range("vel_range", vel_range)
-    a_lo, a_hi = _check_range("acc_range", acc_range)
-    t_lo, t_hi = _check_range("toward_range", toward_range, non_negative=True)
+    v_lo, v_hi = check_range("vel_range", vel_range)
+    a_lo, a_hi = check_range("acc_range", acc_range)
+    t_lo, t_hi = check_range("toward_range", toward_range, non_negative=True)
     C = int(C)
     rng = np.random.default_rng([int(seed), 17])
     pos = rng.uniform(-pos_hi, pos_hi, (C, 3))
