@@ -122,7 +122,7 @@ def load_dataset(path: PathLike, as_: Literal["numpy", "torch", "lerobot"] = "nu
             more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
             raise UserError(f"dataset {root} is damaged: {problems[0]}{more}; `datagen validate {root}` lists them")
     if as_ == "numpy":
-        from aerohrl.datagen.lerobot_format import read_columns
+        from aerohrl.datagen.lerobot_reader import read_columns
 
         return read_columns(root)
     return open_lerobot(root)

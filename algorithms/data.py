@@ -120,7 +120,7 @@ def _columns_checksum(cols: dict) -> str:
 def read_dataset_columns(root: str | Path) -> tuple[dict, dict]:
     """(columns, info) of a dataset folder; UserError when missing or damaged."""
     from aerohrl.datagen import manifest
-    from aerohrl.datagen.lerobot_format import read_columns
+    from aerohrl.datagen.lerobot_reader import read_columns
 
     root = Path(root)
     if not root.is_dir():

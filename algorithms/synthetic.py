@@ -55,7 +55,7 @@ def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version:
     ``datagen build`` does (LeRobot v3.0 files + meta/aerohrl.json with checksums)."""
     from pathlib import Path
 
-    from aerohrl.datagen.lerobot_format import write_dataset
+    from aerohrl.datagen.lerobot_writer import write_dataset
     from aerohrl.datagen.manifest import write_manifest
 
     cols = straight_columns() if cols is None else cols

@@ -10,7 +10,7 @@ The pipeline of thesis §3.4.1 with the readings of SPEC.md "Expert data":
 3. the geometric expert (:mod:`aerohrl.datagen.expert`) tracks every reference at once
    in the batched simulator (:mod:`aerohrl.sim`), recording each 100 Hz step until T;
 4. the frames are streamed into a LeRobot v3.0 dataset block by block as the flights
-   land (:func:`stream_dataset`, :class:`aerohrl.datagen.lerobot_format.DatasetWriter`:
+   land (:func:`stream_dataset`, :class:`aerohrl.datagen.lerobot_writer.DatasetWriter`:
    memory stays bounded by a block, the bytes are those of one bulk write), then our own
    metadata and checksums (:mod:`aerohrl.datagen.manifest`) and a dataset card.
 
@@ -39,7 +39,8 @@ from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
 from aerohrl.datagen import recipes, reference
 from aerohrl.datagen.expert import GeometricController
-from aerohrl.datagen.lerobot_format import DatasetWriter, read_info
+from aerohrl.datagen.lerobot_reader import read_info
+from aerohrl.datagen.lerobot_writer import DatasetWriter
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
 from aerohrl.datagen.spec import GENERATOR_VERSION, TASK, DatasetSpec, spec_hash, version_name
 from aerohrl.sim import BatchedQuadrotor, get_preset
@@ -768,7 +769,7 @@ ds = LeRobotDataset("{meta['repo_id']}", root="<this folder>", video_backend="py
 (`video_backend="pyav"`: the data hold no video, and naming a backend keeps lerobot from
 probing torchcodec, which logs a long traceback on machines without FFmpeg.) Or
 `aerohrl.load_dataset("<this folder>", as_="numpy" | "torch" | "lerobot")`; without torch:
-`aerohrl.datagen.lerobot_format.read_columns("<this folder>")`.
+`aerohrl.datagen.lerobot_reader.read_columns("<this folder>")`.
 
 ## Features
 | key | dtype | shape | meaning |

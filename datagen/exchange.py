@@ -20,7 +20,7 @@
 * :func:`stage_push` prepares a folder for ``LeRobotDataset.push_to_hub`` that keeps our
   card, licence and metadata (see its docstring); :func:`push` uploads it.
 
-Every export reads the dataset through :func:`aerohrl.datagen.lerobot_format.read_columns`
+Every export reads the dataset through :func:`aerohrl.datagen.lerobot_reader.read_columns`
 after checking its checksums, and writes atomically (a temporary name, renamed at the end).
 """
 
@@ -41,7 +41,7 @@ ENV_ID = "aerohrl/QuadrotorReach-v0"
 
 def _checked_columns(root: Path) -> tuple[dict[str, np.ndarray], dict]:
     from aerohrl.datagen import manifest
-    from aerohrl.datagen.lerobot_format import read_columns
+    from aerohrl.datagen.lerobot_reader import read_columns
 
     if not root.is_dir():
         raise UserError(f"no dataset directory at {root}")

@@ -137,8 +137,8 @@ def read_manifest(root: str | Path) -> dict:
 def validate(root: str | Path) -> list[str]:
     """Every integrity problem of the dataset at ``root`` (empty list: intact): the
     manifest itself, each file's SHA-256, missing and unexpected files, and the LeRobot
-    structure (:func:`aerohrl.datagen.lerobot_format.check_structure`)."""
-    from aerohrl.datagen.lerobot_format import check_structure
+    structure (:func:`aerohrl.datagen.lerobot_validate.check_structure`)."""
+    from aerohrl.datagen.lerobot_validate import check_structure
 
     root = Path(root)
     if not root.is_dir():

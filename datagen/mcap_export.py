@@ -128,7 +128,8 @@ _COLUMNS = ["observation.state", "next.observation.state", "observation.desired_
 
 def _episode_rows(root: Path, episode: int) -> tuple[dict[str, np.ndarray], dict]:
     """The frames of one episode (numpy) located through the episodes parquet, and info.json."""
-    from aerohrl.datagen.lerobot_format import DATA_PATH, read_info
+    from aerohrl.datagen.lerobot_layout import DATA_PATH
+    from aerohrl.datagen.lerobot_reader import read_info
 
     info = read_info(root)
     n = info.get("total_episodes")

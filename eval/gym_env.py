@@ -68,7 +68,7 @@ def _goal_pool_from_dataset(path):
     from pathlib import Path
 
     from aerohrl.datagen import manifest
-    from aerohrl.datagen.lerobot_format import read_columns
+    from aerohrl.datagen.lerobot_reader import read_columns
 
     root = Path(path)
     if not root.is_dir():

@@ -14,7 +14,7 @@ import pytest
 
 from aerohrl.datagen import cli
 from aerohrl.datagen.build import build
-from aerohrl.datagen.lerobot_format import read_columns
+from aerohrl.datagen.lerobot_reader import read_columns
 from aerohrl.datagen.spec import DatasetSpec
 
 NOISE = (1.0, 0.5, 0.5, 0.5)
