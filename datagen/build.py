@@ -740,6 +740,8 @@ def _feature_rows(meta: dict, features: dict | None) -> str:
 def dataset_card(meta: dict, features: dict | None = None) -> str:
     """The dataset's README.md (a Hugging Face dataset card); ``features`` (info.json's)
     fill the dtype and shape columns of the feature table."""
+    # The card is one of the dataset's files, so its text is part of the version's bytes:
+    # it changes only with GENERATOR_VERSION (its module path for read_columns included).
     s = meta["spec"]
     return f"""---
 license: mit
@@ -769,7 +771,7 @@ ds = LeRobotDataset("{meta['repo_id']}", root="<this folder>", video_backend="py
 (`video_backend="pyav"`: the data hold no video, and naming a backend keeps lerobot from
 probing torchcodec, which logs a long traceback on machines without FFmpeg.) Or
 `aerohrl.load_dataset("<this folder>", as_="numpy" | "torch" | "lerobot")`; without torch:
-`aerohrl.datagen.lerobot_reader.read_columns("<this folder>")`.
+`aerohrl.datagen.lerobot_format.read_columns("<this folder>")`.
 
 ## Features
 | key | dtype | shape | meaning |
