@@ -8,7 +8,7 @@ from pathlib import Path
 
 # the public API (re-exported lazily by `import aerohrl`, which pdoc cannot follow) and the modules
 # whose objects it takes or returns
-MODULES = ["aerohrl.api", "aerohrl.errors", "aerohrl.task", "aerohrl.datagen.spec", "aerohrl.datagen.exchange",
+MODULES = ["aerohrl.api", "aerohrl.errors", "aerohrl.task", "aerohrl.datagen.spec", "aerohrl.datagen.dataset", "aerohrl.datagen.exchange",
            "aerohrl.algorithms.config", "aerohrl.eval.harness", "aerohrl.eval.gym_env"]
 
 
