@@ -39,6 +39,7 @@ from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
 from aerohrl.datagen import recipes, reference
 from aerohrl.datagen.expert import GeometricController
+from aerohrl.datagen.dataset import FORMAT
 from aerohrl.datagen.lerobot_reader import read_info
 from aerohrl.datagen.lerobot_writer import DatasetWriter
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
@@ -647,7 +648,7 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
     ctrl = GeometricController(params)
     succ = data.episode_success
     return {
-        "format": "aerohrl-dataset",
+        "format": FORMAT,
         "repo_id": REPO_ID,
         "name": spec.name,
         "version": version,
