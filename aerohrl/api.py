@@ -99,33 +99,29 @@ def load_dataset(path: PathLike, as_: Literal["numpy", "torch", "lerobot"] = "nu
               are dicts of tensors), opened without probing a video decoder (our datasets
               hold no video).
         validate: check every file's SHA-256 against the manifest first (about a second
-            per 2 M frames); a damaged dataset raises :class:`~aerohrl.errors.UserError`.
-            ``as_="torch"`` always validates.
+            per 2 M frames). ``as_="torch"`` always validates.
 
     Returns:
         The dataset in the requested form.
+
+    Raises:
+        aerohrl.datagen.dataset.DatasetError: (a :class:`~aerohrl.errors.UserError`) when
+            the folder is missing, not an aerohrl dataset, damaged or of an unsupported
+            format version: :func:`aerohrl.datagen.dataset.open_dataset` opens it.
     """
-    from aerohrl.datagen import manifest
+    from aerohrl.datagen.dataset import open_dataset
 
     root = Path(path)
     if as_ not in ("numpy", "torch", "lerobot"):
         raise UserError(f"unknown as_={as_!r} (choose from numpy, torch, lerobot)")
-    if not root.is_dir():
-        raise UserError(f"no dataset at {root}")
     if as_ == "torch":
         from aerohrl.algorithms.data import load_dataset as load_torch
 
         return load_torch(root)
-    if validate:
-        problems = manifest.validate(root)
-        if problems:
-            more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
-            raise UserError(f"dataset {root} is damaged: {problems[0]}{more}; `datagen validate {root}` lists them")
+    ds = open_dataset(root, verify=validate)
     if as_ == "numpy":
-        from aerohrl.datagen.lerobot_format import read_columns
-
-        return read_columns(root)
-    return open_lerobot(root)
+        return ds.columns()
+    return _lerobot_dataset(ds.path, ds.manifest)
 
 
 def open_lerobot(root: PathLike) -> Any:
@@ -135,14 +131,18 @@ def open_lerobot(root: PathLike) -> Any:
     does so in every ``LeRobotDataset(...)`` whose backend is not given, video or not;
     without FFmpeg that probe logs a long traceback). Nothing is decoded with it: the
     datasets hold no video features."""
+    from aerohrl.datagen.dataset import open_dataset
+
+    ds = open_dataset(root, verify=False)
+    return _lerobot_dataset(ds.path, ds.manifest)
+
+
+def _lerobot_dataset(root: Path, manifest: dict) -> Any:
     try:
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
     except ImportError as e:
         raise UserError(f"load_dataset(as_='lerobot') needs lerobot: pip install 'aerohrl[lerobot]' ({e})") from None
-    from aerohrl.datagen import manifest
-
-    root = Path(root)
-    repo_id = manifest.read_manifest(root).get("repo_id") or f"aerohrl/{root.parent.name}"
+    repo_id = manifest.get("repo_id") or f"aerohrl/{root.parent.name}"
     return LeRobotDataset(repo_id, root=root, video_backend="pyav")
 
 

@@ -143,9 +143,10 @@ def check_spec(sp: SweepSpec) -> SweepSpec:
     for t in sp.tasks:
         if t not in TASKS or t == "ood":
             raise UserError(f"unknown evaluation task {t!r} (choose from {', '.join(x for x in TASKS if x != 'ood')})")
+    from aerohrl.datagen.dataset import open_dataset
+
     for d in sp.datasets:
-        if not (Path(d) / "meta" / "aerohrl.json").is_file():
-            raise UserError(f"no dataset at {d} (build one with `datagen build`)")
+        open_dataset(d, verify=False)  # each run verifies its checksums when it loads it
     for p in points(sp):  # every config the grid makes is one `train` accepts
         _config(sp, p)
     return sp

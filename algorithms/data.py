@@ -117,37 +117,20 @@ def _columns_checksum(cols: dict) -> str:
     return h.hexdigest()
 
 
-def read_dataset_columns(root: str | Path) -> tuple[dict, dict]:
-    """(columns, info) of a dataset folder; UserError when missing or damaged."""
-    from aerohrl.datagen import manifest
-    from aerohrl.datagen.lerobot_format import read_columns
-
-    root = Path(root)
-    if not root.is_dir():
-        raise UserError(f"no dataset at {root}")
-    problems = manifest.validate(root)
-    if problems:
-        more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
-        raise UserError(f"dataset {root} is damaged: {problems[0]}{more}; rebuild it with `datagen build`")
-    m = manifest.read_manifest(root)
-    cols = read_columns(root)
-    info = {
-        "path": str(root),
-        "version": m.get("version"),
-        "checksum": m.get("manifest_sha256"),
-        "spec": m.get("spec", {}),
-    }
-    return cols, info
-
-
 def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
     """A :class:`Dataset` from a dataset folder or from a column dict (same keys as
-    ``read_columns``); UserError on a missing/damaged dataset or wrong feature shapes."""
+    ``read_columns``); the folder is opened with
+    :func:`aerohrl.datagen.dataset.open_dataset` (checksums verified). UserError on a
+    missing/damaged dataset or wrong feature shapes."""
     if isinstance(source, dict):
         cols = source
         info = {"path": None, "version": "in-memory", "checksum": None, "spec": {}}
     else:
-        cols, info = read_dataset_columns(source)
+        from aerohrl.datagen.dataset import open_dataset
+
+        ds = open_dataset(source)
+        cols = ds.columns()
+        info = {"path": str(ds.path), "version": ds.version, "checksum": ds.checksum, "spec": ds.spec}
     for k, shape in REQUIRED.items():
         if k not in cols:
             raise UserError(f"dataset has no {k!r} column")
@@ -214,7 +197,7 @@ def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator,
     )
 
 
-__all__ = ["Dataset", "load_dataset", "read_dataset_columns", "make_buffer", "REQUIRED"]
+__all__ = ["Dataset", "load_dataset", "make_buffer", "REQUIRED"]
 
 
 class GoalBatchSampler:

@@ -55,13 +55,14 @@ def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version:
     ``datagen build`` does (LeRobot v3.0 files + meta/aerohrl.json with checksums)."""
     from pathlib import Path
 
-    from aerohrl.datagen.lerobot_format import write_dataset
+    from aerohrl.datagen.dataset import FORMAT
+    from aerohrl.datagen.lerobot_writer import write_dataset
     from aerohrl.datagen.manifest import write_manifest
 
     cols = straight_columns() if cols is None else cols
     frame_keys = ("observation.state", "action", "observation.desired_goal", "next.observation.state",
                   "next.reward", "next.done", "next.success")
     write_dataset(root, {k: cols[k] for k in frame_keys}, cols["episode_index"], fps=fps)
-    write_manifest(root, {"format": "aerohrl-dataset", "name": "synthetic", "version": version,
+    write_manifest(root, {"format": FORMAT, "name": "synthetic", "version": version,
                           "spec": {"name": "synthetic", "vehicle": "hummingbird", "fps": fps, "substeps": 5}})
     return Path(root)

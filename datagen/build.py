@@ -10,7 +10,7 @@ The pipeline of thesis §3.4.1 with the readings of SPEC.md "Expert data":
 3. the geometric expert (:mod:`aerohrl.datagen.expert`) tracks every reference at once
    in the batched simulator (:mod:`aerohrl.sim`), recording each 100 Hz step until T;
 4. the frames are streamed into a LeRobot v3.0 dataset block by block as the flights
-   land (:func:`stream_dataset`, :class:`aerohrl.datagen.lerobot_format.DatasetWriter`:
+   land (:func:`stream_dataset`, :class:`aerohrl.datagen.lerobot_writer.DatasetWriter`:
    memory stays bounded by a block, the bytes are those of one bulk write), then our own
    metadata and checksums (:mod:`aerohrl.datagen.manifest`) and a dataset card.
 
@@ -39,7 +39,9 @@ from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
 from aerohrl.datagen import recipes, reference
 from aerohrl.datagen.expert import GeometricController
-from aerohrl.datagen.lerobot_format import DatasetWriter, read_info
+from aerohrl.datagen.dataset import FORMAT
+from aerohrl.datagen.lerobot_reader import read_info
+from aerohrl.datagen.lerobot_writer import DatasetWriter
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
 from aerohrl.datagen.spec import GENERATOR_VERSION, TASK, DatasetSpec, spec_hash, version_name
 from aerohrl.sim import BatchedQuadrotor, get_preset
@@ -646,7 +648,7 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
     ctrl = GeometricController(params)
     succ = data.episode_success
     return {
-        "format": "aerohrl-dataset",
+        "format": FORMAT,
         "repo_id": REPO_ID,
         "name": spec.name,
         "version": version,
@@ -739,6 +741,8 @@ def _feature_rows(meta: dict, features: dict | None) -> str:
 def dataset_card(meta: dict, features: dict | None = None) -> str:
     """The dataset's README.md (a Hugging Face dataset card); ``features`` (info.json's)
     fill the dtype and shape columns of the feature table."""
+    # The card is one of the dataset's files, so its text is part of the version's bytes:
+    # it changes only with GENERATOR_VERSION (its module path for read_columns included).
     s = meta["spec"]
     return f"""---
 license: mit

@@ -11,11 +11,15 @@ import json
 import sys
 from dataclasses import fields
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from aerohrl import cli_types as T
 from aerohrl.cli_common import add_common, progress, set_threads
 from aerohrl.errors import ArgumentParser, UserError, run_cli, warn
 from aerohrl.datagen.spec import EXPERTS, SOLVERS, START_STATES, DatasetSpec
+
+if TYPE_CHECKING:
+    from aerohrl.datagen.dataset import DatasetHandle
 
 PROG = "datagen"
 # the spec fields whose values are a fixed set (DatasetSpec.check), shown and checked by argparse
@@ -144,13 +148,14 @@ def cmd_build(a: argparse.Namespace) -> int:
 
 def cmd_info(a: argparse.Namespace) -> int:
     """``datagen info``: print a dataset's manifest (``--json``: as JSON); exit code."""
-    from aerohrl.datagen.manifest import read_manifest
+    from aerohrl.datagen.dataset import open_dataset
 
-    meta = read_manifest(a.path)
+    ds = open_dataset(a.path, verify=False)
+    meta = ds.manifest
     if a.json:
         print(json.dumps(meta, indent=2, sort_keys=True))
         return 0
-    problems = warn_if_damaged(a.path)
+    problems = warn_if_damaged(ds)
     s = meta["spec"]
     d = meta["reference_duration_s"]
     sizes = sum((a.path / r).stat().st_size for r in meta["checksums"] if (a.path / r).exists())
@@ -173,11 +178,13 @@ def cmd_info(a: argparse.Namespace) -> int:
 
 def cmd_validate(a: argparse.Namespace) -> int:
     """``datagen validate``: check a dataset against its manifest; exit code 1 on problems."""
+    from aerohrl.datagen.dataset import DatasetDamaged, open_dataset
     from aerohrl.datagen.manifest import validate
 
-    if not a.path.is_dir():
-        raise UserError(f"no dataset directory at {a.path}")
-    problems = validate(a.path)
+    try:  # a missing folder, not a dataset, another format version: one line, exit 2
+        problems = open_dataset(a.path, verify=False).problems()
+    except DatasetDamaged:  # its manifest or info.json: list everything found
+        problems = validate(a.path)
     if problems:
         for p in problems:
             print(f"{a.path}: {p}", file=sys.stderr)
@@ -187,24 +194,26 @@ def cmd_validate(a: argparse.Namespace) -> int:
     return 0
 
 
-def warn_if_damaged(path: Path) -> list[str]:
-    """The dataset's integrity problems (every file's SHA-256, the manifest, the LeRobot
-    structure; about a second per 2 M frames), with a warning when there are any: the
-    reading commands go on, but say that what they print may come from damaged files."""
-    from aerohrl.datagen.manifest import validate
+def warn_if_damaged(ds: DatasetHandle) -> list[str]:
+    """The dataset's integrity problems (every file's SHA-256, the LeRobot structure;
+    about a second per 2 M frames), with a warning when there are any: the reading
+    commands go on, but say that what they print may come from damaged files."""
+    from aerohrl.datagen.dataset import DatasetDamaged
 
-    problems = validate(path) if path.is_dir() else []
-    if problems:
-        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
-        warn(f"{path} is damaged: {problems[0]}{more}; what follows may be wrong (`datagen validate {path}` lists it all)")
-    return problems
+    try:
+        ds.verify()
+    except DatasetDamaged as e:
+        warn(f"{e}; what follows may be wrong")
+        return e.problems
+    return []
 
 
 def cmd_export_mcap(a: argparse.Namespace) -> int:
     """``datagen export-mcap``: episodes as MCAP files for Foxglove; exit code."""
+    from aerohrl.datagen.dataset import open_dataset
     from aerohrl.datagen.mcap_export import export_mcap
 
-    warn_if_damaged(a.path)
+    warn_if_damaged(open_dataset(a.path, verify=False))
     counts = export_mcap(a.path, a.episode, a.out)
     print(f"wrote {a.out}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
     return 0
@@ -213,8 +222,10 @@ def cmd_export_mcap(a: argparse.Namespace) -> int:
 def cmd_export(a: argparse.Namespace) -> int:
     """``datagen export --format mcap|minari|ogbench``: convert a dataset; exit code."""
     from aerohrl.datagen import exchange
+    from aerohrl.datagen.dataset import open_dataset
 
-    warn_if_damaged(a.path)
+    ds = open_dataset(a.path, verify=False)
+    warn_if_damaged(ds)
     if a.format == "mcap":
         if a.episode is None or a.out is None:
             raise UserError("--format mcap needs --episode N and -o FILE.mcap")
@@ -230,9 +241,7 @@ def cmd_export(a: argparse.Namespace) -> int:
     else:
         if a.dataset_id is not None:
             raise UserError("--dataset-id applies to --format minari only")
-        from aerohrl.datagen.manifest import read_manifest
-
-        meta = read_manifest(a.path)
+        meta = ds.manifest
         out = exchange.export_ogbench(a.path, a.out or Path(f"{meta.get('name', 'dataset')}-{meta['version']}.npz"))
     print(f"wrote {out}")
     return 0
@@ -266,9 +275,10 @@ def cmd_push(a: argparse.Namespace) -> int:
 
 def cmd_plot(a: argparse.Namespace) -> int:
     """``datagen plot``: overview figures of a dataset; exit code."""
+    from aerohrl.datagen.dataset import open_dataset
     from aerohrl.datagen.plots import plot_dataset
 
-    warn_if_damaged(a.path)
+    warn_if_damaged(open_dataset(a.path, verify=False))
     plot_dataset(a.path, a.out, max_episodes=a.max_episodes)
     print(f"wrote {a.out}")
     return 0

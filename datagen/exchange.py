@@ -20,8 +20,8 @@
 * :func:`stage_push` prepares a folder for ``LeRobotDataset.push_to_hub`` that keeps our
   card, licence and metadata (see its docstring); :func:`push` uploads it.
 
-Every export reads the dataset through :func:`aerohrl.datagen.lerobot_format.read_columns`
-after checking its checksums, and writes atomically (a temporary name, renamed at the end).
+Every export opens the dataset with :func:`aerohrl.datagen.dataset.open_dataset` (its
+checksums verified), and writes atomically (a temporary name, renamed at the end).
 """
 
 from __future__ import annotations
@@ -40,16 +40,10 @@ ENV_ID = "aerohrl/QuadrotorReach-v0"
 
 
 def _checked_columns(root: Path) -> tuple[dict[str, np.ndarray], dict]:
-    from aerohrl.datagen import manifest
-    from aerohrl.datagen.lerobot_format import read_columns
+    from aerohrl.datagen.dataset import open_dataset
 
-    if not root.is_dir():
-        raise UserError(f"no dataset directory at {root}")
-    problems = manifest.validate(root)
-    if problems:
-        more = f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""
-        raise UserError(f"{root} is damaged: {problems[0]}{more}; `datagen validate {root}` lists it all")
-    return read_columns(root), manifest.read_manifest(root)
+    ds = open_dataset(root)
+    return ds.columns(), ds.manifest
 
 
 def _episode_bounds(ep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -205,8 +199,10 @@ def stage_push(root: str | Path, staging: str | Path, license_file: str | Path |
     spec and every checksum; ``meta/aerohrl_episodes.parquet``) plus the project's
     ``LICENSE``; :func:`push` uploads it with the same Hub calls as ``push_to_hub``
     except the card's."""
+    from aerohrl.datagen.dataset import open_dataset
+
     root, staging = Path(root), Path(staging)
-    _checked_columns(root)
+    open_dataset(root)
     if staging.exists() and (not staging.is_dir() or any(staging.iterdir())):
         raise UserError(f"staging folder {staging} exists and is not empty")
     lic = Path(license_file) if license_file else _project_license()

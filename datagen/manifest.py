@@ -96,8 +96,9 @@ def write_manifest(root: str | Path, metadata: dict) -> dict:
     return manifest
 
 
-def _load(root: Path) -> tuple[dict | None, list[str]]:
-    """(manifest or None, problems)."""
+def load_manifest(root: Path) -> tuple[dict | None, list[str]]:
+    """(manifest, problems of the manifest itself): None when it is missing or cannot be
+    parsed; problems when its bytes are not canonical or its self-hash does not match."""
     path = root / MANIFEST_PATH
     try:
         raw = path.read_bytes()
@@ -128,7 +129,7 @@ def _load(root: Path) -> tuple[dict | None, list[str]]:
 def read_manifest(root: str | Path) -> dict:
     """The manifest of the dataset at ``root``; UserError if missing or corrupt."""
     root = Path(root)
-    m, problems = _load(root)
+    m, problems = load_manifest(root)
     if problems:
         raise UserError(f"{root}: {problems[0]}")
     return m
@@ -137,13 +138,13 @@ def read_manifest(root: str | Path) -> dict:
 def validate(root: str | Path) -> list[str]:
     """Every integrity problem of the dataset at ``root`` (empty list: intact): the
     manifest itself, each file's SHA-256, missing and unexpected files, and the LeRobot
-    structure (:func:`aerohrl.datagen.lerobot_format.check_structure`)."""
-    from aerohrl.datagen.lerobot_format import check_structure
+    structure (:func:`aerohrl.datagen.lerobot_validate.check_structure`)."""
+    from aerohrl.datagen.lerobot_validate import check_structure
 
     root = Path(root)
     if not root.is_dir():
         return [f"no dataset directory at {root}"]
-    m, problems = _load(root)
+    m, problems = load_manifest(root)
     if m is not None:
         listed = m[CHECKSUMS_KEY]
         present = set(_dataset_files(root)) - {MANIFEST_PATH}
@@ -164,4 +165,4 @@ def validate(root: str | Path) -> list[str]:
     return problems
 
 
-__all__ = ["MANIFEST_PATH", "write_manifest", "read_manifest", "validate", "canonical_json", "sha256_file"]
+__all__ = ["MANIFEST_PATH", "write_manifest", "read_manifest", "load_manifest", "validate", "canonical_json", "sha256_file"]

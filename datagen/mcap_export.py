@@ -128,7 +128,8 @@ _COLUMNS = ["observation.state", "next.observation.state", "observation.desired_
 
 def _episode_rows(root: Path, episode: int) -> tuple[dict[str, np.ndarray], dict]:
     """The frames of one episode (numpy) located through the episodes parquet, and info.json."""
-    from aerohrl.datagen.lerobot_format import DATA_PATH, read_info
+    from aerohrl.datagen.lerobot_layout import DatasetLayout
+    from aerohrl.datagen.lerobot_reader import read_info
 
     info = read_info(root)
     n = info.get("total_episodes")
@@ -138,7 +139,8 @@ def _episode_rows(root: Path, episode: int) -> tuple[dict[str, np.ndarray], dict
     missing = [c for c in _COLUMNS if c not in info["features"]]
     if missing:
         raise UserError(f"{root}: features {missing} missing; not an aerohrl reach dataset")
-    meta_paths = sorted((root / "meta" / "episodes").glob("*/*.parquet"))
+    layout = DatasetLayout(root)
+    meta_paths = layout.episodes_files()
     row = None
     for p in meta_paths:
         try:
@@ -151,7 +153,7 @@ def _episode_rows(root: Path, episode: int) -> tuple[dict[str, np.ndarray], dict
             break
     if row is None:
         raise UserError(f"no episode {episode} in the episodes metadata of {root}")
-    path = root / DATA_PATH.format(chunk_index=row["data/chunk_index"], file_index=row["data/file_index"])
+    path = layout.data_file(row["data/chunk_index"], row["data/file_index"])
     try:
         t = pq.read_table(path, columns=_COLUMNS, filters=[("episode_index", "=", episode)])
     except FileNotFoundError:

@@ -20,7 +20,7 @@ def plot_dataset(path: str | Path, out: str | Path, max_episodes: int = 250) -> 
     import matplotlib.pyplot as plt
 
     from aerohrl.datagen.build import EPISODES_FILE
-    from aerohrl.datagen.lerobot_format import read_columns
+    from aerohrl.datagen.lerobot_reader import read_columns
 
     path, out = Path(path), Path(out)
     if max_episodes <= 0:

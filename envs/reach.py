@@ -66,19 +66,11 @@ def _goal_pool_from_dataset(path):
     """The desired goals the expert flew from hover at the origin (where this env's
     episodes start: one per goal of rho_D, never a continuation; as
     ``Dataset.rest_start_episodes``), and the dataset's spec. Torch-free."""
-    from pathlib import Path
+    from aerohrl.datagen.dataset import open_dataset
 
-    from aerohrl.datagen import manifest
-    from aerohrl.datagen.lerobot_format import read_columns
-
-    root = Path(path)
-    if not root.is_dir():
-        raise UserError(f"no dataset at {root}")
-    problems = manifest.validate(root)
-    if problems:
-        raise UserError(f"dataset {root} is damaged: {problems[0]}; rebuild it with `datagen build`")
-    spec = manifest.read_manifest(root).get("spec") or {}
-    cols = read_columns(root)
+    ds = open_dataset(path)
+    spec = ds.spec
+    cols = ds.columns(["episode_index", "observation.desired_goal"])
     ep = np.asarray(cols["episode_index"])
     first = np.flatnonzero(np.r_[True, ep[1:] != ep[:-1]])  # first frame of each episode, in episode order
     m, k = int(spec.get("continuations", 0)), int(spec.get("rollouts_per_goal", 1))

@@ -578,9 +578,9 @@ def main(argv: list[str] | None = None) -> int:
             atomic.write_text(state_f, json.dumps(state, indent=1))
         margins = {k: float(v) for k, v in state["margins"].items()}
         from aerohrl.algorithms.trainer import read_json
-        from aerohrl.datagen.manifest import read_manifest
+        from aerohrl.datagen.dataset import open_dataset
 
-        spec = read_manifest(read_json(a.runs[0] / "config.json")["dataset"]["path"]).get("spec", {})
+        spec = open_dataset(read_json(a.runs[0] / "config.json")["dataset"]["path"], verify=False).spec
         feas = {}
         for ring in rings:
             t1 = time.perf_counter()

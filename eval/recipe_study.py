@@ -169,9 +169,9 @@ def critics_auc(rd: Path) -> float:
         return float("nan")
     with open(f) as fh:
         success = np.array([int(r["success"]) for r in csv.DictReader(fh)], bool)
-    from aerohrl.datagen.manifest import read_manifest
+    from aerohrl.datagen.dataset import open_dataset
 
-    spec = read_manifest(read_json(rd / "config.json")["dataset"]["path"]).get("spec", {})  # its ranges: the task's goals
+    spec = open_dataset(read_json(rd / "config.json")["dataset"]["path"], verify=False).spec  # its ranges: the task's goals
     eps = reach_novel(SimpleNamespace(info={"spec": spec}), len(success), 0)
     if not np.allclose(eps.goals, _episode_goals(f)):
         raise UserError(f"{f}: its Reach-Novel goals are not the task's (the dataset moved or changed?)")

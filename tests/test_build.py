@@ -9,7 +9,7 @@ from aerohrl import task
 from aerohrl.errors import UserError
 from aerohrl.datagen import build as build_mod
 from aerohrl.datagen.build import build, generate
-from aerohrl.datagen.lerobot_format import read_columns
+from aerohrl.datagen.lerobot_reader import read_columns
 from aerohrl.datagen.manifest import read_manifest, validate
 from aerohrl.datagen.spec import DatasetSpec, load_spec, version_name
 

@@ -84,8 +84,8 @@ def test_reading_commands_warn_on_a_damaged_dataset(tmp_path, capsys):
     for cmd in (["info"], ["plot", "-o", str(tmp_path / "g.png")], ["export-mcap", "--episode", "0", "-o", str(tmp_path / "e.mcap")]):
         assert main([cmd[0], str(path), *cmd[1:]]) == 0, cmd
         err = capsys.readouterr().err.strip()
-        assert err == f"datagen: warning: {path} is damaged: checksum mismatch: README.md; what follows may be wrong " \
-                      f"(`datagen validate {path}` lists it all)", cmd
+        assert err == f"datagen: warning: dataset {path} is damaged: checksum mismatch: README.md; " \
+                      f"`datagen validate {path}` lists every problem; what follows may be wrong", cmd
 
 
 def test_umbrella_unknown_command():

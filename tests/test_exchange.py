@@ -14,7 +14,7 @@ import pytest
 
 from aerohrl.datagen import cli
 from aerohrl.datagen.build import build
-from aerohrl.datagen.lerobot_format import read_columns
+from aerohrl.datagen.lerobot_reader import read_columns
 from aerohrl.datagen.spec import DatasetSpec
 
 NOISE = (1.0, 0.5, 0.5, 0.5)
@@ -95,7 +95,7 @@ def test_export_bad_input_is_one_line(ds, tmp_path, capsys):
         err = capsys.readouterr().err
         assert msg in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert cli.main(["export", str(tmp_path / "none"), "--format", "ogbench"]) == 2
-    assert "missing" in capsys.readouterr().err
+    assert "no dataset at" in capsys.readouterr().err
 
 
 class _nothing:

@@ -10,8 +10,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from aerohrl import task
-from aerohrl.datagen import lerobot_format as lf
-from aerohrl.datagen.lerobot_format import check_structure, read_columns, read_info, write_dataset
+from aerohrl.datagen.lerobot_reader import read_columns, read_info
+from aerohrl.datagen.lerobot_stats import QUANTILE_KEYS, QUANTILES
+from aerohrl.datagen.lerobot_validate import check_structure
+from aerohrl.datagen.lerobot_writer import write_dataset
 from aerohrl.errors import UserError
 
 REPO = "aerohrl/quadrotor-reach"
@@ -168,7 +170,7 @@ def test_stats_load_and_are_the_data_stats(offline, small):
         np.testing.assert_allclose(st["max"], x.max(0), rtol=0, atol=0)
         np.testing.assert_allclose(st["mean"], x.mean(0), rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(st["std"], x.std(0), rtol=1e-9, atol=1e-12)
-        for q, key in zip(lf.QUANTILES, lf.QUANTILE_KEYS):
+        for q, key in zip(QUANTILES, QUANTILE_KEYS):
             np.testing.assert_allclose(st[key], np.quantile(x, q, axis=0), rtol=1e-9, atol=1e-12, err_msg=f"{k} {key}")
     # per-episode stats columns (lerobot's dataset tools aggregate them)
     t = pq.read_table(root / "meta/episodes/chunk-000/file-000.parquet").to_pydict()

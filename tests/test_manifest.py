@@ -7,7 +7,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from aerohrl.datagen.lerobot_format import write_dataset
+from aerohrl.datagen.lerobot_writer import write_dataset
 from aerohrl.datagen.manifest import MANIFEST_PATH, canonical_json, read_manifest, validate, write_manifest
 from aerohrl.errors import UserError
 

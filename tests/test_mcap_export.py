@@ -8,7 +8,7 @@ from mcap.reader import make_reader
 from scipy.spatial.transform import Rotation
 
 from aerohrl import task
-from aerohrl.datagen.lerobot_format import write_dataset
+from aerohrl.datagen.lerobot_writer import write_dataset
 from aerohrl.datagen.mcap_export import TOPICS, export_mcap
 from aerohrl.errors import UserError
 

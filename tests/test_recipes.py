@@ -14,7 +14,7 @@ from aerohrl.datagen import build as build_mod
 from aerohrl.datagen import reference
 from aerohrl.datagen.build import build, generate, plan_references
 from aerohrl.datagen.expert import GeometricController
-from aerohrl.datagen.lerobot_format import read_columns
+from aerohrl.datagen.lerobot_reader import read_columns
 from aerohrl.datagen.recipes import OUNoise
 from aerohrl.datagen.spec import DatasetSpec, load_spec, version_name
 from aerohrl.errors import UserError

@@ -8,7 +8,11 @@ import pytest
 
 from aerohrl.datagen import build as B
 from aerohrl.datagen import estimate as E
-from aerohrl.datagen import lerobot_format as LF
+from aerohrl.datagen import lerobot_layout as LL
+from aerohrl.datagen import lerobot_stats as LS
+from aerohrl.datagen import lerobot_writer as LW
+from aerohrl.datagen.lerobot_reader import read_columns
+from aerohrl.datagen.lerobot_validate import check_structure
 from aerohrl.datagen.manifest import validate
 from aerohrl.datagen.spec import DatasetSpec
 
@@ -31,28 +35,28 @@ def test_tiny_blocks_stream_the_bytes_of_one_block(tmp_path, monkeypatch):
     spec = DatasetSpec(goals=60, seed=6)
     one = B.build(spec, tmp_path / "one", progress=False, log=lambda m: None)
     pieces = []
-    real = LF.DatasetWriter.append
+    real = LW.DatasetWriter.append
 
     def spy(self, columns, lengths):
         pieces.append(len(lengths))
         return real(self, columns, lengths)
 
-    monkeypatch.setattr(LF.DatasetWriter, "append", spy)
-    monkeypatch.setattr(LF, "ROW_GROUP_SIZE", 1000)  # row groups fill across pieces
+    monkeypatch.setattr(LW.DatasetWriter, "append", spy)
+    monkeypatch.setattr(LW, "ROW_GROUP_SIZE", 1000)  # row groups fill across pieces
     B.ROLLOUT_BLOCK = 7
     many = B.build(spec, tmp_path / "many", progress=False, log=lambda m: None)
     assert len(pieces) == 9 and max(pieces) <= 7 and sum(pieces) == 60
-    monkeypatch.setattr(LF, "ROW_GROUP_SIZE", 1 << 16)
+    monkeypatch.setattr(LW, "ROW_GROUP_SIZE", 1 << 16)
     B.ROLLOUT_BLOCK = 60
     again = B.build(spec, tmp_path / "again", progress=False, log=lambda m: None)
     a, c = _files(one.path), _files(again.path)
     assert sorted(a) == sorted(c) and all(a[k] == c[k] for k in a)
     assert validate(many.path) == []  # other row groups, same contents
     assert not any(".stats-spill" in k for k in _files(many.path))
-    cols_one, cols_many = LF.read_columns(one.path), LF.read_columns(many.path)
+    cols_one, cols_many = read_columns(one.path), read_columns(many.path)
     for k in cols_one:
         assert np.array_equal(cols_one[k], cols_many[k]), k
-    assert (many.path / LF.STATS_PATH).read_bytes() == (one.path / LF.STATS_PATH).read_bytes()
+    assert (many.path / LL.STATS_PATH).read_bytes() == (one.path / LL.STATS_PATH).read_bytes()
 
 
 def test_writer_pieces_give_the_bulk_bytes(tmp_path):
@@ -70,8 +74,8 @@ def test_writer_pieces_give_the_bulk_bytes(tmp_path):
         "count": rng.integers(0, 9, F),
     }
     kw = dict(fps=50, task="t", chunks_size=2, data_files_size_in_mb=1)
-    LF.write_dataset(tmp_path / "bulk", cols, ep, **kw)
-    w = LF.DatasetWriter(tmp_path / "stream", **kw)
+    LW.write_dataset(tmp_path / "bulk", cols, ep, **kw)
+    w = LW.DatasetWriter(tmp_path / "stream", **kw)
     starts = np.r_[0, np.cumsum(lengths)]
     e = 0
     while e < len(lengths):
@@ -84,7 +88,7 @@ def test_writer_pieces_give_the_bulk_bytes(tmp_path):
     assert len([k for k in a if k.startswith("data/")]) >= 3
     for k in a:
         assert a[k] == b[k], k
-    assert LF.check_structure(tmp_path / "stream") == []
+    assert check_structure(tmp_path / "stream") == []
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 8192, 8193, 50_001])
@@ -93,9 +97,9 @@ def test_streamed_statistics_are_bit_identical_to_the_sorted_column(n):
     order: the same floats as mean/std/quantiles of the whole sorted column."""
     rng = np.random.default_rng(n)
     for a in (rng.standard_normal(n).astype(np.float32) * 1e3 + 7, rng.integers(0, 400, n), rng.random(n) < 0.3):
-        ref = LF._global_stats(a)
-        c = np.sort(a.astype(LF._stats_dtype(a.dtype)))
-        got = LF._sorted_stats(lambda i0, i1: c[i0:i1], n)
+        ref = LS.global_stats(a)
+        c = np.sort(a.astype(LS.stats_dtype(a.dtype)))
+        got = LS.sorted_stats(lambda i0, i1: c[i0:i1], n)
         for k in ref:
             if k != "count":
                 assert got[k].tobytes() == np.float64(ref[k][0]).tobytes(), (k, got[k], ref[k])
@@ -106,8 +110,8 @@ def test_streamed_statistics_are_bit_identical_to_the_sorted_column(n):
             "index": np.arange(lengths.sum()), "task_index": np.zeros(lengths.sum(), np.int64),
             "timestamp": (fi / 50.0).astype(np.float32)}
     for k, a in cols.items():
-        ref, got = LF._global_stats(a), LF._index_stats(k, lengths, 50)
-        for s in LF.STAT_KEYS:
+        ref, got = LS.global_stats(a), LS.index_stats(k, lengths, 50)
+        for s in LS.STAT_KEYS:
             assert np.asarray(got[s], dtype=np.float64).tobytes() == np.asarray(ref[s], dtype=np.float64).tobytes(), (k, s)
 
 
