@@ -45,14 +45,13 @@ from gymnasium.vector.utils import batch_space
 from aerohrl import task
 from aerohrl.envs import REACH_ID
 from aerohrl.envs.episodes import hover_states
-from aerohrl.errors import UserError
 from aerohrl.sim.params import GRAVITY
 
 ENV_ID = REACH_ID  # registered by aerohrl.envs.register
 RATE_LIMIT = 20.0  # rad/s, commanded body-rate bound of the action space
 
 
-class NonFiniteAction(UserError, ValueError):
+class NonFiniteAction(ValueError):
     """An action with NaN or inf: refused (a one-line error in the commands that fly policies)."""
 
 

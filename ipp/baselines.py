@@ -45,7 +45,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
-from aerohrl.errors import UserError
 
 from .env import SearchEnv
 from .scoring import info_gain  # noqa: F401  (re-exported: tests, features' docs)
@@ -88,15 +87,15 @@ class PlannerConfig:
                                    # its reward units); 0 = run every generation
 
     def validate(self) -> None:
-        """UserError (one line) for an unknown scoring rule or an out-of-range planner setting."""
+        """ValueError (one line) for an unknown scoring rule or an out-of-range planner setting."""
         if self.scoring not in ("ratio", "additive"):
-            raise UserError(f"unknown scoring {self.scoring!r} (ratio|additive)")
+            raise ValueError(f"unknown scoring {self.scoring!r} (ratio|additive)")
         if not np.isfinite(self.cmaes_tol) or self.cmaes_tol < 0:
-            raise UserError("--cmaes-tol must be a finite number >= 0")
+            raise ValueError("--cmaes-tol must be a finite number >= 0")
         if not np.isfinite(self.cost_weight) or self.cost_weight < 0:
-            raise UserError("--cost-weight must be a finite number >= 0")
+            raise ValueError("--cost-weight must be a finite number >= 0")
         if not np.isfinite(self.info_weight) or self.info_weight < 0:
-            raise UserError("--info-weight must be a finite number >= 0")
+            raise ValueError("--info-weight must be a finite number >= 0")
 
 
 def sequence_score(util: np.ndarray, cost: np.ndarray, cfg: "PlannerConfig") -> np.ndarray:
@@ -139,7 +138,7 @@ class TreePlanner(Planner):
                                  else self.cfg.budget_aware)
         self.depth = int(depth if self.cfg.depth is None else self.cfg.depth)
         if not 1 <= self.depth <= 4:
-            raise UserError(f"planner depth must be in 1..4, got {self.depth}")
+            raise ValueError(f"planner depth must be in 1..4, got {self.depth}")
         self.name = kind
 
     # utility of cells: b belief, c covered, lp previous lam in sequence, lam this prim
@@ -162,7 +161,7 @@ class TreePlanner(Planner):
             return new * (self.cfg.eps + env.plan_prio(b))
         if self.kind == "greedy":
             return self.cfg.f1 * env.plan_prio(b) + self.cfg.f2 * env.plan_entropy(b)
-        raise UserError(f"unknown utility {self.kind!r}")
+        raise ValueError(f"unknown utility {self.kind!r}")
 
     def _ig_gain(self, b, lp, lam):
         """Information gain of sensing with ``lam`` more after ``lp`` earlier in the sequence."""
@@ -322,7 +321,7 @@ class CMAESPlanner(Planner):
         try:
             import cmaes  # noqa: F401
         except ImportError:
-            raise UserError("planner cmaes needs the 'cmaes' package (pip install cmaes)") from None
+            raise ValueError("planner cmaes needs the 'cmaes' package (pip install cmaes)") from None
         self.reset()
 
     def reset(self) -> None:
@@ -432,7 +431,7 @@ class CMAESPlanner(Planner):
 
 
 def make_planner(name: str, env: SearchEnv, cfg: PlannerConfig | None = None) -> Planner:
-    """Planner by name (see :data:`PLANNERS`); unknown names raise UserError."""
+    """Planner by name (see :data:`PLANNERS`); unknown names raise ValueError."""
     cfg = cfg or PlannerConfig()
     if name == "greedy":
         p = TreePlanner(env, cfg, "greedy", 1)
@@ -447,7 +446,7 @@ def make_planner(name: str, env: SearchEnv, cfg: PlannerConfig | None = None) ->
     elif name == "cmaes":
         p = CMAESPlanner(env, cfg)
     else:
-        raise UserError(f"unknown planner {name!r} (choose from "
+        raise ValueError(f"unknown planner {name!r} (choose from "
                         f"{', '.join(PLANNERS + TEACHERS)})")
     p.name = name
     return p

@@ -34,7 +34,6 @@ from functools import lru_cache
 
 import numpy as np
 
-from aerohrl.errors import UserError
 
 from .lattice import Lattice
 from .scoring import detect_prob, info_gain
@@ -80,28 +79,28 @@ class EnvConfig:
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
 
     def validate(self, lattice: Lattice) -> None:
-        """UserError (one line) when the map does not fit the lattice or a setting is out of range."""
+        """ValueError (one line) when the map does not fit the lattice or a setting is out of range."""
         if self.map_size < 2 * lattice.config.footprint_radius + 2:
-            raise UserError(f"map size {self.map_size} is too small for the lattice "
+            raise ValueError(f"map size {self.map_size} is too small for the lattice "
                             f"(needs >= {2 * lattice.config.footprint_radius + 2})")
         if self.map_size > 512:
-            raise UserError(f"map size {self.map_size} is too large (max 512)")
+            raise ValueError(f"map size {self.map_size} is too large (max 512)")
         if not np.isfinite(self.budget) or self.budget < lattice.prim_cost.min():
-            raise UserError(f"budget {self.budget:g} cannot pay for a single primitive "
+            raise ValueError(f"budget {self.budget:g} cannot pay for a single primitive "
                             f"(cheapest costs {lattice.prim_cost.min():.1f})")
         if self.start not in ("center", "random"):
-            raise UserError(f"unknown start {self.start!r} (center|random)")
+            raise ValueError(f"unknown start {self.start!r} (center|random)")
         if not 0.5 < self.found_threshold < 1:
-            raise UserError("found_threshold must be in (0.5, 1)")
+            raise ValueError("found_threshold must be in (0.5, 1)")
         if self.kind not in ("targets", "semantic"):
-            raise UserError(f"unknown world kind {self.kind!r} (targets|semantic)")
+            raise ValueError(f"unknown world kind {self.kind!r} (targets|semantic)")
         if self.kind == "targets" and self.world.map_size != self.map_size:
-            raise UserError("world.map_size must equal map_size")
+            raise ValueError("world.map_size must equal map_size")
         if self.kind == "semantic":
             if self.semantic.map_size != self.map_size:
-                raise UserError("semantic.map_size must equal map_size")
+                raise ValueError("semantic.map_size must equal map_size")
             if not 2 <= self.semantic.n_classes <= 16:
-                raise UserError("semantic worlds need 2..16 classes (background included)")
+                raise ValueError("semantic worlds need 2..16 classes (background included)")
 
 
 def viability(lattice: Lattice, size: int) -> np.ndarray:
@@ -224,7 +223,7 @@ class SearchEnv:
                 start = pick[:, ::-1]
         self.pos = np.asarray(start, np.int64).reshape(N, 2).copy()
         if not self.ok[0][:, self.pos[:, 1], self.pos[:, 0]].any(axis=0).all():
-            raise UserError("a start cell has no valid primitive on this map")
+            raise ValueError("a start cell has no valid primitive on this map")
         self.vert = np.zeros(N, np.int64)
         self.last_action = np.full(N, -1, np.int64)
         self.remaining = np.full(N, float(cfg.budget))
@@ -325,7 +324,7 @@ class SearchEnv:
         if not act.any():
             return self.observe(), terms.sum(1), terms, self.done.copy()
         if np.any((a[act] < 0) | (a[act] >= lat.n_actions)):
-            raise UserError(f"action outside 0..{lat.n_actions - 1}")
+            raise ValueError(f"action outside 0..{lat.n_actions - 1}")
         valid = self.valid_mask()[np.arange(self.n), np.clip(a, 0, lat.n_actions - 1)] & act
         prim = lat.edges[self.vert, np.clip(a, 0, lat.n_actions - 1)]
         inval = act & ~valid

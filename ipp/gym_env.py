@@ -45,15 +45,14 @@ TRAIN_SEED = 7
 def _config(budget, start, map_size) -> EnvConfig:
     from dataclasses import replace
 
-    from aerohrl.errors import UserError
     from .world import WorldConfig
     b = BUDGETS.get(budget, budget) if isinstance(budget, str) else budget
     try:
         b = float(b)
     except (TypeError, ValueError):
-        raise UserError(f"budget must be a number or one of {sorted(BUDGETS)}, got {budget!r}") from None
+        raise ValueError(f"budget must be a number or one of {sorted(BUDGETS)}, got {budget!r}") from None
     if not np.isfinite(b) or b <= 0:
-        raise UserError(f"budget must be > 0, got {budget!r}")
+        raise ValueError(f"budget must be > 0, got {budget!r}")
     return replace(EnvConfig(), budget=b, start=start, map_size=map_size,
                    world=WorldConfig(map_size=map_size))
 

@@ -64,7 +64,6 @@ from pathlib import Path
 
 import numpy as np
 
-from aerohrl.errors import UserError
 
 from aerohrl.atomic import atomic_path
 
@@ -95,22 +94,22 @@ class LatticeConfig:
     vertex_speed: float = 0.9    # X is the disk |v| <= vertex_speed * v_max (turns need room)
 
     def validate(self) -> None:
-        """UserError (one line) for an inconsistent lattice configuration (counts, speeds,
+        """ValueError (one line) for an inconsistent lattice configuration (counts, speeds,
         durations, footprint, hover moves)."""
         if self.n_vertices < 1:
-            raise UserError("lattice: n_vertices must be >= 1")
+            raise ValueError("lattice: n_vertices must be >= 1")
         if self.v_max <= 0 or self.a_max <= 0 or self.rho <= 0:
-            raise UserError("lattice: v_max, a_max and rho must be positive")
+            raise ValueError("lattice: v_max, a_max and rho must be positive")
         if self.reach < 1 or self.max_edges < 1:
-            raise UserError("lattice: reach and max_edges must be >= 1")
+            raise ValueError("lattice: reach and max_edges must be >= 1")
         if not (0 < self.t_min < self.t_max) or self.t_step <= 0:
-            raise UserError("lattice: need 0 < t_min < t_max and t_step > 0")
+            raise ValueError("lattice: need 0 < t_min < t_max and t_step > 0")
         if not 0 < self.vertex_speed <= 0.99:
-            raise UserError("lattice: vertex_speed must be in (0, 0.99]")
+            raise ValueError("lattice: vertex_speed must be in (0, 0.99]")
         if self.footprint_radius < 0 or self.sense_dt <= 0:
-            raise UserError("lattice: footprint_radius >= 0 and sense_dt > 0 required")
+            raise ValueError("lattice: footprint_radius >= 0 and sense_dt > 0 required")
         if any(m < 1 or m > self.reach for m in self.hover_moves):
-            raise UserError("lattice: hover_moves must lie in 1..reach")
+            raise ValueError("lattice: hover_moves must lie in 1..reach")
 
 
 # Semantic setting (4 m cells): 5 cells/s = 20 m/s, reach 10 cells, 15 x 15-cell footprint
@@ -376,7 +375,7 @@ def build_lattice(cfg: LatticeConfig | None = None) -> Lattice:
     verts, disp = select_vertices(cfg)
     I, J, D, T, C = _candidates(cfg, verts)
     if len(I) == 0:
-        raise UserError("lattice: no feasible primitive; raise t_max, v_max or a_max")
+        raise ValueError("lattice: no feasible primitive; raise t_max, v_max or a_max")
     chosen = _select_edges(cfg, verts, I, J, D, T, C)
     # order primitives by (from vertex, cost, displacement). Costs are rounded first: mirror-image
     # primitives have equal costs up to the last bit, and which bit wins depends on the machine's
@@ -440,36 +439,36 @@ def save_lattice(lat: Lattice, path: str | os.PathLike) -> Path:
 
 
 def load_lattice(path: str | os.PathLike) -> Lattice:
-    """Read and validate a lattice file; any defect raises a one-line UserError."""
+    """Read and validate a lattice file; any defect raises a one-line ValueError."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"lattice file not found: {path}")
+        raise ValueError(f"lattice file not found: {path}")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
     except Exception as e:  # zipfile.BadZipFile, ValueError, OSError, ...
-        raise UserError(f"{path}: not a lattice file ({type(e).__name__})") from None
+        raise ValueError(f"{path}: not a lattice file ({type(e).__name__})") from None
     try:
         meta = json.loads(str(data.pop("meta")))
     except Exception:
-        raise UserError(f"{path}: lattice file has no readable 'meta' entry") from None
+        raise ValueError(f"{path}: lattice file has no readable 'meta' entry") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise UserError(f"{path}: not a {FORMAT} file")
+        raise ValueError(f"{path}: not a {FORMAT} file")
     if meta.get("version") != VERSION:
-        raise UserError(f"{path}: lattice format version {meta.get('version')} "
+        raise ValueError(f"{path}: lattice format version {meta.get('version')} "
                         f"is not supported (expected {VERSION})")
     for k, (kind, nd) in _ARRAYS.items():
         if k not in data:
-            raise UserError(f"{path}: lattice file lacks array '{k}'")
+            raise ValueError(f"{path}: lattice file lacks array '{k}'")
         a = data[k]
         if a.ndim != nd or a.dtype.kind not in (kind + ("u" if kind == "i" else "")):
-            raise UserError(f"{path}: lattice array '{k}' has shape {a.shape} / dtype {a.dtype}")
+            raise ValueError(f"{path}: lattice array '{k}' has shape {a.shape} / dtype {a.dtype}")
     try:
         cfg_d = dict(meta["config"])
         cfg_d["hover_moves"] = tuple(cfg_d.get("hover_moves", ()))
         cfg = LatticeConfig(**cfg_d)
     except Exception:
-        raise UserError(f"{path}: lattice 'meta' has an invalid config") from None
+        raise ValueError(f"{path}: lattice 'meta' has an invalid config") from None
     P = len(data["prim_T"])
     V = len(data["vertices"])
     e = data["edges"]
@@ -495,7 +494,7 @@ def load_lattice(path: str | os.PathLike) -> Lattice:
     ]
     for ok, msg in checks:
         if not ok:
-            raise UserError(f"{path}: {msg}")
+            raise ValueError(f"{path}: {msg}")
     return Lattice(cfg, **{k: data[k] for k in _ARRAYS})
 
 

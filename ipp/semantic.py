@@ -46,7 +46,7 @@ Raster file formats for :func:`load_class_raster`:
 
 The raster is resampled to ``map_size`` x ``map_size`` by nearest-neighbour (a raster
 exported at 4 m per cell over 1024 m is already 256 x 256). Any defect raises a
-one-line :class:`~aerohrl.errors.UserError`.
+one-line ``ValueError``.
 """
 
 from __future__ import annotations
@@ -60,7 +60,6 @@ from typing import Sequence
 import numpy as np
 from scipy.ndimage import gaussian_filter, shift as nd_shift
 
-from aerohrl.errors import UserError
 
 CLASSES = ("background", "building", "road", "vegetation", "water")
 # RGB palette for PNG rasters (and the figures): one colour per class
@@ -150,7 +149,7 @@ def _from_png(path: Path, n_classes: int) -> np.ndarray:
     try:
         img = plt.imread(path)
     except Exception as e:
-        raise UserError(f"{path}: cannot read PNG ({type(e).__name__})") from None
+        raise ValueError(f"{path}: cannot read PNG ({type(e).__name__})") from None
     if img.dtype.kind == "f":
         img8 = np.rint(np.asarray(img, float) * 255).astype(np.int64)
     else:
@@ -160,16 +159,16 @@ def _from_png(path: Path, n_classes: int) -> np.ndarray:
     if img8.ndim == 3 and img8.shape[2] in (3, 4):
         rgb = img8[..., :3]
         if img8.shape[2] == 4 and np.any(img8[..., 3] < 255):
-            raise UserError(f"{path}: transparent pixels in the class raster")
+            raise ValueError(f"{path}: transparent pixels in the class raster")
         if np.all(rgb == rgb[..., :1]):  # grey stored as RGB
             return rgb[..., 0]
         match = np.all(rgb[:, :, None, :] == PALETTE[None, None, :n_classes].astype(np.int64), -1)
         if not match.any(-1).all():
             bad = rgb[~match.any(-1)][0]
-            raise UserError(f"{path}: colour {tuple(int(v) for v in bad)} is not in the class "
+            raise ValueError(f"{path}: colour {tuple(int(v) for v in bad)} is not in the class "
                             f"palette (see aerohrl.ipp.semantic.PALETTE)")
         return match.argmax(-1)
-    raise UserError(f"{path}: PNG must be greyscale or RGB(A), got shape {img8.shape}")
+    raise ValueError(f"{path}: PNG must be greyscale or RGB(A), got shape {img8.shape}")
 
 
 def load_class_raster(path: str | os.PathLike, size: int = 256,
@@ -177,7 +176,7 @@ def load_class_raster(path: str | os.PathLike, size: int = 256,
     """Read a class raster (``.npy``, ``.npz``, ``.png``; module docstring) -> (size, size) int8."""
     path = Path(path)
     if not path.is_file():
-        raise UserError(f"class raster {path} not found")
+        raise ValueError(f"class raster {path} not found")
     ext = path.suffix.lower()
     if ext == ".png":
         a = _from_png(path, n_classes)
@@ -185,7 +184,7 @@ def load_class_raster(path: str | os.PathLike, size: int = 256,
         try:
             z = np.load(path, allow_pickle=False)
         except Exception as e:
-            raise UserError(f"{path}: not a numpy file ({type(e).__name__})") from None
+            raise ValueError(f"{path}: not a numpy file ({type(e).__name__})") from None
         if ext == ".npz":
             with z:
                 keys = list(z.files)
@@ -194,28 +193,28 @@ def load_class_raster(path: str | os.PathLike, size: int = 256,
                 elif len(keys) == 1:
                     a = z[keys[0]]
                 else:
-                    raise UserError(f"{path}: no 'classes' array (found {', '.join(keys) or 'none'})")
+                    raise ValueError(f"{path}: no 'classes' array (found {', '.join(keys) or 'none'})")
         else:
             a = z
     else:
-        raise UserError(f"{path}: unsupported raster type {ext or '(none)'} (.npy, .npz, .png)")
+        raise ValueError(f"{path}: unsupported raster type {ext or '(none)'} (.npy, .npz, .png)")
     a = np.asarray(a)
     if a.ndim != 2:
-        raise UserError(f"{path}: class raster must be 2-D, got shape {a.shape}")
+        raise ValueError(f"{path}: class raster must be 2-D, got shape {a.shape}")
     if min(a.shape) < 8:
-        raise UserError(f"{path}: class raster {a.shape[1]}x{a.shape[0]} is too small (>= 8x8)")
+        raise ValueError(f"{path}: class raster {a.shape[1]}x{a.shape[0]} is too small (>= 8x8)")
     if a.dtype.kind == "f":
         if not np.all(np.isfinite(a)) or not np.all(a == np.round(a)):
-            raise UserError(f"{path}: class raster must hold integer class indices")
+            raise ValueError(f"{path}: class raster must hold integer class indices")
     elif a.dtype.kind not in "iub":
-        raise UserError(f"{path}: class raster must hold integer class indices, got {a.dtype}")
+        raise ValueError(f"{path}: class raster must hold integer class indices, got {a.dtype}")
     a = a.astype(np.int64)
     if a.min() < 0 or a.max() >= n_classes:
-        raise UserError(f"{path}: class indices must lie in 0..{n_classes - 1} "
+        raise ValueError(f"{path}: class indices must lie in 0..{n_classes - 1} "
                         f"({', '.join(CLASSES[:n_classes])}), found {a.min()}..{a.max()}")
     a = _resample(a, size).astype(np.int8)
     if not (a > 0).any():
-        raise UserError(f"{path}: the raster has no feature cells (all background)")
+        raise ValueError(f"{path}: the raster has no feature cells (all background)")
     return a
 
 

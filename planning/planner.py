@@ -67,7 +67,6 @@ import numpy as np
 import torch
 
 from aerohrl import task
-from aerohrl.errors import UserError
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
@@ -94,7 +93,7 @@ def candidates_from_dataset(data: Dataset, max_candidates: int = 0, seed: int = 
     """The dataset's achieved goals (all, or a seeded subset of ``max_candidates``)."""
     F = len(data)
     if F == 0:
-        raise UserError("the dataset holds no achieved goals to plan with")
+        raise ValueError("the dataset holds no achieved goals to plan with")
     idx = np.arange(F)
     if 0 < max_candidates < F:
         idx = np.sort(np.random.default_rng([seed, 7]).choice(F, size=int(max_candidates), replace=False))
@@ -146,13 +145,13 @@ class Planner:
     def __init__(self, algo, candidates: Candidates, *, n: int = 1, alpha: float = DEFAULT_ALPHA, beam: int = 8,
                  chunk: int = DEFAULT_CHUNK, min_leg: float = 0.0):
         if len(candidates) == 0:
-            raise UserError("the planner's candidate set is empty")
+            raise ValueError("the planner's candidate set is empty")
         if n < 1:
-            raise UserError(f"the number of intermediate goals must be >= 1, got {n}")
+            raise ValueError(f"the number of intermediate goals must be >= 1, got {n}")
         if beam < 1:
-            raise UserError(f"beam width must be >= 1, got {beam}")
+            raise ValueError(f"beam width must be >= 1, got {beam}")
         if not min_leg >= 0:
-            raise UserError(f"the shortest first leg must be >= 0 m, got {min_leg}")
+            raise ValueError(f"the shortest first leg must be >= 0 m, got {min_leg}")
         self.algo, self.cand, self.n, self.alpha, self.beam, self.chunk = algo, candidates, int(n), float(alpha), int(beam), int(chunk)
         # candidates closer than this to the start are no intermediate goals (0: every candidate)
         self.min_leg = float(min_leg)
@@ -274,11 +273,11 @@ def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_r
     from aerohrl.datagen.goals import check_range, flat_attitude
 
     if isinstance(C, bool) or int(C) != C or C < 1:
-        raise UserError(f"the number of synthetic offsets must be a positive integer, got {C!r}")
+        raise ValueError(f"the number of synthetic offsets must be a positive integer, got {C!r}")
     if not (np.isfinite(pos_hi) and pos_hi > 0):
-        raise UserError(f"the offsets' position range must be > 0 m, got {pos_hi}")
+        raise ValueError(f"the offsets' position range must be > 0 m, got {pos_hi}")
     if not 0 <= toward <= 1:
-        raise UserError(f"the fraction of offsets toward the goal must be in [0, 1], got {toward}")
+        raise ValueError(f"the fraction of offsets toward the goal must be in [0, 1], got {toward}")
     v_lo, v_hi = check_range("vel_range", vel_range)
     a_lo, a_hi = check_range("acc_range", acc_range)
     t_lo, t_hi = check_range("toward_range", toward_range, non_negative=True)
@@ -324,11 +323,11 @@ class ChainPlanner:
     def __init__(self, algo, offsets: Offsets, *, n: int = 1, alpha: float = DEFAULT_ALPHA, beam: int = 8,
                  chunk: int = DEFAULT_CHUNK):
         if len(offsets) == 0:
-            raise UserError("the chain planner's offset set is empty")
+            raise ValueError("the chain planner's offset set is empty")
         if n < 1:
-            raise UserError(f"the number of intermediate goals must be >= 1, got {n}")
+            raise ValueError(f"the number of intermediate goals must be >= 1, got {n}")
         if beam < 1:
-            raise UserError(f"beam width must be >= 1, got {beam}")
+            raise ValueError(f"beam width must be >= 1, got {beam}")
         self.algo, self.n, self.alpha, self.beam, self.chunk = algo, int(n), float(alpha), int(beam), int(chunk)
         self.device = next(algo.parameters()).device
         self.off = offsets.to(self.device)
@@ -344,7 +343,7 @@ class ChainPlanner:
         """Plan ``n`` (default ``self.n``) intermediate goals from ``s0`` (E, 18) to ``G`` (E, 15)."""
         n = self.n if n is None else int(n)
         if n < 1:
-            raise UserError(f"the number of intermediate goals must be >= 1, got {n}")
+            raise ValueError(f"the number of intermediate goals must be >= 1, got {n}")
         s0 = torch.as_tensor(np.asarray(s0), dtype=torch.float32, device=self.device)
         G = torch.as_tensor(np.asarray(G), dtype=torch.float32, device=self.device)
         E, C = len(s0), len(self.off)

@@ -37,7 +37,6 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from aerohrl.errors import UserError
 
 GRAVITY = 9.81  # m/s^2, SPEC.md "Units and frames"
 
@@ -162,8 +161,8 @@ PRESETS: dict[str, QuadrotorParams] = {
 
 
 def get_preset(name: str) -> QuadrotorParams:
-    """The preset called ``name``; :class:`~aerohrl.errors.UserError` if there is none."""
+    """The preset called ``name``; ``ValueError`` if there is none."""
     try:
         return PRESETS[name]
     except (KeyError, TypeError):
-        raise UserError(f"unknown vehicle preset {name!r} (choose from: {', '.join(sorted(PRESETS))})") from None
+        raise ValueError(f"unknown vehicle preset {name!r} (choose from: {', '.join(sorted(PRESETS))})") from None

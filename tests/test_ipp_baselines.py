@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from aerohrl.errors import UserError
 from aerohrl.ipp.baselines import PLANNERS, PlannerConfig, info_gain, make_planner
 from aerohrl.ipp.env import EnvConfig
 from aerohrl.ipp.factory import make_env
@@ -70,9 +69,9 @@ def test_depth_three_matches_chunking(lat):
 
 def test_unknown_planner_and_depth(lat):
     env, _ = make_env(EnvConfig(), lat, 0, [0])
-    with pytest.raises(UserError, match="unknown planner"):
+    with pytest.raises(ValueError, match="unknown planner"):
         make_planner("astar", env)
-    with pytest.raises(UserError, match="depth"):
+    with pytest.raises(ValueError, match="depth"):
         make_planner("dp", env, PlannerConfig(depth=9))
 
 
@@ -109,7 +108,7 @@ def test_additive_scoring():
     np.testing.assert_allclose(sequence_score(u, c, PlannerConfig(scoring="additive")), [2.0, 3.0])
     np.testing.assert_allclose(
         sequence_score(u, c, PlannerConfig(scoring="additive", cost_weight=1.0)), [1.0, 0.0])
-    with pytest.raises(UserError, match="scoring"):
+    with pytest.raises(ValueError, match="scoring"):
         PlannerConfig(scoring="bogus").validate()
 
 
@@ -144,5 +143,5 @@ def test_detect_info_weight_adds_information_gain(lat):
                                plain._util(b, None, lp, lam) + 0.5 * ig, atol=1e-12)
     assert ig[0] > 0 and plain._util(b, None, lp, lam)[0] < 1e-3  # a low-belief look: IG only
     for w in (-1.0, float("nan")):
-        with pytest.raises(UserError, match="--info-weight"):
+        with pytest.raises(ValueError, match="--info-weight"):
             PlannerConfig(info_weight=w).validate()

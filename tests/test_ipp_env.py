@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 import aerohrl.ipp.env as envmod
-from aerohrl.errors import UserError
 from aerohrl.ipp.env import EnvConfig, SearchEnv, TERMS
 from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
@@ -124,7 +123,7 @@ def test_invalid_primitive_penalised_and_agent_stays(lat):
     _, r, terms, _ = env.step(np.array([bad[0]]))
     assert terms[0, 4] == -1.0 and terms[0, 1] == 0.0
     assert env.pos[0].tolist() == [0, 0]
-    with pytest.raises(UserError):
+    with pytest.raises(ValueError):
         env.step(np.array([lat.n_actions]))
 
 
@@ -177,11 +176,11 @@ def test_worlds_seeded_and_kl():
 
 
 def test_bad_configs(lat):
-    with pytest.raises(UserError, match="budget"):
+    with pytest.raises(ValueError, match="budget"):
         SearchEnv(EnvConfig(budget=1.0), lat)
-    with pytest.raises(UserError, match="too small"):
+    with pytest.raises(ValueError, match="too small"):
         SearchEnv(EnvConfig(map_size=3, world=WorldConfig(map_size=3)), lat)
-    with pytest.raises(UserError):
+    with pytest.raises(ValueError):
         SearchEnv(EnvConfig(start="corner"), lat)
 
 

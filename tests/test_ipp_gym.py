@@ -87,10 +87,9 @@ def test_vector_env_batched_autoreset_loop():
 
 
 def test_bad_budget_is_one_line_error():
-    from aerohrl.errors import UserError
-    with pytest.raises(UserError, match="budget must be > 0"):
+    with pytest.raises(ValueError, match="budget must be > 0"):
         IPPSearchVectorEnv(2, budget=0)
-    with pytest.raises(UserError, match="budget must be a number"):
+    with pytest.raises(ValueError, match="budget must be a number"):
         IPPSearchVectorEnv(2, budget="huge")
     assert IPPSearchVectorEnv(1, budget="tight").cfg.budget == 5000.0
 

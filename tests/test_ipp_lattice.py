@@ -5,7 +5,6 @@ import json
 import numpy as np
 import pytest
 
-from aerohrl.errors import UserError
 from aerohrl.ipp.lattice import (DEFAULT_PATH, LatticeConfig, build_lattice, dispersion,
                                  jerk_cost, load_lattice, peak_speed_accel, poly_eval,
                                  save_lattice, transfer_cost, velocity_samples)
@@ -179,15 +178,15 @@ def test_malformed_lattice_files(small, tmp_path, case):
         _rewrite(good, bad, meta=np.array("{not json"))
     elif case == "shape":
         _rewrite(good, bad, prim_T=small.prim_T[:-1])
-    with pytest.raises(UserError) as ei:
+    with pytest.raises(ValueError) as ei:
         load_lattice(bad)
     assert "\n" not in str(ei.value)
 
 
 def test_bad_config():
-    with pytest.raises(UserError):
+    with pytest.raises(ValueError):
         build_lattice(LatticeConfig(n_vertices=0))
-    with pytest.raises(UserError):
+    with pytest.raises(ValueError):
         build_lattice(LatticeConfig(hover_moves=(9,), reach=4))
 
 

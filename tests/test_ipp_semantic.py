@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 
 import aerohrl.ipp.semantic_env as semenv
-from aerohrl.errors import UserError
 from aerohrl.ipp.baselines import PLANNERS, TEACHERS, PlannerConfig, info_gain, make_planner
 from aerohrl.ipp.cli import main
 from aerohrl.ipp.env import TERMS, semantic_config
@@ -190,7 +189,7 @@ def test_raster_loader_errors_one_line(tmp_path, case, msg):
         f.write_bytes(b"garbage")
     elif case == "tiny":
         np.save(f, np.ones((4, 40), int))
-    with pytest.raises(UserError) as ei:
+    with pytest.raises(ValueError) as ei:
         load_class_raster(f)
     assert msg in str(ei.value) and "\n" not in str(ei.value)
 

@@ -6,7 +6,6 @@ import math
 import numpy as np
 import pytest
 
-from aerohrl.errors import UserError
 from aerohrl.sim import GRAVITY, PRESETS, BatchedQuadrotor, get_preset
 from aerohrl.sim import rotations as rot
 
@@ -31,7 +30,7 @@ def test_presets_and_params():
         json.dumps(p.to_dict())
         # mixer: rotor 1 at (+,+) -> positive roll moment r x f = f (y, -x)
         np.testing.assert_allclose(p.mixer[1:3, 0], p.arm_length * 0.70710678118 * np.array([1, -1]))
-    with pytest.raises(UserError, match="unknown vehicle preset 'nope'"):
+    with pytest.raises(ValueError, match="unknown vehicle preset 'nope'"):
         get_preset("nope")
 
 
