@@ -1,4 +1,4 @@
-"""The reach task's vocabulary, shared by datagen, algorithms and eval (SPEC.md).
+"""The reach task's vocabulary, shared by datagen, algorithms and eval (docs/spec.md).
 
 Layouts (SI units, world frame z-up, rotation matrices flattened row-major):
 
@@ -12,7 +12,7 @@ Translation invariance (thesis §3.4.2): the networks see the state without its
 position, ``o = [v, R, w]`` (15), and the goal relative to the current position,
 ``[p_g - p, v_g, R_g]`` (15).
 
-Goal reached (thesis §3.4.2, SPEC.md): ``||p - p_g|| <= 0.15 m``,
+Goal reached (thesis §3.4.2, docs/spec.md): ``||p - p_g|| <= 0.15 m``,
 ``||v - v_g|| <= 0.35 m/s`` and the geodesic angle between ``R`` and ``R_g``
 ``<= 0.15 rad``; near success scales every tolerance by 2.5.
 

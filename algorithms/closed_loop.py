@@ -2,7 +2,7 @@
 
 The rollout itself is the evaluation harness's (:func:`aerohrl.envs.rollout.rollout`,
 through the Gymnasium vector environment), so training-time and ``aerohrl eval``
-numbers come from the same code. Reach-Desired (SPEC.md "Evaluation tasks"): every
+numbers come from the same code. Reach-Desired (docs/spec.md "Evaluation tasks"): every
 vehicle starts at hover at the origin, gets one of the dataset's desired goals and
 flies the policy for ``horizon`` steps; success = the goal-reached test holds at some
 step (the episode ends there), near success = the same with every tolerance x 2.5.

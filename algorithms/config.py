@@ -2,15 +2,14 @@
 
 ``thesis`` is the setting of thesis §3.5 (MLP 512-2048-2048-512 for actor and critics,
 batch 1048, 2M steps, Adam 3e-4, float32, TD3-BC alpha 2.5; a GPU job). ``cpu`` (the
-dataclass defaults) trains GCSL on one CPU core in about 12 minutes: actor 512-512-512,
-critics 128-128, batch 512, 30k steps under bf16 autocast where the CPU multiplies bf16
-natively and float32 elsewhere (``amp = "auto"``, aerohrl.hardware), actor learning rate 1e-3 with cosine decay, an EMA of the policy
-weights (0.999), critic targets bounded below by the data's discounted return,
+dataclass defaults) trains GCSL on one CPU core: actor 512-512-512, critics 128-128,
+batch 512, 30k steps under bf16 autocast where the CPU multiplies bf16 natively and float32
+elsewhere (``amp = "auto"``, aerohrl.hardware), actor learning rate 1e-3 with cosine
+decay, an EMA of the policy weights (0.999), critic targets bounded below by the data's discounted return,
 relabelling probability 0.05 (GCSL 0.01, ``ALGO_PRESETS``) with a geometric offset of
 mean 30 steps, TD3-BC and TD3-AWBC alpha 0.001 annealed linearly to 0 with an actor
-update every critic update (issue 11's sweep, algorithms/README.md "TD3-BC sweep"), and
-a checkpoint every 1,000 steps.
-Measured on the 250-goal dataset over 3 seeds: README "Results" (``make results``).
+update every critic update (chosen by the TD3-BC sweep, docs/results/ "algorithms
+sweeps"), and a checkpoint every 1,000 steps. What these presets reach: docs/results/.
 Every field maps one to one to a ``train`` flag (``batch_size`` -> ``--batch-size``);
 a flag given on the command line overrides the preset.
 """
@@ -76,17 +75,17 @@ class TrainConfig:
     num_critics: int = 5
     # TD3-BC / TD3-AWBC
     # TD3-BC's lambda numerator (thesis preset: 2.5, the TD3-BC paper's). The cpu preset's
-    # alpha 0.001, linear schedule and policy delay 1 won issue 11's sweep on 2 seeds
-    # (algorithms/README.md "TD3-BC sweep": Reach-Desired 91.3 % against 82.8 % constant)
+    # alpha 0.001, linear schedule and policy delay 1 won the TD3-BC sweep (docs/results/
+    # "algorithms sweeps")
     alpha: float = 0.001
     policy_noise: float = 0.2  # in normalised action units ([-1, 1])
     noise_clip: float = 0.5
     policy_delay: int = 1  # thesis preset: 2 (TD3's)
     # TD3-BC / TD3-AWBC: "linear" anneals alpha to 0 over the run (the Q-term fades, BC stays)
     alpha_schedule: str = "linear"
-    # TD3-AWBC: weight exp(A / temperature). The cpu preset's 10 (on A / std(A)) won issue 11's
-    # ablation on 2 seeds (algorithms/README.md "TD3-AWBC"): weights 1 +- 0.1; temperature 1
-    # (weights 1 +- 2) fell to 37.5 % Reach-Desired, 3 to 69 %, 10 reached 92 %
+    # TD3-AWBC: weight exp(A / temperature). The cpu preset's 10 (on A / std(A), weights near 1)
+    # won the temperature ablation (docs/results/ "algorithms sweeps"); lower temperatures
+    # weight a few transitions heavily and lost
     awr_temperature: float = 10.0
     awr_max_weight: float = 100.0
     # TD3-AWBC: "std" divides the advantage by its batch standard deviation before the
@@ -136,8 +135,8 @@ PRESETS: dict[str, dict] = {
 }
 
 # Per-algorithm values of a preset, applied over the preset and under the flags (OGBench and
-# CORL keep one config per agent the same way). GCSL's relabelling probability: issue 11's
-# sweep (algorithms/README.md "GCSL: what bounds Reach-Desired") found delta the bound on
+# CORL keep one config per agent the same way). GCSL's relabelling probability: the GCSL
+# sweep (docs/results/ "algorithms sweeps") found delta the bound on
 # Reach-Desired, 0.01 the value that keeps Reach-Intermediate; the actor-critic algorithms
 # keep 0.05, the value their sweeps and 3-seed results were measured at.
 ALGO_PRESETS: dict[str, dict[str, dict]] = {

@@ -83,7 +83,7 @@ class Dataset:
 
     def rest_start_episodes(self) -> torch.Tensor:
         """Indices (episode order) of one episode per desired goal of rho_D: Reach-Desired's
-        goal set (SPEC.md: from rest in hover at the origin). Every episode of a default
+        goal set (docs/spec.md: from rest in hover at the origin). Every episode of a default
         dataset; of a recipe with ``rollouts_per_goal = k`` every k-th (the flights of a
         goal are contiguous); never the continuations, which a ``datagen build
         --continuations M`` dataset appends as its last M episodes (its spec records both)."""

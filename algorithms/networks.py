@@ -129,7 +129,7 @@ def make_critic_loss(
 ) -> TD3BCLoss:
     """torchrl's ``TD3BCLoss`` over an ensemble of ``num_critics`` critics, each with its
     own initialisation and target network, targets ``clip(r + gamma (1 - done)
-    min_j Q'_j(s', a', g), 0, 1)`` (SPEC.md; the minimum over *all* critics is exactly
+    min_j Q'_j(s', a', g), 0, 1)`` (docs/spec.md; the minimum over *all* critics is exactly
     what TD3BCLoss computes), squared error.
 
     The next action ``a'`` is the target actor's action plus clipped noise (TD3-BC) or,

@@ -11,7 +11,7 @@ at success; running out of expert data is a truncation, not a termination).
 Why not ``torchrl.data.HERReplayBuffer``: its "future" offset starts at 0 (the goal can
 be the transition's own achieved goal, not a strictly later one), it relabels a fixed
 leading fraction of each batch instead of a Bernoulli(delta) choice per transition, and
-it recomputes only the reward; Alg. 2 and SPEC.md ask for the strictly-later,
+it recomputes only the reward; Alg. 2 and docs/spec.md ask for the strictly-later,
 per-transition version, which is three tensor ops here.
 """
 

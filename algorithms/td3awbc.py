@@ -7,7 +7,7 @@ regression term (thesis §3.5.1, "inspired from" Yang et al. 2022, WGCSL):
 
 With ``awr_normalize = "std"`` (the cpu preset) A is divided by its batch standard
 deviation first, as AWAC/IQL-style implementations scale advantages: the critics' values
-lie in [0, 1], so raw advantages are ~1e-3 and exp(A / 1) is 1 +- 0.003 (issue 11: the
+lie in [0, 1], so raw advantages are ~1e-3 and exp(A / 1) is 1 +- 0.003 (the
 weighting then does nothing). The logged ``awr_weight_std`` and ``awr_clipped`` (share of
 weights at the clip) show whether it does something.
 

@@ -7,7 +7,7 @@
   :class:`~aerohrl.algorithms.networks.ClippedTD0Estimator` plugged into the loss.
 * actor (every ``policy_delay`` steps): ``-lambda Q_0(s, pi(s)) + (pi(s) - a)^2``,
   ``lambda = alpha / mean|Q_0|``; ``alpha_schedule = "linear"`` anneals alpha to 0 over
-  the run (an option of issue 11's sweep: the Q-term shapes the start, BC the end). ``TD3BCLoss``'s actor reads only the first critic, as
+  the run (an option of the TD3-BC sweep: the Q-term shapes the start, BC the end). ``TD3BCLoss``'s actor reads only the first critic, as
   the original TD3-BC reads Q1; kept as is (the 5 critics share targets, so Q_0 is one
   member of the same ensemble).
 * targets (actor and critics): ``SoftUpdate`` on the delayed steps, as in TD3.

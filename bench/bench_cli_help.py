@@ -1,4 +1,4 @@
-"""How long `--help` takes for every command (target, issue 16: under 1 s each).
+"""How long `--help` takes for every command (target: under 1 s each).
 
     python bench/bench_cli_help.py              # best of 3 runs per command
     python bench/bench_cli_help.py --repeat 5

@@ -11,9 +11,9 @@ maximum over the builds so far, rows smallest first; now that a build's peak no 
 grows with the goals, run one size per invocation to see each size's own); ``cpu s`` is
 the child's user + system time, steadier than the wall time on a loaded machine.
 
-Targets (issue 2): 250 goals <= 10 s; 10,000 goals <= 3 min, cost linear in goals.
+Targets: 250 goals <= 10 s; 10,000 goals <= 3 min, cost linear in goals.
 
-    python bench/bench_datagen.py --goals 20000 --workers 1 2     # sharded builds (issue 14)
+    python bench/bench_datagen.py --goals 20000 --workers 1 2     # sharded builds
 
 ``--workers`` runs every size with each worker count (``datagen build --workers N``:
 rollout blocks of 8,192 episodes flown in N processes); the peak RSS is then also the

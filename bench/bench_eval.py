@@ -1,5 +1,5 @@
 """Evaluation speed: seconds for 250 Reach-Desired episodes (500 steps each) of a
-cpu-preset policy in the batched closed loop (issue 4 target: <= 20 s on 2 cores).
+cpu-preset policy in the batched closed loop (target: <= 20 s on 2 cores).
 
     .venv/bin/python bench/bench_eval.py                         # random cpu-preset GCSL weights
     .venv/bin/python bench/bench_eval.py --checkpoint runs/<run>/checkpoints/step-N.pt --dataset <dataset>

@@ -1,4 +1,4 @@
-"""Throughput of the batched simulator (SPEC.md "Vehicle and simulator").
+"""Throughput of the batched simulator (docs/spec.md "Vehicle and simulator").
 
     .venv/bin/python bench/bench_sim.py [--batches 1 64 1024 4096 16384] [--seconds 1.0]
 

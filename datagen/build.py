@@ -1,6 +1,6 @@
 """``datagen build``: goals -> minimum-time references -> expert rollouts -> dataset.
 
-The pipeline of thesis §3.4.1 with the readings of SPEC.md "Expert data":
+The pipeline of thesis §3.4.1 with the readings of docs/spec.md "Expert data":
 
 1. desired goals rho_D sampled from the spec's ranges (seeded); the goal attitude
    follows from flatness (:mod:`aerohrl.datagen.goals`);
@@ -372,7 +372,7 @@ def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.n
 
     A start is a recorded frame of a rest-start flight, drawn uniformly (``ep``, ``k``,
     ``state`` of all such frames): the vehicle's state there moved to the origin
-    (translation invariance, SPEC.md), and its new reference begins where that flight's
+    (translation invariance, docs/spec.md), and its new reference begins where that flight's
     reference stood at that time (position relative to the vehicle, velocity,
     acceleration), so the expert's collective thrust continues smoothly (its jerk, and
     with it the feed-forward body rates, starts afresh: degree 5 has no condition left). The goal is a fresh
@@ -530,7 +530,7 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
 
 
 def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
-    """The LeRobot per-frame features (float32 / bool), SPEC.md "Expert data"."""
+    """The LeRobot per-frame features (float32 / bool), docs/spec.md "Expert data"."""
     last = np.r_[data.episode_index[1:] != data.episode_index[:-1], True]
     return _columns(data.state, data.action, data.goal_vec[data.episode_index], data.next_state, data.success, last,
                     data.action_expert)

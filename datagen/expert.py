@@ -1,7 +1,7 @@
 r"""The expert: Lee/Mellinger geometric controller with a CTBR output (thesis §3.4.1).
 
 Tracks a flat-output reference ``(p, v, a, j)(t)`` with yaw ``psi`` and returns the
-simulator's action ``[c, wx, wy, wz]`` (SPEC.md "Vehicle and simulator"). Batched over
+simulator's action ``[c, wx, wy, wz]`` (docs/spec.md "Vehicle and simulator"). Batched over
 N vehicles; float64 NumPy.
 
 Equations (Lee, Leok & McClamroch, CDC 2010; Mellinger & Kumar, ICRA 2011):

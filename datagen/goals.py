@@ -1,4 +1,4 @@
-"""Desired goals rho_D of the reach task (thesis §3.4.1, SPEC.md "Expert data").
+"""Desired goals rho_D of the reach task (thesis §3.4.1, docs/spec.md "Expert data").
 
 A goal is a full flat state ``(p, v, a)`` plus the attitude the vehicle must have to
 hold that acceleration (differential flatness, yaw 0). Per axis independently:
@@ -37,7 +37,7 @@ import numpy as np
 
 from aerohrl import task
 from aerohrl.errors import UserError
-from aerohrl.sim.params import GRAVITY  # one value everywhere, SPEC.md "Units and frames"
+from aerohrl.sim.params import GRAVITY  # one value everywhere, docs/spec.md "Units and frames"
 
 _SINGULAR = 1e-9  # |f| or |z_B x x_C| below this is treated as singular
 

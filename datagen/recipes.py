@@ -1,5 +1,5 @@
 r"""Expert-data recipes beyond the thesis: action noise (DART), perturbed start states
-and the replanning expert (SPEC.md "Expert-data recipes"; datagen/README.md "Recipes").
+and the replanning expert (docs/spec.md "Expert-data recipes"; datagen/README.md "Recipes").
 
 Pure, batched functions over N vehicles; the rollout loop in
 :func:`aerohrl.datagen.build.rollout_expert` calls them once per control step.

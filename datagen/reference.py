@@ -1,4 +1,4 @@
-r"""Minimum-time minimum-jerk polynomial references (thesis §3.4.1, Alg. 1; SPEC.md).
+r"""Minimum-time minimum-jerk polynomial references (thesis §3.4.1, Alg. 1; docs/spec.md).
 
 Per axis one polynomial ``x(t) = sum_k c_k t^k`` (power basis, ``t`` in seconds from
 the start) joins ``(p, v, a)`` at ``t = 0`` to ``(p, v, a)`` at ``t = T`` and minimises

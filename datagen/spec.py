@@ -60,7 +60,7 @@ class DatasetSpec:
     bisection_tol: float = 0.02
     fps: int = 100
     substeps: int = 5
-    # Continuation episodes (beyond SPEC.md, off by default): each starts from a state
+    # Continuation episodes (beyond docs/spec.md, off by default): each starts from a state
     # that one of the rest-start flights passes through, translated to the origin, and
     # flies to a fresh goal from rho_D. They show the policy what a planned second leg
     # is (a moving start, a goal relative to it); see datagen/README.md.

@@ -14,7 +14,7 @@ vehicle's maximum collective thrust, ``|w_i| <= 20`` rad/s). A NaN or infinite a
 raises :class:`NonFiniteAction` (a ``ValueError``) naming the vehicles: there is no
 safe value to clip it to (zero thrust would cut the motors), so the step is refused
 and the simulation is left as it was; the vehicles a ``NEXT_STEP`` autoreset is
-resetting ignore their action, whatever it holds. Reward (SPEC.md): sparse,
+resetting ignore their action, whatever it holds. Reward (docs/spec.md): sparse,
 ``compute_reward(achieved_goal, desired_goal, info)`` = 1 when the goal-reached test
 holds, else 0, batched over any leading dimensions (HER relabels with it). An episode
 *terminates* when the goal is reached (``tolerance_scale`` scales the test's
@@ -56,7 +56,7 @@ class NonFiniteAction(ValueError):
 
 
 def compute_reward(achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
-    """Sparse goal-reaching reward (SPEC.md): 1.0 where the goal-reached test holds."""
+    """Sparse goal-reaching reward (docs/spec.md): 1.0 where the goal-reached test holds."""
     return np.asarray(task.goal_reached(np.asarray(achieved_goal, np.float64), np.asarray(desired_goal, np.float64)),
                       dtype=np.float64)
 

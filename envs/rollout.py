@@ -4,7 +4,7 @@ All episodes of a task fly together in one :class:`~aerohrl.envs.reach.Quadrotor
 (one batched simulator step and one policy call per control step; the Python loop is
 over time only). The policy sees the environment's ``desired_goal``: the task goal, or
 during a planned flight the current intermediate goal (the vehicle "flies to g, then
-to G", SPEC.md / thesis §3.5). A leg ends when the environment reports it terminated
+to G", docs/spec.md / thesis §3.5). A leg ends when the environment reports it terminated
 (the intermediate goal is reached; ``waypoint_tol`` scales the tolerances of
 that test, 1 = the goal-reached test) or truncated (its ``leg_horizon`` budget is used);
 then the next goal is set with :meth:`set_desired_goals`, after re-planning the
@@ -13,7 +13,7 @@ remaining intermediate goals from the vehicle's actual state when ``replan`` is 
 option of dropping the remaining intermediate goals when flying straight to G scores
 higher (Eq. 3.6 with n = 0).
 
-Outcomes are judged against the *task* goal G at every step of every leg (SPEC.md:
+Outcomes are judged against the *task* goal G at every step of every leg (docs/spec.md:
 success = the goal-reached test holds at any step within the horizon, and the episode
 ends there; near success = the test with tolerances x 2.5 at any step).
 """

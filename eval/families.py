@@ -46,7 +46,7 @@ MIN_THRUST_Z = 2.0  # m/s^2: g + a_z below this would need the vehicle upside do
 FAMILY_SEED_OFFSET = 3_000_017
 LEG_STEPS = 500  # one leg of the thesis's OOD flight
 METRES_PER_LEG = 1.75  # horizon scaling: 500 steps per 1.75 m of |p_i| (today's set: 2 legs for 3.5 m)
-RHO_D_POS_HI = 2.0  # |p_i| upper bound of rho_D (SPEC.md), for the families that keep it
+RHO_D_POS_HI = 2.0  # |p_i| upper bound of rho_D (docs/spec.md), for the families that keep it
 
 # per family: the goal dimensions that leave rho_D, and their rings (lo, hi) per step
 FAMILIES: dict[str, dict[str, tuple[tuple[float, float], ...]]] = {

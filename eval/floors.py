@@ -3,7 +3,7 @@
 * ``hover``: the constant CTBR command ``[g, 0, 0, 0]`` (thrust that carries the weight,
   zero body rates), whatever the goal. It "reaches" every goal the start state already
   meets or drifts into: on Reach-Intermediate the goals a few steps ahead (31.2 % of the
-  thesis's episode mix in issue 11's probe), and some far ahead too (likely, not verified
+  thesis's episode mix), and some far ahead too (likely, not verified
   on the trajectories: from a moving, tilted start the held attitude and thrust keep
   accelerating the way the expert was, which extrapolates its path). The evaluation
   therefore also reports success on the goals this floor misses

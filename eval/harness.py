@@ -271,7 +271,7 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
 
 def make_reach_intermediate_evaluator(data: Dataset, cfg: TrainConfig,
                                       episodes: int | None = None) -> Callable[[Algorithm, int], dict[str, float]]:
-    """Reach-Intermediate (SPEC.md; thesis Fig. 3.4: 75 episodes, a third to the desired
+    """Reach-Intermediate (docs/spec.md; thesis Fig. 3.4: 75 episodes, a third to the desired
     goal with 500 steps, two thirds to an achieved goal <= 45 steps ahead with 100 steps)
     on a fixed, seeded episode set; default ``3 * cfg.eval_episodes`` episodes: a trainer
     evaluation hook (``Trainer(..., evaluators={"reach_intermediate": ...})``)."""

@@ -105,7 +105,7 @@ def write_trajectories(out_dir: str | Path, step: int, episodes: EpisodeSet, r: 
     return atomic.write_bytes(path, buf.getvalue())
 
 
-FAR_AHEAD = 10  # Reach-Intermediate goals at least this many steps ahead: "far" (issue 11's column)
+FAR_AHEAD = 10  # Reach-Intermediate goals at least this many steps ahead: "far"
 
 
 def kind_rates(episodes: EpisodeSet, r: dict, hover_success: np.ndarray | None = None) -> dict:
@@ -121,7 +121,7 @@ def kind_rates(episodes: EpisodeSet, r: dict, hover_success: np.ndarray | None =
             m = kind == k
             if m.any():
                 out[f"success_{k}"] = float(r["success"][m].mean())
-        # goals >= 10 steps ahead (issue 11). Hovering still meets some (eval/floors.py)
+        # goals >= 10 steps ahead. Hovering still meets some (eval/floors.py)
         far = episodes.steps_ahead >= FAR_AHEAD
         if far.any():
             out["success_intermediate_far"] = float(r["success"][far].mean())

@@ -1,4 +1,4 @@
-"""Episode sets of the evaluation tasks (SPEC.md "Evaluation tasks", thesis §3.5).
+"""Episode sets of the evaluation tasks (docs/spec.md "Evaluation tasks", thesis §3.5).
 
 Each task maker returns an :class:`~aerohrl.envs.episodes.EpisodeSet`: everything a
 closed-loop evaluation needs, fixed before any policy runs (per episode a start state,
@@ -78,7 +78,7 @@ def _pick(rng: np.random.Generator, pool: int, n: int) -> np.ndarray:
 
 
 def reach_desired(data: Dataset, n: int = 250, seed: int = 0) -> EpisodeSet:
-    """Reach-Desired (SPEC.md): origin -> a desired goal of the dataset, 500 steps.
+    """Reach-Desired (docs/spec.md): origin -> a desired goal of the dataset, 500 steps.
 
     The goals are those of the episodes the expert flew from rest at the origin (all of
     a default dataset; continuation episodes start elsewhere, so theirs are not
@@ -92,7 +92,7 @@ def reach_desired(data: Dataset, n: int = 250, seed: int = 0) -> EpisodeSet:
 
 
 def reach_intermediate(data: Dataset, n: int = 250, seed: int = 0, max_ahead: int = MAX_AHEAD) -> EpisodeSet:
-    """Reach-Intermediate (SPEC.md): start on an expert trajectory; 1/3 to its desired
+    """Reach-Intermediate (docs/spec.md): start on an expert trajectory; 1/3 to its desired
     goal (500 steps), 2/3 to the achieved goal <= ``max_ahead`` steps ahead (100 steps)."""
     n = _check_n(n)
     starts, ends = _episode_bounds(data)
@@ -119,7 +119,7 @@ def reach_intermediate(data: Dataset, n: int = 250, seed: int = 0, max_ahead: in
 def ood_goals(n: int, seed: int = 0, *, pos_range: tuple[float, float] = OOD_POS_RANGE,
               vel_range: tuple[float, float] | None = None, acc_range: tuple[float, float] | None = None,
               stream: int = OOD_SEED_OFFSET) -> np.ndarray:
-    """(n, 15) out-of-distribution goals (SPEC.md "ood"); another ``pos_range`` and
+    """(n, 15) out-of-distribution goals (docs/spec.md "ood"); another ``pos_range`` and
     ``stream`` give other goal sets (``reach-novel``)."""
     from aerohrl.datagen.goals import goal_vectors, sample_goals
 
@@ -143,7 +143,7 @@ def reach_novel(data: Dataset | None, n: int = 250, seed: int = 0) -> EpisodeSet
 
 def ood(data: Dataset | None, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED,
         legs: int = 2) -> EpisodeSet:
-    """OOD (SPEC.md): origin -> a goal with |p_i| in [2, 3.5] m; ``legs * leg_horizon`` steps in all."""
+    """OOD (docs/spec.md): origin -> a goal with |p_i| in [2, 3.5] m; ``legs * leg_horizon`` steps in all."""
     spec = (data.info.get("spec") or {}) if data is not None else {}
     goals = ood_goals(n, seed, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"))
     n = len(goals)

@@ -390,7 +390,7 @@ def _bench(a) -> int:
     labels = _variant_labels(labels, names, pc)
     from .policy import describe_policy
     recipes: dict[str, dict] = {}  # one recipe, several training seeds: a claim over seeds
-    for k, m in models.items():  # what each policy is (issue 13): never the thesis's name
+    for k, m in models.items():  # what each policy is: never the thesis's name
         desc, it = describe_policy(m), m.train_info.get("iterations")
         labels[k] = f"{desc} ({m.run_label})"
         if it and "PPO" not in desc:  # actor-critic runs differ by their PPO iterations

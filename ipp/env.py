@@ -7,7 +7,7 @@ precomputed measurement list of each chosen primitive, shifted to the agent's ce
 (translation invariance), draws the labels, and scatters the log-odds increments with
 one ``np.bincount``: no per-cell Python loop.
 
-Rewards (thesis §2.5.2, SPEC.md), per step, as columns of ``terms``:
+Rewards (thesis §2.5.2, docs/spec.md), per step, as columns of ``terms``:
 
 * ``entropy``  ``15 * (H(M_t) - H(M_{t+1})) / H(M_0)`` (Eq. 2.4-2.5, inner map, bits);
   sums to ``15 * entropy reduction``: +15 for the whole map.

@@ -1,4 +1,4 @@
-"""Primitives flown by the vehicle (thesis §2.6.4 analogue; issue 13, item 6).
+"""Primitives flown by the vehicle (thesis §2.6.4 analogue).
 
 :class:`FlownEnv` is the target search of :class:`~aerohrl.ipp.env.SearchEnv` in which
 every chosen primitive is *flown* in the 6-DoF simulator (:mod:`aerohrl.sim`, the
@@ -211,7 +211,7 @@ class FlownEnv(SearchEnv):
 
 
 class SkillEnv(FlownEnv):
-    """Primitives flown by the chapter-3 goal-conditioned policy (issue 13, item 7).
+    """Primitives flown by the chapter-3 goal-conditioned policy.
 
     Each primitive of duration ``T`` is cut into ``n = ceil(T / SKILL_SPACING)`` legs of
     ``T / n`` s (0.5-1 s apart); leg ``l``'s goal is the primitive's state at

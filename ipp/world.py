@@ -1,6 +1,6 @@
 """Target-search worlds: Gaussian-mixture ground truth, a wrong prior, its KL divergence.
 
-Thesis §2.5.3 "Environment Generation" and SPEC.md: targets are drawn from a ground
+Thesis §2.5.3 "Environment Generation" and docs/spec.md: targets are drawn from a ground
 truth Gaussian mixture (3-4 centres); the agent's prior shifts the true centres by a
 random amount, mixes in spurious components and adds noise, so it is informative but
 wrong to a random degree, measured by ``KL(truth || prior)``.

@@ -27,7 +27,7 @@ Integration (:func:`rk4_step`): with the rotor command held over a physics subst
 motor equation is linear and independent of the rigid body, so it is solved exactly;
 ``[p, v, R, w]`` use classical RK4 with the rotor wrench at the stage times.
 
-CTBR inner loop (SPEC.md "Vehicle and simulator"), run once per physics substep like
+CTBR inner loop (docs/spec.md "Vehicle and simulator"), run once per physics substep like
 a flight controller's rate loop (sample and hold within the substep)::
 
     M   = J k_w (w_cmd - w) + w x J w          (P on rate + gyroscopic feed-forward)

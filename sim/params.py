@@ -1,4 +1,4 @@
-"""Vehicle parameters and presets (SPEC.md "Vehicle and simulator", thesis §3.3.1).
+"""Vehicle parameters and presets (docs/spec.md "Vehicle and simulator", thesis §3.3.1).
 
 A :class:`QuadrotorParams` holds what the rigid-body / rotor model of
 :mod:`aerohrl.sim.dynamics` needs and nothing more (no drag, no rotor aerodynamics):
@@ -10,7 +10,7 @@ range, the motor time constant and the P gain ``k_w`` of the CTBR body-rate loop
 Presets (:data:`PRESETS`, :func:`get_preset`):
 
 * ``hummingbird`` - the AscTec Hummingbird numbers published with RotorPy
-  (``rotorpy/vehicles/hummingbird_params.py``), as fixed by SPEC.md;
+  (``rotorpy/vehicles/hummingbird_params.py``), as fixed by docs/spec.md;
 * ``crazyflie`` - Crazyflie 2.x, RotorPy 3.0.0's ``rotorpy/vehicles/crazyflie_params.py``
   (checked against the installed source): m 0.03 kg, J diag(1.43e-5, 1.43e-5, 2.89e-5),
   d 0.043 m, k_eta 2.3e-8, k_m 7.8e-10, 0..2500 rad/s and the *new* motor time constant
@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 
-GRAVITY = 9.81  # m/s^2, SPEC.md "Units and frames"
+GRAVITY = 9.81  # m/s^2, docs/spec.md "Units and frames"
 
 # RotorPy writes the x-layout with this literal; kept for a like-for-like comparison.
 _S = 0.70710678118
@@ -142,7 +142,7 @@ PRESETS: dict[str, QuadrotorParams] = {
         rotor_speed_max=1500.0,
         tau_m=0.005,
         k_w=40.0,
-        source="AscTec Hummingbird as published with RotorPy (rotorpy/vehicles/hummingbird_params.py); SPEC.md",
+        source="AscTec Hummingbird as published with RotorPy (rotorpy/vehicles/hummingbird_params.py); docs/spec.md",
     ),
     "crazyflie": QuadrotorParams(
         name="crazyflie",

@@ -1,4 +1,4 @@
-"""Batched quadrotor simulator: N vehicles stepped at once (SPEC.md "Vehicle and simulator").
+"""Batched quadrotor simulator: N vehicles stepped at once (docs/spec.md "Vehicle and simulator").
 
 The public layout is the task's: state ``[p(3), v(3), R(9, row-major), w(3)]`` (N, 18)
 and CTBR action ``[c, wx, wy, wz]`` (N, 4). Internally the state is kept as a

@@ -1,4 +1,4 @@
-"""Rotation helpers on batches of 3x3 matrices (SPEC.md: R maps body to world,
+"""Rotation helpers on batches of 3x3 matrices (docs/spec.md: R maps body to world,
 flattened row-major; body rates in the body frame).
 
 Conversions (quaternions, Euler angles, rotation vectors) are delegated to

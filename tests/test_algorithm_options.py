@@ -1,4 +1,4 @@
-"""Issue 11's algorithm options: TD3-BC's alpha schedule, TD3-AWBC's advantage
+"""The algorithm options: TD3-BC's alpha schedule, TD3-AWBC's advantage
 normalisation with its logged weight statistics, CQL's Lagrange variant."""
 
 import json

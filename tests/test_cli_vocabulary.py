@@ -1,4 +1,4 @@
-"""One CLI vocabulary (issue 16, item 2): every command's parser takes the common flags
+"""One CLI vocabulary: every command's parser takes the common flags
 where they mean something (--out, --quiet, --threads, --seed, --device), the old
 spellings still work with a one-line deprecation note, help texts show choices, and
 ``train --config`` round-trips a run's run.toml. Parse level only: nothing trains."""
@@ -189,7 +189,7 @@ def test_choices_are_shown_and_checked(capsys):
 
 
 def test_every_train_flag_has_a_written_help():
-    """No flag falls back to its field name as help (issue 16)."""
+    """No flag falls back to its field name as help."""
     from aerohrl.algorithms import config as C
     from aerohrl.algorithms.cli import COMMON_FIELDS, HELP
 

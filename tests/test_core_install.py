@@ -1,4 +1,4 @@
-"""A core-only install (issue 16): `datagen build` and `datagen validate` (and info, plot,
+"""A core-only install: `datagen build` and `datagen validate` (and info, plot,
 export, the Gymnasium env) work without torch or lerobot; the commands that need an extra
 say which in one line.
 

@@ -1,4 +1,4 @@
-"""The docs (issue 16): the API reference builds from the docstrings with pdoc, every public
+"""The docs: the API reference builds from the docstrings with pdoc, every public
 function of aerohrl.api is in it with its docstring, and the READMEs cite docs/spec.md."""
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def test_readmes_cite_the_spec_in_the_repo():
     for readme in [ROOT / "README.md", *ROOT.glob("*/README.md")]:
         body = readme.read_text()
         bare = re.findall(r"(?<![\w/.])SPEC\.md", body)
-        assert not bare, f"{readme} cites SPEC.md, which is not in the repository: cite docs/spec.md"
+        assert not bare, f"{readme} cites docs/spec.md, which is not in the repository: cite docs/spec.md"
     for link in re.findall(r"\]\(([^)#]+\.md)\)", (ROOT / "docs" / "README.md").read_text()):
         assert (ROOT / "docs" / link).resolve().is_file(), link
 
@@ -94,7 +94,7 @@ def _public_functions(tree: ast.Module):
 
 
 def test_every_public_function_is_annotated_and_documented():
-    """Issue 16 item 1: every public function and public method of a public class in the five
+    """Every public function and public method of a public class in the five
     packages has a docstring and type hints on every parameter (but self/cls of methods) and
     its return."""
     problems, seen = [], 0
@@ -124,7 +124,7 @@ def test_every_public_function_is_annotated_and_documented():
 def test_public_modules_are_mypy_clean():
     pytest.importorskip("mypy")
     files = ["aerohrl/__init__.py", "aerohrl/api.py", "aerohrl/errors.py", "aerohrl/cli_common.py", "aerohrl/task.py", "datagen/exchange.py", "datagen/spec.py",
-             # issue 16 item 1: every module that passes as it stands (the others need code changes, not hints)
+             # every module that passes as it stands (the others need code changes, not hints)
              "aerohrl/cli.py", "aerohrl/cli_types.py",
              "algorithms/__init__.py", "algorithms/augment.py", "algorithms/base.py", "algorithms/cli.py", "algorithms/closed_loop.py",
              "algorithms/config.py", "algorithms/cql.py", "algorithms/gcsl.py", "algorithms/relabel.py", "algorithms/td3awbc.py",

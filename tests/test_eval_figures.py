@@ -1,4 +1,4 @@
-"""Figures (issue 16): learning curves of seeds as a mean with a band; in trajectory plots
+"""Figures: learning curves of seeds as a mean with a band; in trajectory plots
 each goal has the colour of its flight."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Episode sets of the evaluation tasks (SPEC.md "Evaluation tasks")."""
+"""Episode sets of the evaluation tasks (docs/spec.md "Evaluation tasks")."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Dataset exchange (issue 16): `datagen export --format minari|ogbench` load back in the real
+"""Dataset exchange: `datagen export --format minari|ogbench` load back in the real
 libraries, `datagen push` stages our card, licence and metadata unchanged (no network here)."""
 
 from __future__ import annotations

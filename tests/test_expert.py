@@ -124,7 +124,7 @@ def test_tracks_quintic_reference():
 
 
 def test_expert_success_on_seeded_goals():
-    """>= 98% of 250 seeded dataset goals reached (SPEC.md "Expert data" protocol, via the
+    """>= 98% of 250 seeded dataset goals reached (docs/spec.md "Expert data" protocol, via the
     build pipeline's own planning and rollout). Measured: 100% on seed 0; 99.7% on 2000
     goals of seed 1."""
     pytest.importorskip("aerohrl.datagen.goals")

@@ -76,7 +76,7 @@ def test_unknown_planner_and_depth(lat):
 
 
 def test_prio_coverage_revisits_covered_belief_mass(lat):
-    """Issue 13: prioritised coverage keeps scoring belief mass on covered cells (the
+    """Prioritised coverage keeps scoring belief mass on covered cells (the
     original), so a likely target is revisited; --no-prio-revisit scores new cells only."""
     from aerohrl.ipp.baselines import TreePlanner
     env, _ = make_env(EnvConfig(), lat, 21, [0])

@@ -74,7 +74,7 @@ def test_train_then_bench_rl(tmp_path, capsys):
                  "--budget", "1500", "--out", str(tmp_path / "b"), "--quiet"]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if "(run)" in line)
-    # the truthful name (issue 13): preset test = 2 DAgger iterations from detect + 1 PPO
+    # the truthful name: preset test = 2 DAgger iterations from detect + 1 PPO
     assert row.startswith("| Imitation of detect planner + PPO 1 it. (DAgger; its features, GRU) (run)")
     assert "88.5" in row and "Ours" not in row  # the thesis's RL-LSTM number beside it
     model = run / "model.pt"
@@ -88,7 +88,7 @@ def test_train_then_bench_rl(tmp_path, capsys):
 
 
 def test_show_writes_figure_and_animated_gif(tmp_path, capsys):
-    """Issue 13 figures: the episode figure and a GIF with one frame per primitive."""
+    """IPP figures: the episode figure and a GIF with one frame per primitive."""
     png, gif = tmp_path / "ep.png", tmp_path / "ep.gif"
     assert main(["show", "--env", "2", "--planner", "greedy", "--budget", "1500",
                  "-o", str(png), "--gif", str(gif)]) == 0

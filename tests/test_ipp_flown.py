@@ -1,4 +1,4 @@
-"""Primitives flown in the 6-DoF simulator by the geometric controller (issue 13, item 6)."""
+"""Primitives flown in the 6-DoF simulator by the geometric controller."""
 
 import numpy as np
 import pytest

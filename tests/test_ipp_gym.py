@@ -1,5 +1,5 @@
 """aerohrl/IPPSearch-v0: Gymnasium's env checker, the action mask, the vector env over
-batched worlds, per-row autoreset, and a random-valid-action loop (issue 13, item 5)."""
+batched worlds, per-row autoreset, and a random-valid-action loop."""
 
 import gymnasium as gym
 import numpy as np

@@ -1,4 +1,4 @@
-"""ipp/ has no import cycles; environments never import planners (issue 13, item 4).
+"""ipp/ has no import cycles; environments never import planners.
 
 The graph includes imports inside functions (lazy imports would hide a cycle from a
 plain ``import`` test), read from the source with ``ast``.

@@ -122,7 +122,7 @@ def test_warm_start_and_mismatch(tmp_path):
 
 
 def test_describe_policy_names_what_trained_it(tmp_path):
-    """Issue 13: a learned row says what it is (imitation of detect, or RL), never
+    """A learned row says what it is (imitation of detect, or RL), never
     the thesis's 'Ours-LSTM'."""
     import json
 

@@ -1,4 +1,4 @@
-"""LeRobot loads our datasets quietly (issue 16): no video backend is touched.
+"""LeRobot loads our datasets quietly: no video backend is touched.
 
 lerobot 0.6's ``LeRobotDataset.__init__`` calls ``get_safe_default_video_backend()`` whenever
 no ``video_backend`` is given, video features or not; that imports torchcodec, which on a

@@ -1,4 +1,4 @@
-"""Progress bars only on terminals (issue 16): asked for, they still stay out of a log file or pipe."""
+"""Progress bars only on terminals: asked for, they still stay out of a log file or pipe."""
 
 from aerohrl.datagen.build import build
 from aerohrl.datagen.spec import DatasetSpec

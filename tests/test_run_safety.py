@@ -1,4 +1,4 @@
-"""Runs and checkpoints as safe as the datasets (issue 15): exclusive run folders,
+"""Runs and checkpoints as safe as the datasets: exclusive run folders,
 checkpoint checksums with fallback, killed writes, a full disk, arguments checked before
 anything is created, moved datasets, metric lines across a resume."""
 

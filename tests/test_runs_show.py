@@ -1,4 +1,4 @@
-"""`aerohrl runs show` (issue 16): an IPP run is shown (it crashed with KeyError: 'step'), and
+"""`aerohrl runs show`: an IPP run is shown (it crashed with KeyError: 'step'), and
 the results of `aerohrl eval` appear in the text after an evaluation."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``datagen build`` streams (issue 14): each rollout block's frames go to the data files
+"""``datagen build`` streams: each rollout block's frames go to the data files
 as the block lands, and only per-episode results stay in memory. The bytes are those of
 one bulk write; memory does not grow with the frames (the estimate, and what the writer
 is handed)."""
