@@ -2,7 +2,7 @@
 
 Layers, bottom to top (a package may import its own modules and any lower layer)::
 
-    aerohrl's bottom modules (errors, atomic, task, hardware, cli_common, cli_types, cluster)
+    aerohrl's bottom modules (errors, atomic, task, hardware, cli_common, cli_types, cluster, config)
     sim
     datagen
     envs
@@ -35,7 +35,7 @@ PACKAGE_DIRS: dict[str, str] = tomllib.loads((ROOT / "pyproject.toml").read_text
 
 # the modules of the aerohrl package itself, by layer
 BOTTOM = {"aerohrl.errors", "aerohrl.atomic", "aerohrl.task", "aerohrl.hardware", "aerohrl.cli_common",
-          "aerohrl.cli_types", "aerohrl.cluster"}
+          "aerohrl.cli_types", "aerohrl.cluster", "aerohrl.config"}
 TOP = {"aerohrl", "aerohrl.api", "aerohrl.cli", "aerohrl.runs", "aerohrl.sweep"}
 # layer units bottom to top; units in one tuple share a rank and may not import each other
 LAYERS: list[tuple[str, ...]] = [("bottom",), ("aerohrl.sim",), ("aerohrl.datagen",), ("aerohrl.envs",),

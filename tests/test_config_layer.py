@@ -1,0 +1,94 @@
+"""The config layer (aerohrl.config): one declaration per setting gives validation, the
+unknown-key check, TOML and flags."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import pytest
+
+from aerohrl import config as K
+from aerohrl.errors import ArgumentParser
+
+
+@dataclass
+class Actor:
+    alpha: float = K.param(0.5, "weight of the Q-term", ge=0)
+    schedule: str = K.param("linear", "alpha over the run", choices=("constant", "linear"))
+
+
+@dataclass
+class Cfg:
+    steps: int = K.param(100, "gradient steps", ge=1)
+    lr: float = K.param(1e-3, "learning rate", unit="1/step", gt=0)
+    hidden: tuple[int, ...] = K.param((8, 8), "hidden sizes", unit="units", ge=1)
+    expectile: float = K.param(0.7, "expectile", gt=0, lt=1)
+    ema: bool = K.param(True, "average the weights")
+    name: str = K.param("", "the run's name", flag=False)
+    actor: Actor = K.section(Actor, "the actor")
+
+
+def test_defaults_validate_and_each_bound_is_one_line():
+    K.validate(Cfg())
+    for values, match in (({"steps": 0}, "steps must be >= 1, got 0"), ({"lr": 0.0}, "lr must be > 0"),
+                          ({"expectile": 1.0}, "expectile must be < 1"), ({"hidden": [8, 0]}, "hidden must be >= 1"),
+                          ({"alpha": -1.0}, "alpha must be >= 0"), ({"schedule": "cosine"}, "schedule must be one of constant, linear"),
+                          ({"lr": math.nan}, "lr must be a finite number")):
+        with pytest.raises(K.ConfigError, match=match) as e:
+            K.from_mapping(Cfg, values, where="f.toml")
+        assert "\n" not in str(e.value) and isinstance(e.value, ValueError)
+
+
+def test_mappings_coerce_nest_and_refuse_unknown_keys():
+    c = K.from_mapping(Cfg, {"steps": 5, "lr": 1, "hidden": [4], "alpha": 2})
+    assert (c.steps, c.lr, c.hidden, c.actor.alpha) == (5, 1.0, (4,), 2.0) and isinstance(c.lr, float)
+    assert K.from_mapping(Cfg, {"actor": {"schedule": "constant"}}).actor.schedule == "constant"  # a section as a sub-table
+    with pytest.raises(K.ConfigError, match=r"f.toml: unknown key\(s\) stesp \(did you mean steps\?\)"):
+        K.from_mapping(Cfg, {"stesp": 5}, where="f.toml")
+    for bad, what in (({"steps": 1.5}, "an integer"), ({"ema": 1}, "true or false"), ({"hidden": [1.5]}, "a list of integers"),
+                      ({"schedule": 3}, "a string")):
+        with pytest.raises(K.ConfigError, match=what):
+            K.from_mapping(Cfg, bad)
+
+
+def test_toml_round_trip_and_presets(tmp_path):
+    c = K.from_mapping(Cfg, {"steps": 7, "hidden": [3, 2], "schedule": "constant", "name": "r"})
+    (tmp_path / "run.toml").write_text(K.to_toml(c, header="a run"))
+    assert K.from_mapping(Cfg, K.load_toml(tmp_path / "run.toml")) == c
+    (tmp_path / "fast.toml").write_text("steps = 3\n")
+    assert K.preset_names(tmp_path) == ("fast", "run")
+    assert K.from_mapping(Cfg, K.load_preset(tmp_path, "fast")).steps == 3
+    with pytest.raises(K.ConfigError, match="unknown preset 'slow' \\(choose from fast, run\\)"):
+        K.load_preset(tmp_path, "slow")
+    (tmp_path / "bad.toml").write_text("steps = = 3\n")
+    with pytest.raises(K.ConfigError, match="is not valid TOML"):
+        K.load_toml(tmp_path / "bad.toml")
+
+
+def test_flags_come_from_the_fields(capsys):
+    p = ArgumentParser(prog="demo")
+    K.add_flags(p, Cfg, default_label="cpu")
+    text = p.format_help()
+    assert "--steps" in text and "--hidden" in text and "--alpha" in text and "--no-ema" in text and "--name" not in text
+    assert "learning rate (1/step) [cpu: 0.001]" in " ".join(text.split())
+    a = p.parse_args(["--steps", "3", "--hidden", "4", "4", "--schedule", "constant", "--no-ema"])
+    assert K.given_flags(a, Cfg) == {"steps": 3, "hidden": (4, 4), "ema": False, "schedule": "constant"}
+    for argv, match in ((["--steps", "0"], "must be >= 1, got 0"), (["--expectile", "1"], "must be < 1"),
+                        (["--lr", "nan"], "finite"), (["--schedule", "x"], "invalid choice")):
+        with pytest.raises(SystemExit) as e:
+            p.parse_args(argv)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1 and match in err[0], err
+
+
+def test_a_setting_declared_twice_is_refused():
+    @dataclass
+    class Twice:
+        alpha: float = K.param(1.0, "clash")
+        actor: Actor = K.section(Actor)
+
+    with pytest.raises(TypeError, match="declared twice"):
+        K.from_mapping(Twice, {})
+    with pytest.raises(TypeError, match="mutable default"):
+        K.param([1], "a list")
