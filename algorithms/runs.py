@@ -22,26 +22,24 @@ PROG = "aerohrl runs"
 def summary(run_dir: str | Path) -> dict:
     """What ``runs show`` reports; every checkpoint is checked against its SHA-256 and the
     progress counts the newest intact one."""
-    from aerohrl.algorithms.trainer import CKPT_DIR, checkpoint_paths, checkpoint_problem, checkpoint_step, read_json, read_metrics
+    from aerohrl.algorithms.run import Run, checkpoint_problem, checkpoint_step
 
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise UserError(f"no run at {run_dir}")
-    meta = read_json(run_dir / "config.json")
-    ckpts = checkpoint_paths(run_dir)
+    run = Run.open(run_dir, kind="train")
+    meta = run.meta
+    ckpts = run.checkpoints()
     damaged = {p.name: why for p in ckpts if (why := checkpoint_problem(p))}
     intact = [p for p in ckpts if p.name not in damaged]
-    metrics = read_metrics(run_dir)
+    metrics = run.metrics()
     train_recs = [r for r in metrics if not any(k.startswith("eval/") for k in r)]
     eval_recs = [r for r in metrics if any(k.startswith("eval/") for k in r)]
     return {
-        "run": str(run_dir),
+        "run": str(run.path),
         "config": meta.get("config", {}),
         "dataset": meta.get("dataset", {}),
         "checkpoint_step": checkpoint_step(intact[-1]) if intact else 0,
         "checkpoints": [p.name for p in ckpts],
         "damaged": damaged,
-        "set_aside": sorted(p.name for p in (run_dir / CKPT_DIR).glob("*.damaged")),
+        "set_aside": run.set_aside(),
         "logged_step": train_recs[-1]["step"] if train_recs else 0,
         "last_metrics": train_recs[-1] if train_recs else {},
         "last_eval": eval_recs[-1] if eval_recs else {},
@@ -159,17 +157,6 @@ def _print_eval_results(run_dir) -> None:
                   f"({e['checkpoints']} checkpoints x {e['episodes']} episodes, steps {e['steps'][0]:,}..{e['steps'][1]:,}; aerohrl eval)")
 
 
-def is_ipp_run(run_dir: str | Path) -> bool:
-    """An ``aerohrl ipp train`` run (its config.json holds ``train`` and ``lattice``)."""
-    import json
-
-    try:
-        meta = json.loads((Path(run_dir) / "config.json").read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(meta, dict) and "lattice" in meta and "train" in meta and "config" not in meta
-
-
 def cmd_show_ipp(a: argparse.Namespace) -> int:
     """``runs show`` of an IPP run: its config, progress in iterations, the last metrics and the curve."""
     from aerohrl.ipp.train import load_run_config, plot_learning_curve as ipp_curve, read_metrics as ipp_metrics
@@ -185,7 +172,7 @@ def cmd_show_ipp(a: argparse.Namespace) -> int:
     if rows:
         last = rows[-1]
         print("last:      " + ", ".join(f"{k} {v:.4g}" for k, v in last.items() if isinstance(v, (int, float)) and k != "iteration"))
-    kept = [n for n in ("model.pt", "best.pt", "checkpoint.pt") if (a.run / n).exists()]
+    kept = [n for n in ("model.pt", "best.pt", "checkpoint.pt") if (Path(a.run) / n).exists()]
     print(f"files:     {', '.join(kept) or 'no weights yet'}")
     if not a.no_plot and rows:
         print(f"plot:      {ipp_curve(a.run, a.out)}")
@@ -195,7 +182,9 @@ def cmd_show_ipp(a: argparse.Namespace) -> int:
 def cmd_show(a: argparse.Namespace) -> int:
     """``runs show``: config, dataset version, progress, last metrics, evaluations and the
     learning-curve plot of a training run (an IPP run: :func:`cmd_show_ipp`); exit code."""
-    if is_ipp_run(a.run):
+    from aerohrl.algorithms.run import Run
+
+    if Run.open(a.run).is_ipp:
         return cmd_show_ipp(a)
     s = summary(a.run)
     cfg, ds = s["config"], s["dataset"]

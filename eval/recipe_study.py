@@ -157,7 +157,7 @@ def critics_auc(rd: Path) -> float:
 
     import torch
 
-    from aerohrl.algorithms.trainer import read_json
+    from aerohrl.algorithms.run import read_json
     from aerohrl.eval.harness import load_policy, run_checkpoints
     from aerohrl.eval.oracle import roc_auc
     from aerohrl.eval.tasks import reach_novel
