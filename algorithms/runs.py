@@ -159,7 +159,8 @@ def _print_eval_results(run_dir) -> None:
 
 def cmd_show_ipp(a: argparse.Namespace) -> int:
     """``runs show`` of an IPP run: its config, progress in iterations, the last metrics and the curve."""
-    from aerohrl.ipp.train import load_run_config, plot_learning_curve as ipp_curve, read_metrics as ipp_metrics
+    from aerohrl.ipp.curve import plot_learning_curve as ipp_curve, read_metrics as ipp_metrics
+    from aerohrl.ipp.train import load_run_config
 
     cfg = load_run_config(a.run)
     rows = ipp_metrics(a.run)

@@ -248,14 +248,13 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
 
     check_options(opt)
     run = Run.open(run_dir, kind="train")
-    run_dir = run.path
     ckpts = run_checkpoints(run, opt.checkpoints)
     if opt.floor == "hover":  # the same constant command at every checkpoint: fly it once
         ckpts = ckpts[-1:]
     device = resolve_device(opt.device)
     data, meta = loaded if loaded is not None else load_run_dataset(run, opt.dataset)
     episodes = build_episodes(data, opt)
-    out_dir = Path(opt.out) if opt.out else run_dir / "eval" / opt.name()
+    out_dir = Path(opt.out) if opt.out else run.path / "eval" / opt.name()
     atomic.remove_stale_temporaries(out_dir)  # left by an evaluation that was killed while writing
     per_ckpt = []
     hover_success = None  # Reach-Intermediate: the hover floor's outcomes on these episodes (kind_rates)
@@ -283,7 +282,7 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
         if record:
             results.write_trajectories(out_dir, int(ck["step"]), episodes, r)
-    summary = results.summarize(per_ckpt, run_dir=run_dir, meta=meta, options=opt, episodes=episodes,
+    summary = results.summarize(per_ckpt, run_dir=run.path, meta=meta, options=opt, episodes=episodes,
                                 seconds=time.perf_counter() - t_start)
     results.write_summary(out_dir, summary)
     return summary

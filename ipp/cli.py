@@ -575,7 +575,7 @@ def _compare(a) -> int:
 
 
 def _curve(a) -> int:
-    from .train import plot_learning_curve
+    from .curve import plot_learning_curve
     out = plot_learning_curve(a.run, a.out)
     print(f"learning curve -> {out}")
     return 0

@@ -17,7 +17,8 @@ from aerohrl.ipp.lattice import default_lattice
 from aerohrl.ipp.metrics import paired_differences
 from aerohrl.ipp.policy import load_policy
 from aerohrl.algorithms.run import config_from_dict
-from aerohrl.ipp.train import load_run_config, plot_learning_curve, preset, train
+from aerohrl.ipp.curve import plot_learning_curve
+from aerohrl.ipp.train import load_run_config, preset, train
 from test_ipp_policy import random_walk  # tests/ helpers (pytest puts tests/ on sys.path)
 
 
