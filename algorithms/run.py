@@ -568,7 +568,7 @@ class Run:
         (an IPP run's is read by :func:`aerohrl.ipp.train.load_run_config`)."""
         if self._config is None:
             if self.is_ipp:
-                raise UserError(f"{self.path} is an ipp train run: read its config with aerohrl.ipp.train.load_run_config")
+                raise UserError(f"{self.path} is an ipp train run: its config is read_config(aerohrl.ipp.train.TrainConfig)")
             from aerohrl.algorithms import config as C
 
             try:
@@ -603,7 +603,7 @@ class Run:
 
     def locate_dataset(self, override: str | Path | None = None) -> Path:
         """The folder of the run's dataset now (see :func:`locate_dataset`)."""
-        identity = self.meta.get("dataset") or {"path": (self.meta.get("config") or {}).get("dataset")}
+        identity = self.meta.get("dataset") or {"path": (self.meta.get(self.layout.section) or {}).get("dataset")}
         return locate_dataset(identity, self.path, override)
 
     # --- checkpoints --------------------------------------------------------------
@@ -683,6 +683,5 @@ class Run:
 
 
 __all__ = ["Run", "RunLock", "MetricsLog", "Layout", "LAYOUTS", "CHECKPOINT_FORMAT", "CKPT_DIR", "LOGGERS", "check_logger",
-           "config_from_dict",
-           "new_run_dir", "read_json", "read_metrics", "checkpoint_step", "load_checkpoint", "checkpoint_problem",
+           "config_from_dict", "new_run_dir", "read_json", "read_metrics", "checkpoint_step", "load_checkpoint", "checkpoint_problem",
            "rng_state", "set_rng_state", "seed_everything", "dataset_identity", "locate_dataset", "check_same_dataset"]
