@@ -37,8 +37,6 @@ class TrainingDiverged(UserError):
     exit_code = 3
 
 
-
-
 def resolve_device(name: str) -> torch.device:
     """``name`` as a torch device; UserError for an unknown one or CUDA without a GPU."""
     try:
@@ -48,57 +46,6 @@ def resolve_device(name: str) -> torch.device:
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise UserError("--device cuda asked for, but no CUDA device is available")
     return dev
-
-
-# ----------------------------------------------------------------------------- progress
-
-
-class ProgressLines:
-    """The progress of a run without a terminal (a cluster job's log): one line on stderr
-    every ``every_s`` seconds and, when ``every_steps`` > 0, every that many steps:
-    step, steps/s (since the previous line), the mean losses since it, and the ETA."""
-
-    def __init__(self, name: str, step: int, total: int, every_s: float = 60.0, every_steps: int = 0, out=None):
-        import sys
-
-        self.name, self.total, self.every_s, self.every_steps = name, total, every_s, every_steps
-        self.out = out or sys.stderr
-        self._reset(step)
-
-    def _reset(self, step: int) -> None:
-        self.last_step, self.last_t, self.sums, self.count = step, time.monotonic(), {}, 0
-
-    def update(self, step: int, metrics: dict[str, float]) -> None:
-        """Add one step's losses to the running means; print a line when one is due (every
-        ``every_s`` seconds, every ``every_steps`` steps, and at the last step)."""
-        for k, v in metrics.items():
-            self.sums[k] = self.sums.get(k, 0.0) + v
-        self.count += 1
-        now = time.monotonic()
-        due = (self.every_s > 0 and now - self.last_t >= self.every_s) or (self.every_steps > 0 and step % self.every_steps == 0)
-        if due or step == self.total:
-            self.line(step, now)
-
-    def line(self, step: int, now: float | None = None) -> str:
-        """Print (and return) the progress line at ``step``, then start new means."""
-        now = time.monotonic() if now is None else now
-        rate = (step - self.last_step) / max(now - self.last_t, 1e-9)
-        eta = (self.total - step) / rate if rate > 0 else float("inf")
-        losses = "  ".join(f"{k} {v / self.count:.4g}" for k, v in self.sums.items()) if self.count else ""
-        text = (f"{self.name}: step {step:,}/{self.total:,} ({100 * step / max(self.total, 1):.1f}%)  {rate:.1f} steps/s"
-                + (f"  {losses}" if losses else "") + f"  ETA {_duration(eta)}")
-        print(text, file=self.out, flush=True)
-        self._reset(step)
-        return text
-
-
-def _duration(s: float) -> str:
-    if not math.isfinite(s):
-        return "?"
-    s = int(round(s))
-    h, m = divmod(s, 3600)
-    m, sec = divmod(m, 60)
-    return f"{h}h{m:02d}m" if h else f"{m}m{sec:02d}s"
 
 
 # ----------------------------------------------------------------------------- trainer
@@ -367,6 +314,57 @@ def resume_run(run_dir: str | Path | Run, *, data: Dataset | None = None, progre
     except BaseException:
         lock.release()
         raise
+
+
+# ----------------------------------------------------------------------------- progress
+
+
+class ProgressLines:
+    """The progress of a run without a terminal (a cluster job's log): one line on stderr
+    every ``every_s`` seconds and, when ``every_steps`` > 0, every that many steps:
+    step, steps/s (since the previous line), the mean losses since it, and the ETA."""
+
+    def __init__(self, name: str, step: int, total: int, every_s: float = 60.0, every_steps: int = 0, out=None):
+        import sys
+
+        self.name, self.total, self.every_s, self.every_steps = name, total, every_s, every_steps
+        self.out = out or sys.stderr
+        self._reset(step)
+
+    def _reset(self, step: int) -> None:
+        self.last_step, self.last_t, self.sums, self.count = step, time.monotonic(), {}, 0
+
+    def update(self, step: int, metrics: dict[str, float]) -> None:
+        """Add one step's losses to the running means; print a line when one is due (every
+        ``every_s`` seconds, every ``every_steps`` steps, and at the last step)."""
+        for k, v in metrics.items():
+            self.sums[k] = self.sums.get(k, 0.0) + v
+        self.count += 1
+        now = time.monotonic()
+        due = (self.every_s > 0 and now - self.last_t >= self.every_s) or (self.every_steps > 0 and step % self.every_steps == 0)
+        if due or step == self.total:
+            self.line(step, now)
+
+    def line(self, step: int, now: float | None = None) -> str:
+        """Print (and return) the progress line at ``step``, then start new means."""
+        now = time.monotonic() if now is None else now
+        rate = (step - self.last_step) / max(now - self.last_t, 1e-9)
+        eta = (self.total - step) / rate if rate > 0 else float("inf")
+        losses = "  ".join(f"{k} {v / self.count:.4g}" for k, v in self.sums.items()) if self.count else ""
+        text = (f"{self.name}: step {step:,}/{self.total:,} ({100 * step / max(self.total, 1):.1f}%)  {rate:.1f} steps/s"
+                + (f"  {losses}" if losses else "") + f"  ETA {_duration(eta)}")
+        print(text, file=self.out, flush=True)
+        self._reset(step)
+        return text
+
+
+def _duration(s: float) -> str:
+    if not math.isfinite(s):
+        return "?"
+    s = int(round(s))
+    h, m = divmod(s, 3600)
+    m, sec = divmod(m, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{sec:02d}s"
 
 
 __all__ = ["Trainer", "TrainingDiverged", "ProgressLines", "start_run", "resume_run", "resolve_device"]
