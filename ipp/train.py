@@ -47,6 +47,7 @@ RNG states and the metrics log are a :class:`~aerohrl.algorithms.run.Run` of kin
 
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -354,9 +355,14 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: str | Path | Run, progres
     tqdm-like object (``update``/``set_postfix``)."""
     cfg.validate()
     run = Run.open(run_dir, kind="ipp") if resume else Run.create(run_dir, kind="ipp")
-    with run.lock():
-        run.remove_stale_temporaries()  # a kill during a write leaves its temporary
-        return _train(cfg, lattice, run, progress, resume)
+    try:
+        with run.lock():
+            run.remove_stale_temporaries()  # a kill during a write leaves its temporary
+            return _train(cfg, lattice, run, progress, resume)
+    except BaseException:
+        if not resume and not (run.path / "config.json").exists():  # refused before it began: ours alone, empty
+            shutil.rmtree(run.path, ignore_errors=True)
+        raise
 
 
 def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: bool) -> dict:
