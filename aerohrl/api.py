@@ -26,10 +26,10 @@ Which extra each function needs: :func:`build_dataset`, ``load_dataset(as_="nump
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Mapping
 
+from aerohrl.algorithms.run import Run  # the run folder handle (standard library only at import)
 from aerohrl.errors import UserError
 
 if TYPE_CHECKING:  # pragma: no cover - names for the annotations only
@@ -149,62 +149,6 @@ def _lerobot_dataset(root: Path, manifest: dict) -> Any:
 # ----------------------------------------------------------------------------- training
 
 
-@dataclass
-class Run:
-    """A training run folder (``runs/<name>/``): its config, progress and checkpoints.
-
-    Attributes:
-        path: the run folder.
-        config: the resolved training configuration.
-        step: the last step trained (that of the newest checkpoint).
-    """
-
-    path: Path
-    config: "TrainConfig"
-    step: int = 0
-    _meta: dict = field(default_factory=dict, repr=False)
-
-    @classmethod
-    def open(cls, path: PathLike) -> "Run":
-        """The run in ``path`` (UserError when there is none)."""
-        from aerohrl.algorithms import config as C
-        from aerohrl.algorithms.trainer import checkpoint_paths, checkpoint_step, read_json
-
-        path = Path(path)
-        if not (path / "config.json").is_file():
-            raise UserError(f"no run at {path} (no config.json)")
-        meta = read_json(path / "config.json")
-        try:
-            cfg = C.from_dict(meta["config"])
-        except (KeyError, TypeError) as e:
-            raise UserError(f"{path / 'config.json'} is damaged: {e}") from None
-        ck = checkpoint_paths(path)
-        step = checkpoint_step(ck[-1]) if ck else 0
-        return cls(path, cfg, step, meta)
-
-    @property
-    def dataset(self) -> Path | None:
-        """The dataset folder the run trained on (as recorded; it may have moved since)."""
-        p = (self._meta.get("dataset") or {}).get("path") or self.config.dataset
-        return Path(p) if p else None
-
-    def checkpoints(self) -> list[Path]:
-        """The run's checkpoint files, oldest first."""
-        from aerohrl.algorithms.trainer import checkpoint_paths
-
-        return checkpoint_paths(self.path)
-
-    def metrics(self) -> list[dict]:
-        """Every line of ``metrics.jsonl`` (training losses every ``log_every`` steps,
-        closed-loop evaluations every ``eval_every``)."""
-        from aerohrl.algorithms.trainer import read_metrics
-
-        return read_metrics(self.path)
-
-    def __fspath__(self) -> str:
-        return str(self.path)
-
-
 def train(config: "TrainConfig | Mapping[str, Any] | None" = None, *, out: PathLike = "runs", name: str | None = None,
           resume: "PathLike | Run | None" = None, progress: bool = False, **overrides: Any) -> Run:
     """Train a goal-conditioned policy to the end of its steps and return the run.
@@ -225,7 +169,8 @@ def train(config: "TrainConfig | Mapping[str, Any] | None" = None, *, out: PathL
         The :class:`Run`, trained to ``config.steps``, with its checkpoints written.
     """
     from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.trainer import new_run_dir, resume_run, start_run
+    from aerohrl.algorithms.run import new_run_dir
+    from aerohrl.algorithms.trainer import resume_run, start_run
 
     if resume is not None:
         if config is not None:
@@ -305,16 +250,17 @@ def load_policy(source: "Run | PathLike", *, step: int | None = None, device: st
     Returns:
         A :class:`Policy` in eval mode; the checkpoint's checksum has been verified.
     """
-    from aerohrl.algorithms.trainer import checkpoint_paths
     from aerohrl.algorithms.base import load_policy as load_algo
 
-    p = Path(source.path if isinstance(source, Run) else source)
+    p = Path(source)
+    run = None
     if p.is_dir():
-        ckpts = checkpoint_paths(p)
+        run = Run.open(p, kind="train")
+        ckpts = run.checkpoints()
         if not ckpts:
-            raise UserError(f"run {p} has no checkpoints (checkpoints/step-*.pt)")
+            raise UserError(f"run {p} has no checkpoints ({run.layout.glob})")
         if step is not None:
-            match = [c for c in ckpts if c.name == f"step-{step:09d}.pt"]
+            match = [c for c in ckpts if c == run.checkpoint_path(step)]
             if not match:
                 raise UserError(f"run {p} has no checkpoint of step {step} (it keeps {', '.join(c.name for c in ckpts)})")
             p = match[0]
@@ -322,7 +268,7 @@ def load_policy(source: "Run | PathLike", *, step: int | None = None, device: st
             p = ckpts[-1]
     elif not p.is_file():
         raise UserError(f"no run or checkpoint at {p}")
-    algo, ck = load_algo(p, device)
+    algo, ck = load_algo(p, device, run)
     return Policy(algo, int(ck["step"]), p, device)
 
 
@@ -355,7 +301,7 @@ def evaluate(run: "Run | PathLike", task: str = "reach-desired", **opts: Any) ->
     if unknown:
         raise UserError(f"unknown evaluation option(s): {', '.join(unknown)} (see aerohrl.eval.harness.EvalOptions)")
     opts.setdefault("progress", False)
-    return evaluate_run(Path(run.path if isinstance(run, Run) else run), EvalOptions(task=task, **opts))
+    return evaluate_run(Path(run), EvalOptions(task=task, **opts))
 
 
 def make_env(num_envs: int | None = None, *, dataset: PathLike | None = None, normalize_actions: bool = False,

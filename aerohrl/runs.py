@@ -28,20 +28,10 @@ def _print_eval_results(run_dir) -> None:
                   f"({e['checkpoints']} checkpoints x {e['episodes']} episodes, steps {e['steps'][0]:,}..{e['steps'][1]:,}; aerohrl eval)")
 
 
-def is_ipp_run(run_dir: str | Path) -> bool:
-    """An ``aerohrl ipp train`` run (its config.json holds ``train`` and ``lattice``)."""
-    import json
-
-    try:
-        meta = json.loads((Path(run_dir) / "config.json").read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(meta, dict) and "lattice" in meta and "train" in meta and "config" not in meta
-
-
 def cmd_show_ipp(a: argparse.Namespace) -> int:
     """``runs show`` of an IPP run: its config, progress in iterations, the last metrics and the curve."""
-    from aerohrl.ipp.train import load_run_config, plot_learning_curve as ipp_curve, read_metrics as ipp_metrics
+    from aerohrl.ipp.curve import plot_learning_curve as ipp_curve, read_metrics as ipp_metrics
+    from aerohrl.ipp.train import load_run_config
 
     cfg = load_run_config(a.run)
     rows = ipp_metrics(a.run)
@@ -54,7 +44,7 @@ def cmd_show_ipp(a: argparse.Namespace) -> int:
     if rows:
         last = rows[-1]
         print("last:      " + ", ".join(f"{k} {v:.4g}" for k, v in last.items() if isinstance(v, (int, float)) and k != "iteration"))
-    kept = [n for n in ("model.pt", "best.pt", "checkpoint.pt") if (a.run / n).exists()]
+    kept = [n for n in ("model.pt", "best.pt", "checkpoint.pt") if (Path(a.run) / n).exists()]
     print(f"files:     {', '.join(kept) or 'no weights yet'}")
     if not a.no_plot and rows:
         print(f"plot:      {ipp_curve(a.run, a.out)}")
@@ -64,7 +54,9 @@ def cmd_show_ipp(a: argparse.Namespace) -> int:
 def cmd_show(a: argparse.Namespace) -> int:
     """``runs show``: config, dataset version, progress, last metrics, evaluations and the
     learning-curve plot of a training run (an IPP run: :func:`cmd_show_ipp`); exit code."""
-    if is_ipp_run(a.run):
+    from aerohrl.algorithms.run import Run
+
+    if Run.open(a.run).is_ipp:
         return cmd_show_ipp(a)
     s = summary(a.run)
     cfg, ds = s["config"], s["dataset"]

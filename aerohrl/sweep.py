@@ -252,11 +252,11 @@ def config_differences(run_dir: str | Path, cfg: TrainConfig) -> str:
     with its own config: a preset changed since, or a flag, shows here instead of silently;
     the step count, checkpoint interval, device and dataset path are not compared)."""
     from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.trainer import read_json
+    from aerohrl.algorithms.run import Run
 
     try:
-        old = C.to_dict(C.from_dict(read_json(Path(run_dir) / "config.json")["config"]))
-    except (UserError, KeyError, TypeError):  # no run there, or a damaged one: resume_run says so
+        old = C.to_dict(Run.open(run_dir, kind="train").config)
+    except UserError:  # no run there, or a damaged one: resume_run says so
         return ""
     new = C.to_dict(cfg)
     # amp "auto" asked is met by whichever precision the run resolved it to
@@ -271,7 +271,8 @@ def train_task(run_dir: str, cfg_dict: dict, threads: int) -> dict:
     import torch
 
     from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.trainer import checkpoint_paths, checkpoint_step, resume_run, start_run
+    from aerohrl.algorithms.run import Run
+    from aerohrl.algorithms.trainer import resume_run, start_run
 
     torch.set_num_threads(max(1, int(threads)))
     rd = Path(run_dir)
@@ -279,14 +280,14 @@ def train_task(run_dir: str, cfg_dict: dict, threads: int) -> dict:
     t0 = time.perf_counter()
     kw = {"progress": False, "progress_every_s": 60.0}
     if (rd / "config.json").exists():
-        ck = checkpoint_paths(rd)
+        run = Run.open(rd, kind="train")
         differs = config_differences(rd, cfg)
-        if ck and checkpoint_step(ck[-1]) >= cfg.steps:
-            return {"run": run_dir, "step": checkpoint_step(ck[-1]), "status": "finished before" + differs, "seconds": 0.0}
+        if run.checkpoints() and run.step >= cfg.steps:
+            return {"run": run_dir, "step": run.step, "status": "finished before" + differs, "seconds": 0.0}
         tr = resume_run(rd, overrides={"steps": cfg.steps}, **kw)
         status = f"resumed at step {tr.step}" + differs
     else:
-        if rd.is_dir() and not checkpoint_paths(rd):
+        if rd.is_dir() and not Run(rd).checkpoints():
             import shutil
 
             shutil.rmtree(rd, ignore_errors=True)  # claimed by a worker that died before config.json: ours to redo

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from tensordict import TensorDict
 
     from aerohrl.algorithms.config import TrainConfig
+    from aerohrl.algorithms.run import Run
 
 
 class Algorithm(nn.Module):
@@ -130,12 +131,13 @@ def build_algorithm(cfg: TrainConfig, normalizer: Normalizer) -> Algorithm:
     return algorithm_class(cfg.algo)(cfg, normalizer)
 
 
-def load_policy(ckpt_path: str | Path, device: str | torch.device = "cpu") -> tuple[Algorithm, dict]:
-    """(algo, checkpoint dict) from a checkpoint file, in eval mode."""
+def load_policy(ckpt_path: str | Path, device: str | torch.device = "cpu", run: Run | None = None) -> tuple[Algorithm, dict]:
+    """(algo, checkpoint dict) from a checkpoint file (of ``run``, when given), its SHA-256
+    verified, in eval mode."""
     from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.trainer import load_checkpoint
+    from aerohrl.algorithms.run import load_checkpoint
 
-    ck = load_checkpoint(ckpt_path, map_location=device)
+    ck = run.load_checkpoint(ckpt_path, map_location=device) if run is not None else load_checkpoint(ckpt_path, device)
     try:
         cfg = C.from_dict(ck["config"])
         algo = build_algorithm(cfg, Normalizer()).to(device)

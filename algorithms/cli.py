@@ -159,7 +159,8 @@ def config_from_args(a: argparse.Namespace) -> C.TrainConfig:
 
 def run(a: argparse.Namespace) -> int:
     """``train``: start a new run (or resume one) and train it to the end; exit code."""
-    from aerohrl.algorithms.trainer import new_run_dir, resolve_device, resume_run, start_run
+    from aerohrl.algorithms.run import new_run_dir
+    from aerohrl.algorithms.trainer import resolve_device, resume_run, start_run
 
     ov = _overrides(a)
     set_threads(a.threads)

@@ -18,26 +18,24 @@ from aerohrl.errors import UserError
 def summary(run_dir: str | Path) -> dict:
     """What ``runs show`` reports; every checkpoint is checked against its SHA-256 and the
     progress counts the newest intact one."""
-    from aerohrl.algorithms.trainer import CKPT_DIR, checkpoint_paths, checkpoint_problem, checkpoint_step, read_json, read_metrics
+    from aerohrl.algorithms.run import Run, checkpoint_problem, checkpoint_step
 
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise UserError(f"no run at {run_dir}")
-    meta = read_json(run_dir / "config.json")
-    ckpts = checkpoint_paths(run_dir)
+    run = Run.open(run_dir, kind="train")
+    meta = run.meta
+    ckpts = run.checkpoints()
     damaged = {p.name: why for p in ckpts if (why := checkpoint_problem(p))}
     intact = [p for p in ckpts if p.name not in damaged]
-    metrics = read_metrics(run_dir)
+    metrics = run.metrics()
     train_recs = [r for r in metrics if not any(k.startswith("eval/") for k in r)]
     eval_recs = [r for r in metrics if any(k.startswith("eval/") for k in r)]
     return {
-        "run": str(run_dir),
+        "run": str(run.path),
         "config": meta.get("config", {}),
         "dataset": meta.get("dataset", {}),
         "checkpoint_step": checkpoint_step(intact[-1]) if intact else 0,
         "checkpoints": [p.name for p in ckpts],
         "damaged": damaged,
-        "set_aside": sorted(p.name for p in (run_dir / CKPT_DIR).glob("*.damaged")),
+        "set_aside": run.set_aside(),
         "logged_step": train_recs[-1]["step"] if train_recs else 0,
         "last_metrics": train_recs[-1] if train_recs else {},
         "last_eval": eval_recs[-1] if eval_recs else {},

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
     from aerohrl.algorithms.config import TrainConfig
     from aerohrl.algorithms.data import Dataset
+    from aerohrl.algorithms.run import Run
     from aerohrl.eval.families import Ring
     from aerohrl.envs.episodes import EpisodeSet
     from aerohrl.planning.planner import ChainPlanner, Planner
@@ -90,30 +91,28 @@ class EvalOptions:
             + ("-synth" if self.candidate_source == "synthetic" and self.planner != "none" else "") + tol
 
 
-def run_checkpoints(run_dir: str | Path, k: int) -> list[Path]:
+def run_checkpoints(run_dir: str | Path | Run, k: int) -> list[Path]:
     """The last ``k`` checkpoints of a run, oldest first; UserError without a run or checkpoints."""
-    from aerohrl.algorithms.trainer import checkpoint_paths
+    from aerohrl.algorithms.run import Run
 
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise UserError(f"no run at {run_dir}")
-    paths = checkpoint_paths(run_dir)
+    run = Run.open(run_dir, kind="train")
+    paths = run.checkpoints()
     if not paths:
-        raise UserError(f"run {run_dir} has no checkpoints (checkpoints/step-*.pt)")
+        raise UserError(f"run {run.path} has no checkpoints ({run.layout.glob})")
     if k < 1:
         raise UserError(f"--checkpoints must be >= 1, got {k}")
     return paths[-k:]
 
 
-def load_run_dataset(run_dir: str | Path, override: str | Path | None = None) -> tuple[Dataset, dict]:
+def load_run_dataset(run_dir: str | Path | Run, override: str | Path | None = None) -> tuple[Dataset, dict]:
     """The run's dataset (``config.json``; found by version under ``datasets/`` when it
-    moved), or ``override``; identity checked against the run."""
+    moved), or ``override``; identity checked against the run. Returns (data, config.json)."""
     from aerohrl.algorithms.data import load_dataset
-    from aerohrl.algorithms.trainer import check_same_dataset, locate_dataset, read_json
+    from aerohrl.algorithms.run import Run, check_same_dataset
 
-    meta = read_json(Path(run_dir) / "config.json")
-    identity = meta.get("dataset") or {"path": (meta.get("config") or {}).get("dataset")}
-    path = locate_dataset(identity, run_dir, override)  # the recorded path, else found by version, else "pass --dataset"
+    run = Run.open(run_dir, kind="train")
+    meta = run.meta
+    path = run.locate_dataset(override)  # the recorded path, else found by version, else "pass --dataset"
     data = load_dataset(path)
     try:
         check_same_dataset(meta.get("dataset") or {}, data)
@@ -125,7 +124,7 @@ def load_run_dataset(run_dir: str | Path, override: str | Path | None = None) ->
 def check_checkpoint_dataset(ck: dict, data: Dataset, path: str | Path) -> None:
     """UserError (one line) when the checkpoint at ``path`` was trained on another dataset
     than ``data`` (feature shapes or version)."""
-    from aerohrl.algorithms.trainer import check_same_dataset
+    from aerohrl.algorithms.run import check_same_dataset
 
     try:
         check_same_dataset(ck.get("dataset") or {}, data)
@@ -222,27 +221,28 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
     from tqdm import tqdm
 
     from aerohrl.algorithms.base import load_policy
+    from aerohrl.algorithms.run import Run
     from aerohrl.algorithms.trainer import resolve_device
     from aerohrl.envs.rollout import rollout
     from aerohrl.eval import results
     from aerohrl.eval.floors import wrap as wrap_floor
 
     check_options(opt)
-    run_dir = Path(run_dir)
-    ckpts = run_checkpoints(run_dir, opt.checkpoints)
+    run = Run.open(run_dir, kind="train")
+    ckpts = run_checkpoints(run, opt.checkpoints)
     if opt.floor == "hover":  # the same constant command at every checkpoint: fly it once
         ckpts = ckpts[-1:]
     device = resolve_device(opt.device)
-    data, meta = loaded if loaded is not None else load_run_dataset(run_dir, opt.dataset)
+    data, meta = loaded if loaded is not None else load_run_dataset(run, opt.dataset)
     episodes = build_episodes(data, opt)
-    out_dir = Path(opt.out) if opt.out else run_dir / "eval" / opt.name()
+    out_dir = Path(opt.out) if opt.out else run.path / "eval" / opt.name()
     atomic.remove_stale_temporaries(out_dir)  # left by an evaluation that was killed while writing
     per_ckpt = []
     hover_success = None  # Reach-Intermediate: the hover floor's outcomes on these episodes (kind_rates)
     t_start = time.perf_counter()
     bar = tqdm(ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=None if opt.progress else True, dynamic_ncols=True)  # None: only on a terminal
     for i, path in enumerate(bar):
-        algo, ck = load_policy(path, device)
+        algo, ck = load_policy(path, device, run)
         check_checkpoint_dataset(ck, data, path)
         if hover_success is None and episodes.task == "reach-intermediate" and opt.floor != "hover":  # one flight, ~1 s
             hover_success = rollout(wrap_floor(algo, "hover"), episodes, goal_tol=opt.goal_tol, **sim_kwargs(data))["success"]
@@ -263,7 +263,7 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
         if record:
             results.write_trajectories(out_dir, int(ck["step"]), episodes, r)
-    summary = results.summarize(per_ckpt, run_dir=run_dir, meta=meta, options=opt, episodes=episodes,
+    summary = results.summarize(per_ckpt, run_dir=run.path, meta=meta, options=opt, episodes=episodes,
                                 seconds=time.perf_counter() - t_start)
     results.write_summary(out_dir, summary)
     return summary

@@ -134,7 +134,7 @@ def _seed_band(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np.nd
 def plot_learning_curves(runs: Sequence[str | Path], out: str | Path) -> Path:
     """Closed-loop success against training steps for ``runs``; seeds of one experiment as
     a mean line with a min-max band. Written to ``out``; returns it."""
-    from aerohrl.algorithms.trainer import read_metrics
+    from aerohrl.algorithms.run import read_metrics
     from aerohrl.eval.results import ALGO_NAMES, _algo_of, group_runs, read_summary
 
     plt = _plt()

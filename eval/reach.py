@@ -577,7 +577,7 @@ def main(argv: list[str] | None = None) -> int:
 
             atomic.write_text(state_f, json.dumps(state, indent=1))
         margins = {k: float(v) for k, v in state["margins"].items()}
-        from aerohrl.algorithms.trainer import read_json
+        from aerohrl.algorithms.run import read_json
         from aerohrl.datagen.dataset import open_dataset
 
         spec = open_dataset(read_json(a.runs[0] / "config.json")["dataset"]["path"], verify=False).spec

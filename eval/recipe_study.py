@@ -158,7 +158,7 @@ def critics_auc(rd: Path) -> float:
     import torch
 
     from aerohrl.algorithms.base import load_policy
-    from aerohrl.algorithms.trainer import read_json
+    from aerohrl.algorithms.run import read_json
     from aerohrl.eval.harness import run_checkpoints
     from aerohrl.eval.tasks import reach_novel
     from aerohrl.planning.oracle import roc_auc

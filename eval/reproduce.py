@@ -88,10 +88,10 @@ def _evaluated(rd: Path, name: str, episodes: int, checkpoints: int) -> bool:
     checkpoints with ``episodes`` episodes each (and postdate them)?"""
     import json
 
-    from aerohrl.algorithms.trainer import checkpoint_paths
+    from aerohrl.algorithms.run import Run
 
     f = rd / "eval" / name / "summary.json"
-    ckpts = checkpoint_paths(rd)[-checkpoints:]
+    ckpts = Run(rd).checkpoints()[-checkpoints:]
     if not f.exists() or not ckpts:
         return False
     try:

@@ -179,9 +179,11 @@ def read_summary(run_dir: str | Path, name: str) -> dict | None:
 
 
 def _algo_of(run_dir) -> str:
+    from aerohrl.algorithms.run import Run
+
     try:
-        return json.loads((Path(run_dir) / "config.json").read_text())["config"]["algo"]
-    except (OSError, KeyError, json.JSONDecodeError):
+        return Run.open(run_dir).meta["config"]["algo"]
+    except (UserError, KeyError, TypeError):
         return Path(run_dir).name
 
 
@@ -267,14 +269,16 @@ def seed_cell(st: dict | None, digits: int = 1) -> str:
 def group_runs(run_dirs: Sequence[str | Path]) -> list[list[Path]]:
     """The runs grouped into experiments: the same config but for the seed, on the same
     dataset version; in the order given."""
+    from aerohrl.algorithms.run import Run
+
     groups: dict[str, list[Path]] = {}
     for rd in run_dirs:
         rd = Path(rd)
         if not rd.is_dir():
             raise UserError(f"no run at {rd}")
         try:
-            meta = json.loads((rd / "config.json").read_text())
-        except (OSError, json.JSONDecodeError):
+            meta = Run.open(rd).meta
+        except UserError:  # no config.json, or a damaged one: the run is a group of its own
             meta = {}
         cfg = {k: v for k, v in (meta.get("config") or {}).items() if k not in ("seed", "dataset")}
         key = json.dumps([cfg, (meta.get("dataset") or {}).get("version"), None if cfg else str(rd)], sort_keys=True)

@@ -24,7 +24,6 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from aerohrl import atomic
 from aerohrl import cli_types as T
 from aerohrl.cli_common import add_common, add_run, run_name, set_threads
 from aerohrl.errors import ArgumentParser, UserError, run_cli
@@ -503,14 +502,17 @@ def _train(a) -> int:
             raise UserError("--resume continues a run with its own config.json; only "
                             "--iterations, --lattice and --quiet may be given (got "
                             + ", ".join("--" + k.replace("_", "-") for k in given) + ")")
+        from aerohrl.algorithms.run import Run
+
         run = Path(a.resume)
-        cfg = load_run_config(run)
+        opened = Run.open(run, kind="ipp")
+        cfg = load_run_config(opened)
         if a.iterations is not None:
             cfg = replace(cfg, iterations=a.iterations)
         lat = get_lattice(a.lattice, cfg.env.kind)
         import json
         from dataclasses import asdict
-        saved = json.loads((run / "config.json").read_text()).get("lattice")
+        saved = opened.meta.get("lattice")
         if saved is not None and saved != json.loads(json.dumps(asdict(lat.config))):
             raise UserError(f"{run}: trained on another lattice (pass the same --lattice)")
     else:
@@ -542,11 +544,11 @@ def _train(a) -> int:
     cfg.validate()
     from .factory import create_env
     create_env(cfg.env, lat)
-    if not a.resume and not atomic.new_folder(run):  # exclusive: a second run never writes into the first's
-        raise UserError(f"run folder {run} exists; choose another --name, or --resume {run}")
     bar = tqdm(total=cfg.total_iterations, desc="train", file=sys.stderr, disable=a.quiet)
-    last = train(cfg, lat, run, progress=bar, resume=bool(a.resume))
-    bar.close()
+    try:  # a new run claims its folder exclusively; either holds the run's lock while it trains
+        last = train(cfg, lat, run, progress=bar, resume=bool(a.resume))
+    finally:
+        bar.close()
     print(f"trained {last['iteration']} iterations x {cfg.n_envs} envs "
           f"({cfg.bc_iterations} DAgger + {cfg.iterations} PPO) in {last['time_s'] / 60:.1f} min: "
           f"return {last['return']:.1f}, search eff. {last['search_efficiency']:.1f}% (train "
@@ -573,7 +575,7 @@ def _compare(a) -> int:
 
 
 def _curve(a) -> int:
-    from .train import plot_learning_curve
+    from .curve import plot_learning_curve
     out = plot_learning_curve(a.run, a.out)
     print(f"learning curve -> {out}")
     return 0

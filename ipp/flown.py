@@ -358,11 +358,13 @@ def load_skill(run: str | Path | None) -> tuple:
     from aerohrl.errors import UserError
     if run is None:
         raise UserError("--execution skill needs --skill-run <chapter-3 policy run directory>")
-    p = Path(run)
+    from aerohrl.algorithms.run import Run
+    p, skill_run = Path(run), None
     if p.is_dir():
-        cks = sorted((p / "checkpoints").glob("step-*.pt"))
+        skill_run = Run(p)  # a copied run folder may lack its config.json: the checkpoints suffice
+        cks = skill_run.checkpoints()
         if not cks:
-            raise UserError(f"skill run {p} has no checkpoints (checkpoints/step-*.pt)")
+            raise UserError(f"skill run {p} has no checkpoints ({skill_run.layout.glob})")
         p = cks[-1]
     elif not p.is_file():
         raise UserError(f"no skill policy run at {run}")
@@ -371,7 +373,7 @@ def load_skill(run: str | Path | None) -> tuple:
     from aerohrl.algorithms.base import load_policy
     from aerohrl.envs.rollout import PolicyFn
     torch.set_num_threads(1)
-    algo, ck = load_policy(p)
+    algo, ck = load_policy(p, run=skill_run)
     return PolicyFn(algo), f"{p.parent.parent.name}/{p.name}"
 
 

@@ -136,12 +136,12 @@ def load_policy(path: str | Path) -> ActorCritic:
 def _train_info(run: Path) -> dict:
     """What trained the policy, from ``RUN/config.json`` (written by ``ipp train``):
     DAgger iterations, teacher, PPO iterations, training seed. Empty if the file is absent or unreadable."""
-    import json
+    from aerohrl.algorithms.run import Run
     try:
-        cfg = json.loads((run / "config.json").read_text())
-    except (OSError, ValueError):
+        cfg = Run.open(run).meta
+    except UserError:
         return {}
-    tc = cfg.get("train", cfg) if isinstance(cfg, dict) else {}
+    tc = cfg.get("train", cfg)
     keys = ("bc_iterations", "teacher", "teacher_depth", "iterations", "seed")
     return {k: tc[k] for k in keys if isinstance(tc, dict) and k in tc}
 

@@ -40,13 +40,14 @@ the weights, the optimiser state, the iteration, the RNG states (torch and numpy
 DAgger buffer and the best validation score; ``train(..., resume=True)`` continues from
 it and gives the same weights as an uninterrupted run (CPU, same thread count).
 ``metrics.jsonl`` has one line per iteration; ``learning_curve.png`` is drawn at the end
-(:func:`plot_learning_curve`, ``aerohrl ipp curve RUN``).
+(:func:`.curve.plot_learning_curve`, ``aerohrl ipp curve RUN``). The folder (claimed
+exclusively, locked while training), config.json, the checkpoint and its SHA-256, the
+RNG states and the metrics log are a :class:`~aerohrl.algorithms.run.Run` of kind ``ipp``.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
+import shutil
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -55,18 +56,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from aerohrl.errors import UserError, warn
-
 from aerohrl import atomic
-from aerohrl.atomic import atomic_path
+from aerohrl.algorithms.run import Run, rng_state, seed_everything, set_rng_state
+from aerohrl.errors import UserError
+from .curve import plot_learning_curve, read_metrics
 from .env import TERMS, EnvConfig, semantic_config
 from .factory import create_env, sample_for
 from .features import N_FEAT
 from .lattice import Lattice
 from .policy import ActorCritic, PolicyConfig, save_policy, valid_loss
 
-CHECKPOINT_FORMAT = "aerohrl-ipp-train-checkpoint"
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 1  # the format is the Run layout's (aerohrl.algorithms.run.LAYOUTS["ipp"])
 TEACHER_PLANNERS = ("detect", "dp", "prio_coverage", "coverage", "greedy")  # stateless trees
 VAL_SEED = 500  # validation suite (training: TrainConfig.seed, test: bench.TEST_SEED = 1000)
 
@@ -194,71 +194,11 @@ def _discounted(rew, alive, gamma):
     return out
 
 
-# ------------------------------------------------------------------ config (de)serialising
-def config_from_dict(cls: type, d: dict) -> Any:
-    """Rebuild a (nested, frozen) config dataclass from :func:`dataclasses.asdict` output
-    (as stored in ``config.json``); unknown keys are an error, missing keys default."""
-    if not isinstance(d, dict):
-        raise UserError(f"{cls.__name__}: expected a JSON object")
-    proto = cls()
-    kw = {}
-    names = {f.name for f in dataclasses.fields(cls)}
-    extra = set(d) - names
-    if extra:
-        raise UserError(f"{cls.__name__}: unknown keys {sorted(extra)}")
-    for f in dataclasses.fields(cls):
-        if f.name not in d:
-            continue
-        v, ref = d[f.name], getattr(proto, f.name)
-        if dataclasses.is_dataclass(ref):
-            v = config_from_dict(type(ref), v)
-        elif isinstance(ref, tuple):
-            if not isinstance(v, (list, tuple)):
-                raise UserError(f"{cls.__name__}.{f.name}: expected a list, got {v!r}")
-            v = tuple(_scalar(f"{cls.__name__}.{f.name}", x, ref[0] if ref else None)
-                      for x in v)
-        else:
-            v = _scalar(f"{cls.__name__}.{f.name}", v, ref)
-        kw[f.name] = v
-    return cls(**kw)
-
-
-def _scalar(name, v, ref):
-    """``v`` checked against the type of the default ``ref`` (None: str/number/None)."""
-    num = isinstance(v, (int, float)) and not isinstance(v, bool)
-    if ref is None:
-        ok = v is None or isinstance(v, str) or num
-    elif isinstance(ref, bool):
-        ok = isinstance(v, bool)
-    elif isinstance(ref, int):
-        ok = num and float(v).is_integer()
-        v = int(v) if ok else v
-    elif isinstance(ref, float):
-        ok = num
-        v = float(v) if ok else v
-    elif isinstance(ref, str):
-        ok = isinstance(v, str)
-    else:
-        ok = True
-    if not ok:
-        raise UserError(f"{name}: expected {type(ref).__name__ if ref is not None else 'a value'}"
-                        f", got {v!r}")
-    return v
-
-
-def load_run_config(run_dir: str | Path) -> TrainConfig:
+# ------------------------------------------------------------------------ the run folder
+def load_run_config(run_dir: str | Path | Run) -> TrainConfig:
     """The :class:`TrainConfig` of an ``ipp train`` run (``RUN/config.json``); a one-line
     UserError when it is missing or malformed."""
-    p = Path(run_dir) / "config.json"
-    if not p.is_file():
-        raise UserError(f"{run_dir}: no config.json (not a training run directory)")
-    try:
-        d = json.loads(p.read_text())
-        return config_from_dict(TrainConfig, d["train"])
-    except UserError as e:
-        raise UserError(f"{p}: {e}") from None
-    except (ValueError, KeyError, TypeError) as e:
-        raise UserError(f"{p}: not a training config ({type(e).__name__})") from None
+    return Run.open(run_dir, kind="ipp").read_config(TrainConfig)
 
 
 # --------------------------------------------------------------------------- rollouts
@@ -400,57 +340,37 @@ def evaluate(model: ActorCritic, lattice: Lattice, env_cfg: EnvConfig, seed: int
                                             "search_efficiency")}
 
 
-# ------------------------------------------------------------------------ checkpoints
-def _save_checkpoint(path, model, opt, it, buffer, best, elapsed, dims, kind):
-    atomic.torch_save(path, {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
-                             "iteration": it, "model": model.state_dict(), "opt": opt.state_dict(),
-                             "torch_rng": torch.get_rng_state(),
-                             "numpy_rng": _np_rng_state(),
-                             "buffer": buffer, "best": best, "elapsed": elapsed, "dims": dims,
-                             "env_kind": kind})
-
-
-def _np_rng_state() -> dict:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
-    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
-            "has_gauss": int(has_gauss), "cached": float(cached)}
-
-
-def _set_np_rng_state(d: dict) -> None:
-    np.random.set_state((d["name"], d["keys"].numpy().astype(np.uint32), d["pos"],
-                         d["has_gauss"], d["cached"]))
-
-
-def _load_checkpoint(path) -> dict:
-    if not Path(path).is_file():
-        raise UserError(f"{path.parent}: no checkpoint.pt to resume from")
-    ck = atomic.torch_load(path, weights_only=True, warn=warn)  # CheckpointDamaged names the file
-    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
-        raise UserError(f"{path}: not a training checkpoint")
-    if ck.get("version") != CHECKPOINT_VERSION:
-        raise UserError(f"{path}: checkpoint version {ck.get('version')} is not supported")
-    return ck
-
-
+# ------------------------------------------------------------------------ training
 def _dims(env, obs, cfg):
     return {"map_ch": obs["maps"].shape[1], "map_hw": obs["maps"].shape[2],
             "vec_dim": obs["vec"].shape[1], "n_actions": env.lat.n_actions,
             "n_feat": N_FEAT if cfg.policy.features else 0}
 
 
-def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress: Any = None,
+def train(cfg: TrainConfig, lattice: Lattice, run_dir: str | Path | Run, progress: Any = None,
           resume: bool = False) -> dict:
-    """Train (or, with ``resume``, continue the run in ``run_dir``); returns the last
-    iteration's log entry. ``progress``: a tqdm-like object (``update``/``set_postfix``)."""
+    """Train in the new folder ``run_dir`` (claimed exclusively), or with ``resume``
+    continue the run there; returns the last iteration's log entry. The run is locked
+    while it trains (a second trainer of it gets a one-line UserError). ``progress``: a
+    tqdm-like object (``update``/``set_postfix``)."""
+    cfg.validate()
+    run = Run.open(run_dir, kind="ipp") if resume else Run.create(run_dir, kind="ipp")
+    try:
+        with run.lock():
+            run.remove_stale_temporaries()  # a kill during a write leaves its temporary
+            return _train(cfg, lattice, run, progress, resume)
+    except BaseException:
+        if not resume and not (run.path / "config.json").exists():  # refused before it began: ours alone, empty
+            shutil.rmtree(run.path, ignore_errors=True)
+        raise
+
+
+def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: bool) -> dict:
     from .baselines import PlannerConfig, make_planner
 
-    cfg.validate()
-    torch.manual_seed(cfg.seed)
-    np.random.seed(cfg.seed)
+    seed_everything(cfg.seed)
     torch.set_num_threads(cfg.threads)
-    run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    atomic.remove_stale_temporaries(run_dir)  # a kill during a write leaves its temporary
+    run_dir = run.path
     env = create_env(cfg.env, lattice)
     obs = env.reset(sample_for(cfg.env, cfg.seed, range(cfg.n_envs)))
     dims = _dims(env, obs, cfg)
@@ -467,10 +387,11 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress: Any = Non
         except RuntimeError:
             raise UserError(f"{cfg.init}: policy shapes do not match this environment") from None
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    log_path = run_dir / "metrics.jsonl"
     start, buffer, best, elapsed0, last = 0, [], -np.inf, 0.0, {}
     if resume:
-        ck = _load_checkpoint(run_dir / "checkpoint.pt")
+        _, ck, _ = run.newest_intact()  # CheckpointDamaged names the file
+        if ck.get("version") != CHECKPOINT_VERSION:
+            raise UserError(f"{run.checkpoint_path()}: checkpoint version {ck.get('version')} is not supported")
         if ck["dims"] != dims:
             raise UserError(f"{run_dir}: checkpoint does not match this environment")
         try:
@@ -482,71 +403,66 @@ def train(cfg: TrainConfig, lattice: Lattice, run_dir: Path, progress: Any = Non
         if start > cfg.total_iterations:
             raise UserError(f"{run_dir}: already has {start} iterations, more than the "
                             f"{cfg.total_iterations} asked for")
-        torch.set_rng_state(ck["torch_rng"])
-        _set_np_rng_state(ck["numpy_rng"])
-        logged = log_path.is_file() and log_path.read_text().strip()
-        kept = [json.dumps(r) for r in read_metrics(run_dir) if r["iteration"] <= start] \
-            if logged else []
-        with atomic_path(log_path) as tmp:
-            Path(tmp).write_text("".join(ln + "\n" for ln in kept))
-        if kept:
-            last = json.loads(kept[-1])
+        set_rng_state({"torch": ck["torch_rng"], "numpy": ck["numpy_rng"]})
+        if run.metrics_path.is_file() and run.metrics_path.read_text().strip():  # a damaged line: one-line error
+            kept = [r for r in read_metrics(run_dir) if r["iteration"] <= start]
+            last = kept[-1] if kept else last
         if progress is not None:
             progress.update(start)
-    else:
-        log_path.write_text("")
-    with atomic_path(run_dir / "config.json") as tmp:
-        Path(tmp).write_text(json.dumps({"train": asdict(cfg), "dims": dims,
-                                         "lattice": asdict(lattice.config)}, indent=1))
-    teacher = None
-    if cfg.bc_iterations > start or cfg.bc_anchor > 0:
-        teacher = make_planner(cfg.teacher, env, PlannerConfig(depth=cfg.teacher_depth))
-    N, T_all = cfg.n_envs, cfg.total_iterations
-    t0 = time.time()
-    for it in range(start, T_all):
-        bc = it < cfg.bc_iterations
-        obs = env.reset(sample_for(cfg.env, cfg.seed, range(it * N, (it + 1) * N)))
-        for g in opt.param_groups:
-            g["lr"] = cfg.bc_lr if bc else cfg.lr
-        if bc:
-            beta = cfg.bc_beta0 * cfg.bc_beta_decay ** it
-            ro = _rollout(model, env, obs, cfg, use_feat, teacher, beta)
-            ro["ret"] = _discounted(ro["rew"], ro["alive"], cfg.gamma)
-            keep = {k: ro[k] for k in ("maps", "vec", "valid", "label", "alive", "ret")
-                    + (("feat",) if use_feat else ())}
-            if cfg.env.kind == "semantic":  # half the buffer's memory (maps in [0, 1])
-                keep["maps"] = keep["maps"].half()
-            buffer = (buffer + [keep])[-cfg.bc_buffer:]
-            stats = {"beta": beta, **_bc_update(model, opt, buffer, cfg, use_feat)}
-            if it + 1 == cfg.bc_iterations:
-                buffer = []  # the warm start is over: keep checkpoints small
-        else:
-            buffer = []  # not needed any more (and not stored in PPO checkpoints)
-            ro = _rollout(model, env, obs, cfg, use_feat,
-                          teacher if cfg.bc_anchor > 0 else None, 0.0)
-            stats = _ppo_update(model, opt, ro, cfg, use_feat)
-        m = env.metrics()
-        tot = (ro["rew"].sum(0) / cfg.reward_scale).mean(0).tolist()
-        last = {"iteration": it + 1, "phase": "bc" if bc else "ppo",
-                "time_s": round(elapsed0 + time.time() - t0, 1),
-                "return": float(sum(tot)), **{f"r_{k}": v for k, v in zip(TERMS, tot)},
-                **{k: float(m[k].mean()) for k in ("coverage", "entropy_reduction",
-                                                    "search_efficiency")}, **stats}
-        if cfg.eval_every and ((it + 1) % cfg.eval_every == 0 or it + 1 == T_all):
-            ev = evaluate(model, lattice, cfg.env, cfg.eval_seed, cfg.eval_envs)
-            last.update({f"val_{k}": v for k, v in ev.items()})
-            if ev["search_efficiency"] > best:
-                best = ev["search_efficiency"]
-                save_policy(model, dims, run_dir / "best.pt", cfg.env.kind)
-        with open(log_path, "a") as f:
-            f.write(json.dumps(last) + "\n")
-        if (it + 1) % cfg.log_every == 0 or it + 1 == T_all:
-            save_policy(model, dims, run_dir / "model.pt", cfg.env.kind)
-            _save_checkpoint(run_dir / "checkpoint.pt", model, opt, it + 1, buffer, best,
-                             elapsed0 + time.time() - t0, dims, cfg.env.kind)
-        if progress is not None:
-            progress.update(1)
-            progress.set_postfix(ret=f"{last['return']:.1f}", eff=f"{last['search_efficiency']:.0f}")
+    run.write_config({"train": asdict(cfg), "dims": dims, "lattice": asdict(lattice.config)})
+    # a resume drops the lines after the checkpoint's iteration
+    with run.metrics_log(keep_until=start if resume else None, logger="none", key="iteration") as log:
+        teacher = None
+        if cfg.bc_iterations > start or cfg.bc_anchor > 0:
+            teacher = make_planner(cfg.teacher, env, PlannerConfig(depth=cfg.teacher_depth))
+        N, T_all = cfg.n_envs, cfg.total_iterations
+        t0 = time.time()
+        for it in range(start, T_all):
+            bc = it < cfg.bc_iterations
+            obs = env.reset(sample_for(cfg.env, cfg.seed, range(it * N, (it + 1) * N)))
+            for g in opt.param_groups:
+                g["lr"] = cfg.bc_lr if bc else cfg.lr
+            if bc:
+                beta = cfg.bc_beta0 * cfg.bc_beta_decay ** it
+                ro = _rollout(model, env, obs, cfg, use_feat, teacher, beta)
+                ro["ret"] = _discounted(ro["rew"], ro["alive"], cfg.gamma)
+                keep = {k: ro[k] for k in ("maps", "vec", "valid", "label", "alive", "ret")
+                        + (("feat",) if use_feat else ())}
+                if cfg.env.kind == "semantic":  # half the buffer's memory (maps in [0, 1])
+                    keep["maps"] = keep["maps"].half()
+                buffer = (buffer + [keep])[-cfg.bc_buffer:]
+                stats = {"beta": beta, **_bc_update(model, opt, buffer, cfg, use_feat)}
+                if it + 1 == cfg.bc_iterations:
+                    buffer = []  # the warm start is over: keep checkpoints small
+            else:
+                buffer = []  # not needed any more (and not stored in PPO checkpoints)
+                ro = _rollout(model, env, obs, cfg, use_feat,
+                              teacher if cfg.bc_anchor > 0 else None, 0.0)
+                stats = _ppo_update(model, opt, ro, cfg, use_feat)
+            m = env.metrics()
+            tot = (ro["rew"].sum(0) / cfg.reward_scale).mean(0).tolist()
+            last = {"iteration": it + 1, "phase": "bc" if bc else "ppo",
+                    "time_s": round(elapsed0 + time.time() - t0, 1),
+                    "return": float(sum(tot)), **{f"r_{k}": v for k, v in zip(TERMS, tot)},
+                    **{k: float(m[k].mean()) for k in ("coverage", "entropy_reduction",
+                                                        "search_efficiency")}, **stats}
+            if cfg.eval_every and ((it + 1) % cfg.eval_every == 0 or it + 1 == T_all):
+                ev = evaluate(model, lattice, cfg.env, cfg.eval_seed, cfg.eval_envs)
+                last.update({f"val_{k}": v for k, v in ev.items()})
+                if ev["search_efficiency"] > best:
+                    best = ev["search_efficiency"]
+                    save_policy(model, dims, run_dir / "best.pt", cfg.env.kind)
+            log.write(last)
+            if (it + 1) % cfg.log_every == 0 or it + 1 == T_all:
+                save_policy(model, dims, run_dir / "model.pt", cfg.env.kind)
+                rng = rng_state(tensors=True)  # loads with weights_only=True
+                run.save_checkpoint({"version": CHECKPOINT_VERSION, "iteration": it + 1, "model": model.state_dict(),
+                                     "opt": opt.state_dict(), "torch_rng": rng["torch"], "numpy_rng": rng["numpy"],
+                                     "buffer": buffer, "best": best, "elapsed": elapsed0 + time.time() - t0,
+                                     "dims": dims, "env_kind": cfg.env.kind})
+            if progress is not None:
+                progress.update(1)
+                progress.set_postfix(ret=f"{last['return']:.1f}", eff=f"{last['search_efficiency']:.0f}")
     plot_learning_curve(run_dir)
     return last
 
@@ -564,79 +480,3 @@ def preset(name: str, **overrides: Any) -> TrainConfig:
     if feat is not None:
         cfg = replace(cfg, policy=replace(cfg.policy, features=feat))
     return replace(cfg, **over)
-
-
-# ------------------------------------------------------------------------ learning curve
-def read_metrics(run_dir: str | Path) -> list[dict]:
-    """The iteration log of an ``ipp train`` run (``RUN/metrics.jsonl``), in order; a one-line
-    UserError when it is missing, malformed or empty."""
-    p = Path(run_dir) / "metrics.jsonl"
-    if not p.is_file():
-        raise UserError(f"{run_dir}: no metrics.jsonl (not a training run directory)")
-    out = []
-    for i, ln in enumerate(p.read_text().splitlines(), 1):
-        if not ln.strip():
-            continue
-        try:
-            d = json.loads(ln)
-            int(d["iteration"]), float(d["search_efficiency"]), float(d["return"])
-        except (ValueError, KeyError, TypeError):
-            raise UserError(f"{p}:{i}: not a metrics line") from None
-        out.append(d)
-    if not out:
-        raise UserError(f"{p}: no iterations logged yet")
-    return out
-
-
-def plot_learning_curve(run_dir: str | Path, out: str | Path | None = None) -> Path:
-    """``learning_curve.png`` (or ``out``): search efficiency and return per iteration on
-    the training worlds (raw and a 10-iteration running mean), the greedy policy's
-    validation search efficiency where logged, per-term returns, and the BC/PPO
-    boundary."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = read_metrics(run_dir)
-    it = np.array([r["iteration"] for r in rows])
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
-
-    def smooth(y, k=10):
-        y = np.asarray(y, float)
-        c = np.cumsum(np.insert(y, 0, 0.0))
-        n = np.minimum(np.arange(1, len(y) + 1), k)
-        return (c[1:] - c[np.arange(len(y)) + 1 - n]) / n
-
-    eff = [r["search_efficiency"] for r in rows]
-    ax = axes[0]
-    ax.plot(it, eff, color="C0", alpha=0.3, lw=0.8)
-    ax.plot(it, smooth(eff), color="C0", label="train worlds (sampled policy)")
-    vi = [(r["iteration"], r["val_search_efficiency"]) for r in rows if "val_search_efficiency" in r]
-    if vi:
-        ax.plot(*zip(*vi), "o-", color="C3", ms=3, label="validation (greedy, centre start)")
-    ax.set_title("search efficiency %")
-    ax.legend(fontsize=8)
-    ret = [r["return"] for r in rows]
-    axes[1].plot(it, ret, color="C1", alpha=0.3, lw=0.8)
-    axes[1].plot(it, smooth(ret), color="C1")
-    axes[1].set_title("episode return")
-    for k in TERMS:
-        axes[2].plot(it, smooth([r.get(f"r_{k}", np.nan) for r in rows]), label=k)
-    axes[2].set_title("return per reward term (running mean)")
-    axes[2].legend(fontsize=8)
-    n_bc = sum(r.get("phase") == "bc" for r in rows)
-    split = 0 < n_bc < len(rows)
-    for ax in axes:
-        ax.set_xlabel("iteration")
-        if split:
-            ax.axvline(n_bc + 0.5, color="k", ls=":", lw=1)
-    if split:
-        axes[0].text(n_bc + 0.5, axes[0].get_ylim()[0], " BC | PPO", fontsize=8, va="bottom")
-    fig.suptitle(f"{Path(run_dir).name}: {len(rows)} iterations ({n_bc} DAgger), "
-                 f"{rows[-1].get('time_s', 0) / 60:.1f} min")
-    fig.tight_layout()
-    path = Path(out) if out is not None else Path(run_dir) / "learning_curve.png"
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90, format=path.suffix.lstrip(".") or "png")
-    plt.close(fig)
-    return path

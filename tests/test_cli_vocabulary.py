@@ -258,7 +258,7 @@ def test_runs_are_named_one_way(monkeypatch):
     import re
 
     from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.trainer import new_run_dir
+    from aerohrl.algorithms.run import new_run_dir
 
     shape = r"-s(\d+)-\d{8}-\d{6}-[0-9a-f]{6}$"
     assert re.fullmatch(r"gcsl-cpu" + shape, new_run_dir(C.make_config("cpu", seed=4), "runs").name)

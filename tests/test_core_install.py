@@ -61,10 +61,12 @@ def test_core_commands_without_the_optional_packages(tmp_path):
     assert "CORE-OK []" in p.stdout, p.stdout
     # what needs an extra says so in one line, exit 2, nothing created
     for argv, extra in ((["train", "--algo", "gcsl", "--dataset", "ds/quadrotor-reach", "--out", "runs"], "train"),
-                        (["eval", "--task", "reach-desired", "--run", "runs/x"], "train"),
-                        (["runs", "show", "runs/x"], "train")):
+                        (["eval", "--task", "reach-desired", "--run", "runs/x"], "train")):
         p = _py(HIDE + f"from aerohrl.cli import main\nraise SystemExit(main({argv!r}))", tmp_path)
         assert p.returncode == 2 and p.stderr.count("\n") == 1 and f"pip install 'aerohrl[{extra}]'" in p.stderr, p.stderr
+    # `runs show` reads a run folder without torch (checksums, metrics, the plot): a missing run is the error
+    p = _py(HIDE + "from aerohrl.cli import main\nraise SystemExit(main(['runs', 'show', 'runs/x']))", tmp_path)
+    assert p.returncode == 2 and p.stderr == "aerohrl runs: error: no run at runs/x (no config.json)\n", p.stderr
     assert not (tmp_path / "runs").exists()
     p = _py(HIDE + "import aerohrl\naerohrl.load_dataset(__import__('glob').glob('ds/quadrotor-reach/*')[0], as_='lerobot')", tmp_path)
     assert p.returncode != 0 and "pip install 'aerohrl[lerobot]'" in p.stderr

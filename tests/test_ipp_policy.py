@@ -119,6 +119,7 @@ def test_warm_start_and_mismatch(tmp_path):
     with pytest.raises(UserError, match="does not match"):
         train(preset("test", init=str(tmp_path / "a"), policy=preset("test").policy.__class__(
             hidden=16)), lat, tmp_path / "c")
+    assert not (tmp_path / "c").exists()  # refused before it began: the claimed folder is removed again
 
 
 def test_describe_policy_names_what_trained_it(tmp_path):

@@ -16,8 +16,9 @@ from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
 from aerohrl.ipp.metrics import paired_differences
 from aerohrl.ipp.policy import load_policy
-from aerohrl.ipp.train import (config_from_dict, load_run_config, plot_learning_curve, preset,
-                               train)
+from aerohrl.algorithms.run import config_from_dict
+from aerohrl.ipp.curve import plot_learning_curve
+from aerohrl.ipp.train import load_run_config, preset, train
 from test_ipp_policy import random_walk  # tests/ helpers (pytest puts tests/ on sys.path)
 
 
@@ -218,7 +219,7 @@ def test_cli_train_resume_and_curve(tmp_path, capsys):
     (run / "learning_curve.png").unlink()
     assert main(["curve", str(run)]) == 0
     assert (run / "learning_curve.png").is_file()
-    assert not list(run.glob(".*"))  # atomic writes leave no temp files
+    assert [p.name for p in run.glob(".*")] == [".lock"]  # the run's lock; atomic writes leave no temp files
 
 
 @pytest.mark.parametrize("argv,msg", [
@@ -276,6 +277,31 @@ def test_resume_rejects_damaged_runs(full_run, tmp_path, capsys):
     (run / "metrics.jsonl").write_text("{\"iteration\": 1}\n")
     assert main(["curve", str(run)]) == 2
     assert "not a metrics line" in capsys.readouterr().err
+
+
+def test_an_ipp_run_being_trained_cannot_be_resumed_twice(full_run, tmp_path, capsys):
+    """`ipp train --resume RUN` while another process trains RUN exits 2 with train's line
+    and changes nothing; once the lock is free, a checkpoint from before checksums
+    resumes with a warning."""
+    import os
+    import shutil
+
+    from aerohrl.algorithms.run import RunLock
+
+    run = tmp_path / "r"
+    shutil.copytree(full_run, run)
+    before = (run / "metrics.jsonl").read_text()
+    with RunLock(run):
+        assert main(["train", "--resume", str(run), "--iterations", "2", "--quiet"]) == 2
+        err = capsys.readouterr().err.strip()
+    assert err == f"aerohrl ipp: error: run {run} is being trained by another process (pid {os.getpid()}); wait for it to end"
+    assert (run / "metrics.jsonl").read_text() == before
+    (run / "checkpoint.pt.sha256").unlink()  # as written before checkpoints had checksums
+    assert main(["train", "--resume", str(run), "--iterations", "2", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "no .sha256 file" in err and "loaded unverified" in err
+    assert [json.loads(x)["iteration"] for x in (run / "metrics.jsonl").read_text().splitlines()] == [1, 2, 3, 4]
+    assert (run / "checkpoint.pt.sha256").is_file()  # the new checkpoint has one
 
 
 def test_seeds_markdown_by_hand():

@@ -14,12 +14,17 @@ from aerohrl.algorithms import cli
 from aerohrl.algorithms.config import make_config
 from aerohrl.algorithms.data import load_dataset
 from aerohrl.algorithms.synthetic import write_synthetic_dataset
-from aerohrl.algorithms.trainer import (RunLock, checkpoint_paths, load_checkpoint, new_run_dir, read_metrics, resume_run,
-                                        start_run)
+from aerohrl.algorithms.run import Run, RunLock, load_checkpoint, new_run_dir, read_metrics
+from aerohrl.algorithms.trainer import resume_run, start_run
 from aerohrl.cli import main as aerohrl_main
 from aerohrl.errors import UserError
 
 warnings.filterwarnings("ignore", category=UserWarning)
+
+
+def checkpoint_paths(run_dir):
+    return Run(run_dir).checkpoints()
+
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)
 FLAGS = ["--hidden", "16", "16", "--critic-hidden", "16", "16", "--batch-size", "32", "--log-every", "10",
          "--checkpoint-every", "20", "--eval-every", "0", "--quiet"]

@@ -110,9 +110,9 @@ def _sweep_cmd(ds, out):
 def _weights(run):
     import torch
 
-    from aerohrl.algorithms.trainer import checkpoint_paths
+    from aerohrl.algorithms.run import Run
 
-    return torch.load(checkpoint_paths(run)[-1], weights_only=False)["model"]
+    return torch.load(Run(run).checkpoints()[-1], weights_only=False)["model"]
 
 
 def test_a_reused_run_with_another_config_says_so(dataset_dir, tmp_path):

@@ -17,11 +17,16 @@ from aerohrl.algorithms import cli
 from aerohrl.algorithms.config import ALGORITHMS, make_config
 from aerohrl.algorithms.data import load_dataset
 from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
-from aerohrl.algorithms.trainer import (TrainingDiverged, checkpoint_paths, load_checkpoint, read_metrics, resume_run,
-                                        start_run)
+from aerohrl.algorithms.run import Run, load_checkpoint, read_metrics
+from aerohrl.algorithms.trainer import TrainingDiverged, resume_run, start_run
 from aerohrl.errors import UserError
 
 warnings.filterwarnings("ignore", category=UserWarning)
+
+
+def checkpoint_paths(run_dir):
+    return Run(run_dir).checkpoints()
+
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)
 
 
