@@ -45,6 +45,7 @@ from typing import TextIO
 import numpy as np
 
 from aerohrl.errors import UserError, run_cli
+from aerohrl.eval.harness import critics_auc
 from aerohrl.eval.results import evaluation_is_current, seed_cell, seed_stats, write_results_page
 
 PROG = "experiments/recipe_study.py"
@@ -165,47 +166,6 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log: TextIO) -> Path
             run_logged([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", str(n), "--checkpoints", str(kk),
                   "--quiet"], log)
     return rd
-
-
-def critics_auc(rd: Path) -> float:
-    """ROC AUC of the critics' take-off value for Reach-Novel success (newest checkpoint)."""
-    import csv
-    from types import SimpleNamespace
-
-    import torch
-
-    from aerohrl.algorithms.trainer import read_json
-    from aerohrl.eval.harness import load_policy, run_checkpoints
-    from aerohrl.eval.oracle import roc_auc
-    from aerohrl.eval.tasks import reach_novel
-
-    ck = run_checkpoints(rd, 1)[-1]
-    f = rd / "eval" / "reach-novel" / f"episodes-{ck.stem}.csv"
-    if not f.exists():
-        return float("nan")
-    with open(f) as fh:
-        success = np.array([int(r["success"]) for r in csv.DictReader(fh)], bool)
-    from aerohrl.datagen.manifest import read_manifest
-
-    spec = read_manifest(read_json(rd / "config.json")["dataset"]["path"]).get("spec", {})  # its ranges: the task's goals
-    eps = reach_novel(SimpleNamespace(info={"spec": spec}), len(success), 0)
-    if not np.allclose(eps.goals, _episode_goals(f)):
-        raise UserError(f"{f}: its Reach-Novel goals are not the task's (the dataset moved or changed?)")
-    algo, _ = load_policy(ck)
-    s = torch.as_tensor(eps.start_states, dtype=torch.float32)
-    g = torch.as_tensor(eps.goals, dtype=torch.float32)
-    v = algo.critics(s, g, algo.act(s, g)).mean(0).numpy()
-    return roc_auc(v, success)
-
-
-def _episode_goals(csv_path: Path) -> np.ndarray:
-    """(E, 15) goals of an evaluation's per-episode file."""
-    import csv
-
-    from aerohrl import task
-
-    with open(csv_path) as fh:
-        return np.array([[float(r[f"goal_{n}"]) for n in task.GOAL_NAMES] for r in csv.DictReader(fh)])
 
 
 def row_figures(rd: Path, suffix: str = "") -> dict:
