@@ -435,10 +435,10 @@ def write_results_page(folder: str | Path, study: str, command: str, body: str, 
     import datetime as _dt
 
     if not study or not re.fullmatch(r"[a-z0-9][a-z0-9-]*", study):
-        raise ValueError(f"study must be lower-case letters, digits and '-', got {study!r}")
+        raise UserError(f"study must be lower-case letters, digits and '-', got {study!r}")
     day = date or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
     if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", day):
-        raise ValueError(f"date must be YYYY-MM-DD, got {day!r}")
+        raise UserError(f"date must be YYYY-MM-DD, got {day!r}")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     stem = f"{day}-{study}"

@@ -14,6 +14,7 @@ from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_datas
 from aerohrl.algorithms.trainer import start_run
 from aerohrl.atomic import torch_save
 from aerohrl.cli import main
+from aerohrl.errors import UserError
 
 warnings.filterwarnings("ignore", category=UserWarning)
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20,
@@ -156,9 +157,9 @@ def test_results_page_is_dated_and_opens_with_its_command(tmp_path):
     p2 = write_results_page(tmp_path / "pages", "chapter3-tables", "make results", "newer\n", date="2026-12-02")
     assert p2 == p and "newer" in p.read_text()  # a second run on one day replaces its page
     for bad in ("Chapter 3", "../x", ""):
-        with pytest.raises(ValueError):
+        with pytest.raises(UserError, match="lower-case"):
             write_results_page(tmp_path, bad, "c", "b")
-    with pytest.raises(ValueError):
+    with pytest.raises(UserError, match="YYYY-MM-DD"):
         write_results_page(tmp_path, "x", "c", "b", date="yesterday")
 
 
