@@ -48,11 +48,11 @@ test: venv
 test-fast: venv
 	$(BIN)/python -m pytest
 
-# The whole chapter-3 reproduction (datasets -> 4 algorithms x 3 seeds + the planner experiment -> Tables 3.1/3.2 in README.md); about 4 h on 2 cores, resumable.
+# The whole chapter-3 reproduction (datasets -> 4 algorithms x 3 seeds + the planner experiment -> Tables 3.1/3.2 in docs/results/DATE-chapter3-tables.md); about 4 h on 2 cores, resumable.
 # The training runs are Ray tasks (aerohrl sweep's machinery): RAY_ADDRESS=host:port runs them on a cluster.
 RAY_ADDRESS ?=
 results: venv
-	$(BIN)/python -m aerohrl.eval.reproduce $(if $(RAY_ADDRESS),--address $(RAY_ADDRESS))
+	$(BIN)/python experiments/reproduce.py $(if $(RAY_ADDRESS),--address $(RAY_ADDRESS))
 
 # API reference from the docstrings (pdoc) -> docs/api/index.html
 docs: venv

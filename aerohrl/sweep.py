@@ -304,12 +304,12 @@ def eval_task(run_dir: str, tasks: list[str], episodes: int, checkpoints: int, t
     from contextlib import redirect_stderr, redirect_stdout
 
     from aerohrl.eval.cli import main as eval_main
-    from aerohrl.eval.reproduce import _evaluated
+    from aerohrl.eval.results import evaluation_is_current
 
     rd = Path(run_dir)
     done = []
     for t in tasks:
-        if _evaluated(rd, t, episodes, checkpoints):
+        if evaluation_is_current(rd, t, episodes, checkpoints):
             continue
         err = io.StringIO()
         with redirect_stdout(io.StringIO()), redirect_stderr(err):
@@ -451,7 +451,7 @@ def train_runs(items: list[tuple[str, str, dict]], *, address: str | None = None
                log: Callable[[str], Any] = print) -> dict[str, dict]:
     """``train_on_ray`` on a local Ray of ``num_cpus`` cores (started and stopped here) or
     the cluster at ``address``, one CPU per run: what ``make results`` trains through
-    (eval/reproduce.py). The result of each run by label; UserError when any failed."""
+    (experiments/reproduce.py). The result of each run by label; UserError when any failed."""
     ray = ray_connect(address, num_cpus=num_cpus)
     try:
         report = train_on_ray(ray, items, log=log)

@@ -158,7 +158,8 @@ def _durations(T, n: int) -> np.ndarray:
     return t
 
 
-def _positive(name: str, x) -> float:
+def positive_number(name: str, x) -> float:
+    """``x`` as a float, finite and > 0; a one-line error naming ``name`` otherwise."""
     try:
         v = float(x)
     except (TypeError, ValueError):
@@ -471,7 +472,7 @@ def _qp_one(ws: _QPWorkspace, x0n, xfn, T: float, a_max: float, warm: list, *, s
 
 
 def _check_common(a_max, degree, n_samples):
-    a_max = _positive("a_max", a_max)
+    a_max = positive_number("a_max", a_max)
     degree = _int_at_least("degree", degree, 5, MAX_DEGREE)
     n_samples = N_SAMPLES if n_samples is None else _int_at_least("n_samples", n_samples, 1)
     return a_max, degree, n_samples

@@ -2,7 +2,7 @@
 
 The thesis's OOD set moves the goal position out of rho_D (|p_i| in [2, 3.5] m per axis).
 Once the skills generalise, position alone no longer tests the hierarchy, so the reach
-study (eval/reach.py, eval/README.md "Reach beyond the data") steps out of rho_D along
+study (eval/rings.py and experiments/reach_study.py, eval/README.md "Reach beyond the data") steps out of rho_D along
 each goal dimension in turn, the others drawn from rho_D (the dataset spec's ranges):
 
 ================  ======================================================  =========

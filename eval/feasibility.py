@@ -66,18 +66,19 @@ Everything is batched over goals (and run-up options): one time loop over all fl
 each flight's outcome a function of its own inputs only. The loop stops early once
 every flight has reached its goal.
 
-CLI (reproduces one ring's rates)::
+:func:`ring_feasibility` applies it to the test goals of a ring of an OOD goal family
+(eval/families.py), as the reach study reports it. One ring's rates from the command
+line (``experiments/feasibility_study.py``)::
 
-    python -m aerohrl.eval.feasibility --family velocity --ring 3 --n 250
+    python experiments/feasibility_study.py --family velocity --ring 3 --n 250
 """
 
 from __future__ import annotations
 
-import math
-import sys
 import time
 from dataclasses import dataclass, field
-from typing import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -85,8 +86,11 @@ from aerohrl import task
 from aerohrl.datagen import reference
 from aerohrl.datagen.expert import GeometricController
 from aerohrl.datagen.goals import goal_vectors
-from aerohrl.errors import ArgumentParser, UserError, run_cli
+from aerohrl.errors import UserError
 from aerohrl.sim import BatchedQuadrotor, get_preset
+
+if TYPE_CHECKING:
+    from aerohrl.eval.families import Ring
 
 A_SPEC = reference.A_MAX  # the dataset's per-axis bound (m/s^2)
 A_MARGIN = 1.2  # bound = margin x the goal's largest acceleration component (if above A_SPEC)
@@ -167,7 +171,7 @@ def _pos_int(name: str, x) -> int:
     return int(x)
 
 
-_pos_float = reference._positive  # the reference generator's check: a finite number > 0, else a one-line error
+_pos_float = reference.positive_number  # a finite number > 0, else a one-line error
 
 
 # ------------------------------------------------------------------- references
@@ -441,42 +445,29 @@ def feasibility(goals: dict, horizon_steps: int, vehicle: str = "hummingbird", f
     return res
 
 
-# --------------------------------------------------------------------------- CLI
+def ring_feasibility(ring: Ring, n: int, spec: dict, cache: str | Path | None = None) -> dict[str, np.ndarray]:
+    """Expert feasibility of a ring's ``n`` test goals (episode-set seed 0, drawn with the
+    dataset ``spec``'s goal ranges, vehicle and rates): per goal (E,) bool arrays
+    ``direct``, ``runup`` (reached only through a run-up: run-ups are flown for the goals
+    the direct flights miss) and ``feasible``. With ``cache`` (a folder) the result is kept
+    as ``CACHE/feasibility-RING-nN.json`` and read back from there next time."""
+    import json
 
-PROG = "python -m aerohrl.eval.feasibility"
+    from aerohrl import atomic
+    from aerohrl.eval.families import sample_ring
+    from aerohrl.eval.tasks import DEFAULT_ACC_RANGE, DEFAULT_POS_RANGE, DEFAULT_VEL_RANGE
 
-
-def _parser() -> ArgumentParser:
-    ap = ArgumentParser(prog=PROG, description="Direct / run-up / feasible rates of the expert on one ring of an OOD "
-                                               "goal family (eval/families.py).")
-    ap.add_argument("--family", required=True, help="position | velocity | acceleration | combined")
-    ap.add_argument("--ring", required=True, help="1-based step of the family, or a custom range LO:HI")
-    ap.add_argument("--n", type=int, default=250, help="goals (default 250)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--vehicle", default="hummingbird")
-    ap.add_argument("--a-max", type=float, default=None, help="one fixed per-axis bound (default: per-goal rule)")
-    ap.add_argument("--runup", default="all", help="all | failed | none (default all)")
-    return ap
-
-
-def _cmd(a) -> int:
-    from aerohrl.eval.families import parse_ring, sample_ring
-
-    ring = parse_ring(a.family, a.ring)
-    goals = sample_ring(ring, a.n, a.seed)
-    r = feasibility(goals, ring.horizon(), vehicle=a.vehicle, a_max=a.a_max, runup=a.runup)
-    rates = r.rates()
-    print(f"{ring.family} ring {ring.index} ({ring.label}), n={a.n}, seed={a.seed}, horizon {ring.horizon()} steps: "
-          + ", ".join(f"{k} {100 * v:.1f} %" for k, v in rates.items()) + f"  [{r.seconds:.1f} s]")
-    return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """The feasibility command: which goals the expert reaches directly and through a run-up;
-    exit code."""
-    a = _parser().parse_args(sys.argv[1:] if argv is None else argv)
-    return run_cli(PROG, lambda: _cmd(a))
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    f = Path(cache) / f"feasibility-{ring.slug}-n{n}.json" if cache is not None else None
+    if f is not None and f.exists():
+        return {k: np.array(v) for k, v in json.loads(f.read_text()).items()}
+    g = sample_ring(ring, n, 0, pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
+                    vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
+                    acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE))
+    # run-ups only for the goals the direct flight misses: "run-up" then counts the goals that need one
+    r = feasibility(g, ring.horizon(), vehicle=spec.get("vehicle", "hummingbird"), fps=int(spec.get("fps", 100)),
+                    substeps=int(spec.get("substeps", 5)), runup="failed")
+    keep = {"direct": np.asarray(r.direct).tolist(), "runup": (np.asarray(r.runup) & ~np.asarray(r.direct)).tolist(),
+            "feasible": np.asarray(r.feasible).tolist()}
+    if f is not None:
+        atomic.write_text(f, json.dumps(keep))
+    return {k: np.array(v) for k, v in keep.items()}

@@ -289,5 +289,44 @@ def make_reach_intermediate_evaluator(data: Dataset, cfg: TrainConfig,
     return evaluate
 
 
-__all__ = ["EvalOptions", "evaluate_run", "run_checkpoints", "load_run_dataset", "PLANNERS",
+
+def critics_auc(run_dir: str | Path) -> float:
+    """How well a run's critics know which goals its policy reaches: the ROC AUC of the
+    ensemble's take-off value ``mean_j Q_j(s0, pi(s0, g), g)`` for success on the run's
+    Reach-Novel evaluation (``RUN/eval/reach-novel/``, newest checkpoint; NaN when that
+    checkpoint has not been evaluated there). UserError when the evaluated goals are not
+    the task's (the dataset moved or changed)."""
+    import csv
+    from types import SimpleNamespace
+
+    import torch
+
+    from aerohrl import task
+    from aerohrl.algorithms.base import load_policy
+    from aerohrl.algorithms.run import read_json
+    from aerohrl.datagen.dataset import open_dataset
+    from aerohrl.planning.oracle import roc_auc
+    from aerohrl.eval.tasks import reach_novel
+
+    run_dir = Path(run_dir)
+    ck = run_checkpoints(run_dir, 1)[-1]
+    f = run_dir / "eval" / "reach-novel" / f"episodes-{ck.stem}.csv"
+    if not f.exists():
+        return float("nan")
+    with open(f) as fh:
+        rows = list(csv.DictReader(fh))
+    success = np.array([int(r["success"]) for r in rows], bool)
+    goals = np.array([[float(r[f"goal_{n}"]) for n in task.GOAL_NAMES] for r in rows])
+    spec = open_dataset(read_json(run_dir / "config.json")["dataset"]["path"], verify=False).spec  # its ranges: the task's goals
+    eps = reach_novel(SimpleNamespace(info={"spec": spec}), len(success), 0)
+    if not np.allclose(eps.goals, goals):
+        raise UserError(f"{f}: its Reach-Novel goals are not the task's (the dataset moved or changed?)")
+    algo, _ = load_policy(ck)
+    s = torch.as_tensor(eps.start_states, dtype=torch.float32)
+    g = torch.as_tensor(eps.goals, dtype=torch.float32)
+    v = algo.critics(s, g, algo.act(s, g)).mean(0).numpy()
+    return roc_auc(v, success)
+
+
+__all__ = ["EvalOptions", "evaluate_run", "run_checkpoints", "load_run_dataset", "critics_auc", "PLANNERS",
            "make_reach_intermediate_evaluator"]

@@ -178,6 +178,26 @@ def read_summary(run_dir: str | Path, name: str) -> dict | None:
         raise UserError(f"cannot read {p}: {e}") from None
 
 
+def evaluation_is_current(run_dir: str | Path, name: str, episodes: int, checkpoints: int) -> bool:
+    """Does the evaluation ``name`` of a run (``RUN/eval/NAME/summary.json``) already cover
+    the run's newest ``checkpoints`` checkpoints with ``episodes`` episodes each, and
+    postdate them? What a resumable driver asks before evaluating again (``aerohrl sweep``,
+    ``make results``, the recipe study); False when the summary is missing or unreadable."""
+    from aerohrl.algorithms.run import Run
+
+    f = Path(run_dir) / "eval" / name / "summary.json"
+    ckpts = Run(run_dir).checkpoints()[-checkpoints:]
+    if not f.exists() or not ckpts:
+        return False
+    try:
+        s = json.loads(f.read_text())
+    except (OSError, ValueError):
+        return False
+    done = [c.get("checkpoint") for c in s.get("checkpoints", [])]
+    return (s.get("episodes") == episodes and done == [c.name for c in ckpts]
+            and f.stat().st_mtime > max(c.stat().st_mtime for c in ckpts))
+
+
 def _algo_of(run_dir) -> str:
     from aerohrl.algorithms.run import Run
 
@@ -406,5 +426,38 @@ def tables_markdown(t: dict) -> str:
     return "\n".join(out)
 
 
-__all__ = ["write_episodes", "write_trajectories", "write_summary", "read_summary", "summarize", "tables", "tables_markdown",
+def write_results_page(folder: str | Path, study: str, command: str, body: str, *,
+                       title: str | None = None, figures: Sequence[str | Path] = (), date: str | None = None) -> Path:
+    """Write a study's result as the dated page ``FOLDER/YYYY-MM-DD-STUDY.md`` (atomic).
+
+    The page opens with ``title`` (default: the study's name) and the command that
+    produced it, then ``body`` (Markdown). Each of
+    ``figures`` is copied beside the page as ``FOLDER/figures/YYYY-MM-DD-STUDY-NAME`` and
+    shown below the body. ``date``: the page's day (default: today, UTC). A second run of
+    the study on the same day replaces its page; the index ``FOLDER/README.md`` is kept
+    by hand. Returns the page's path."""
+    import datetime as _dt
+
+    if not study or not re.fullmatch(r"[a-z0-9][a-z0-9-]*", study):
+        raise UserError(f"study must be lower-case letters, digits and '-', got {study!r}")
+    day = date or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
+    if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", day):
+        raise UserError(f"date must be YYYY-MM-DD, got {day!r}")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = f"{day}-{study}"
+    shown = []
+    for fig in figures:
+        fig = Path(fig)
+        dest = folder / "figures" / f"{stem}-{fig.name}"
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        atomic.write_bytes(dest, fig.read_bytes())
+        shown.append(f"![{fig.stem}]({dest.relative_to(folder).as_posix()})")
+    text = (f"# {title or study.replace('-', ' ').capitalize()}, {day}\n\nProduced by:\n\n```\n{command.strip()}\n```\n\n"
+            + body.strip() + "\n" + "".join(f"\n{s}\n" for s in shown))
+    return atomic.write_text(folder / f"{stem}.md", text)
+
+
+__all__ = ["write_episodes", "write_trajectories", "write_summary", "read_summary", "evaluation_is_current",
+           "write_results_page", "summarize", "tables", "tables_markdown",
            "markdown", "to_csv", "group_runs", "seed_stats", "seed_cell", "bootstrap_ci", "THESIS_T31", "THESIS_T32"]

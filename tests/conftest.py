@@ -8,11 +8,17 @@ loudly then instead of passing by download (or hanging).
 where the tests run as root and may mount one, else a folder whose writes fail with
 ENOSPC once ``fill()`` is called (a monkeypatched ``os.write`` path would miss torch's
 own writer, so the fallback patches the file object ``open`` returns).
+
+``load_experiment(NAME)`` imports the script ``experiments/NAME.py`` (not a package:
+the scripts run as ``python experiments/NAME.py``) as a module, for tests that call
+its functions.
 """
 
 import errno
+import importlib.util
 import os
 import subprocess
+import sys
 import uuid
 from pathlib import Path
 
@@ -21,6 +27,19 @@ import pytest
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
+
+
+def load_experiment(name: str):
+    """The script ``experiments/NAME.py`` imported as the module ``experiments_NAME``."""
+    key = f"experiments_{name}"
+    if key not in sys.modules:
+        spec = importlib.util.spec_from_file_location(key, EXPERIMENTS / f"{name}.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[key] = mod  # before running it: dataclasses look their module up
+        spec.loader.exec_module(mod)
+    return sys.modules[key]
 
 
 class SmallDisk:

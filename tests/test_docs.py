@@ -131,7 +131,7 @@ def test_public_modules_are_mypy_clean():
              "algorithms/td3bc.py",
              "datagen/__init__.py", "datagen/cli.py", "datagen/estimate.py", "datagen/expert.py", "datagen/goals.py",
              "datagen/mcap_export.py", "datagen/plots.py", "datagen/recipes.py",
-             "eval/__init__.py", "eval/cli.py", "eval/families.py", "eval/floors.py", "eval/harness.py", "eval/reproduce.py",
+             "eval/__init__.py", "eval/cli.py", "eval/families.py", "eval/floors.py", "eval/harness.py", "experiments/reproduce.py",
              "eval/tasks.py",
              "envs/__init__.py", "envs/episodes.py", "planning/__init__.py", "aerohrl/runs.py",
              "ipp/__init__.py", "ipp/sensor.py", "ipp/world.py", "algorithms/run.py"]

@@ -14,6 +14,7 @@ from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_datas
 from aerohrl.algorithms.trainer import start_run
 from aerohrl.atomic import torch_save
 from aerohrl.cli import main
+from aerohrl.errors import UserError
 
 warnings.filterwarnings("ignore", category=UserWarning)
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20,
@@ -141,32 +142,45 @@ def test_checkpoint_from_another_dataset_is_refused(setup, tmp_path, capsys):
     assert code == 2 and "do not belong together" in err and "step-000000040.pt" in err
 
 
-def test_readme_block_is_replaced_between_markers(tmp_path):
-    from aerohrl.eval.reproduce import update_readme
+def test_results_page_is_dated_and_opens_with_its_command(tmp_path):
+    from aerohrl.eval.results import write_results_page
 
-    p = tmp_path / "README.md"
-    p.write_text("# x\n<!-- results:begin -->\nold\n<!-- results:end -->\ntail\n")
-    assert update_readme(p, "new table\n")
-    assert p.read_text() == "# x\n<!-- results:begin -->\nnew table\n<!-- results:end -->\ntail\n"
-    q = tmp_path / "NOMARK.md"
-    q.write_text("# y\n")
-    assert not update_readme(q, "t") and q.read_text() == "# y\n"
+    fig = tmp_path / "curves.png"
+    fig.write_bytes(b"png")
+    p = write_results_page(tmp_path / "pages", "chapter3-tables", "make results", "new table\n", figures=[fig],
+                           date="2026-12-02")
+    assert p == tmp_path / "pages" / "2026-12-02-chapter3-tables.md"
+    text = p.read_text()
+    assert text.index("```\nmake results\n```") < text.index("new table")
+    assert "](figures/2026-12-02-chapter3-tables-curves.png)" in text
+    assert (tmp_path / "pages" / "figures" / "2026-12-02-chapter3-tables-curves.png").read_bytes() == b"png"
+    p2 = write_results_page(tmp_path / "pages", "chapter3-tables", "make results", "newer\n", date="2026-12-02")
+    assert p2 == p and "newer" in p.read_text()  # a second run on one day replaces its page
+    for bad in ("Chapter 3", "../x", ""):
+        with pytest.raises(UserError, match="lower-case"):
+            write_results_page(tmp_path, bad, "c", "b")
+    with pytest.raises(UserError, match="YYYY-MM-DD"):
+        write_results_page(tmp_path, "x", "c", "b", date="yesterday")
 
 
 @pytest.mark.slow
 def test_make_results_pipeline_end_to_end(tmp_path):
-    """`make results` in miniature: build, train two algorithms, evaluate, tables into a README."""
+    """`make results` in miniature: build, train two algorithms, evaluate, tables into a dated page."""
     import subprocess
     import sys
+    from pathlib import Path
 
-    readme = tmp_path / "README.md"
-    readme.write_text("<!-- results:begin -->\n<!-- results:end -->\n")
-    p = subprocess.run([sys.executable, "-m", "aerohrl.eval.reproduce", "--steps", "60", "--episodes", "6", "--checkpoints", "2",
+    pages = tmp_path / "pages"
+    p = subprocess.run([sys.executable, "experiments/reproduce.py", "--steps", "60", "--episodes", "6", "--checkpoints", "2",
                         "--algos", "gcsl", "td3bc", "--seeds", "0", "1", "--continuations", "20", "--oracle-goals", "3", "--oracle-candidates", "8", "--datasets", str(tmp_path / "ds"), "--runs", str(tmp_path / "runs"),
-                        "--out", str(tmp_path / "res"), "--readme", str(readme)], capture_output=True, text=True,
+                        "--out", str(tmp_path / "res"), "--results-dir", str(pages)], capture_output=True, text=True,
+                       cwd=Path(__file__).resolve().parent.parent,
                        timeout=1800)  # minutes on an idle 2-core machine; 15+ at a load of 7 (Ray start-up included)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
-    text = readme.read_text()
+    (page,) = pages.glob("*-chapter3-tables.md")
+    text = page.read_text()
+    assert text.index("```\npython experiments/reproduce.py --steps 60") < text.index("Reproduced by `make results`")
+    assert (tmp_path / "res" / "results.md").read_text() in text
     assert "Table 3.1 analogue" in text and "Table 3.2 analogue" in text and "wall time" in text and "TD3-BC" in text
     assert "Oracle of the single-goal planner for gcsl" in text and "Reach-Novel" in text
     assert "(+1 seed: gcsl-cpu-s1)" in text and "floor: hover" in text  # rows over seeds, floors beside GCSL
@@ -179,7 +193,7 @@ def test_make_results_keeps_evaluations_that_cover_the_newest_checkpoints(tmp_pa
     import json
     import os
 
-    from aerohrl.eval.reproduce import _evaluated
+    from aerohrl.eval.results import evaluation_is_current as _evaluated
 
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)

@@ -1,4 +1,5 @@
-"""eval/feasibility.py: which goals the expert reaches directly and through a run-up."""
+"""eval/feasibility.py: which goals the expert reaches directly and through a run-up (and
+experiments/feasibility_study.py, one ring's rates)."""
 
 import numpy as np
 import pytest
@@ -7,6 +8,7 @@ from aerohrl.datagen import reference
 from aerohrl.datagen.goals import flat_attitude
 from aerohrl.errors import UserError
 from aerohrl.eval import feasibility as fz
+from conftest import load_experiment
 
 
 def _goals(pos, vel, acc):
@@ -132,12 +134,30 @@ def test_bad_goals():
         fz.feasibility(g | {"vel": np.zeros((2, 3))}, 100)
 
 
-def test_cli(capsys):
-    assert fz.main(["--family", "velocity", "--ring", "3", "--n", "4", "--runup", "none"]) == 0
+def test_cli(capsys, tmp_path):
+    study = load_experiment("feasibility_study")
+    pages = ["--results-dir", str(tmp_path)]
+    assert study.main(["--family", "velocity", "--ring", "3", "--n", "4", "--runup", "none", *pages]) == 0
     out = capsys.readouterr().out
     assert "velocity ring 3" in out and "direct" in out and "feasible" in out
-    assert fz.main(["--family", "speed", "--ring", "1", "--n", "4"]) == 2
+    (page,) = tmp_path.glob("*-feasibility-velocity-3.md")
+    text = page.read_text()
+    assert "python experiments/feasibility_study.py --family velocity --ring 3" in text and out.strip() in text
+    assert study.main(["--family", "speed", "--ring", "1", "--n", "4", *pages]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unknown goal family" in err
-    assert fz.main(["--family", "velocity", "--ring", "9", "--n", "4"]) == 2
-    assert fz.main(["--family", "velocity", "--ring", "1", "--n", "0"]) == 2
+    assert study.main(["--family", "velocity", "--ring", "9", "--n", "4", *pages]) == 2
+    assert study.main(["--family", "velocity", "--ring", "1", "--n", "0", *pages]) == 2
+
+
+def test_ring_feasibility_is_cached(tmp_path):
+    from aerohrl.eval.families import parse_ring
+
+    ring = parse_ring("velocity", "1")
+    spec = {"fps": 100}
+    a = fz.ring_feasibility(ring, 3, spec, cache=tmp_path)
+    (f,) = tmp_path.glob("feasibility-*-n3.json")
+    assert set(a) == {"direct", "runup", "feasible"} and all(v.shape == (3,) for v in a.values())
+    assert not (a["runup"] & a["direct"]).any() and np.array_equal(a["feasible"], a["direct"] | a["runup"])
+    f.write_text('{"direct": [true], "runup": [false], "feasible": [true]}')  # read back, not flown again
+    assert fz.ring_feasibility(ring, 3, spec, cache=tmp_path)["direct"].tolist() == [True]

@@ -1,4 +1,4 @@
-"""OOD goal families (eval/families.py) and the reach study (eval/reach.py): rings and their
+"""OOD goal families (eval/families.py) and the reach study (eval/rings.py, experiments/reach_study.py): rings and their
 one-line errors, the thesis's OOD set as ring 1, batched rings equal to one evaluation each,
 the decline margin chosen on held-out goals and applied exactly."""
 
@@ -18,8 +18,9 @@ from aerohrl.cli import main
 from aerohrl.datagen.goals import goal_vectors
 from aerohrl.errors import UserError
 from aerohrl.eval import families as F
-from aerohrl.eval import reach
+from aerohrl.eval import rings as reach
 from aerohrl.eval.tasks import ood_goals
+from conftest import load_experiment
 
 warnings.filterwarnings("ignore", category=UserWarning)
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20,
@@ -120,13 +121,17 @@ def _success(d):
 
 
 def test_reach_study_end_to_end(run, tmp_path, capsys):
-    readme = tmp_path / "README.md"
-    readme.write_text(f"# x\n{reach.BEGIN}\nold\n{reach.END}\ntail\n")
+    study = load_experiment("reach_study")
+    pages = tmp_path / "pages"
     argv = ["--runs", str(run), "--families", "velocity", "--episodes", "5", "--heldout", "4", "--variants", "straight",
-            "single", "single-decline", "chain", "--candidates", "64", "--out", str(tmp_path / "out"), "--readme", str(readme), "--fly-declines"]
-    assert reach.main(argv) == 0
-    text = readme.read_text()
-    assert "\nold\n" not in text and "\\|v_i\\| in [3.5, 5] m/s" in text and text.endswith(f"{reach.END}\ntail\n")
+            "single", "single-decline", "chain", "--candidates", "64", "--out", str(tmp_path / "out"), "--results-dir",
+            str(pages), "--fly-declines"]
+    assert study.main(argv) == 0
+    (page,) = pages.glob("*-reach-families.md")
+    text = page.read_text()
+    assert text.index("```\npython experiments/reach_study.py --runs") < text.index("Written by")  # the command first
+    assert "\\|v_i\\| in [3.5, 5] m/s" in text and "reach_curves.png)" in text
+    assert (pages / "figures" / page.name.replace(".md", "-reach_curves.png")).stat().st_size > 0
     margins = json.loads((tmp_path / "out" / "reach-margins.json").read_text())["margins"]
     assert "single" in margins and "chain" in margins
     chain = json.loads((reach.eval_root(run, 5) / "ood-velocity-3.5-5-multi2-synth" / "summary.json").read_text())
@@ -146,14 +151,14 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
     if not math.isinf(m):
         single = reach.eval_root(run, 5) / "ood-velocity-3.5-5-single"
         dec = reach.eval_root(run, 5) / f"ood-velocity-3.5-5-single-decline{m:g}"
-        e_s, e_p, e_d = (reach._episodes(x) for x in (ring_dir, single, dec))
+        e_s, e_p, e_d = (reach.episode_outcomes(x) for x in (ring_dir, single, dec))
         for k in e_d:
             assert np.array_equal(e_d[k]["success"], reach.decline_success(e_s[k]["success"], e_p[k]["success"],
                                                                            e_p[k]["diff"], m))
     assert (tmp_path / "out" / "reach_curves.png").stat().st_size > 0
     # resumable: a second pass flies nothing new and writes the same table
     mtime = ring_dir.joinpath("summary.json").stat().st_mtime
-    assert reach.main(argv) == 0 and ring_dir.joinpath("summary.json").stat().st_mtime == mtime
+    assert study.main(argv) == 0 and ring_dir.joinpath("summary.json").stat().st_mtime == mtime
 
 
 @pytest.mark.parametrize("args, msg", [

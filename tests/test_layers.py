@@ -44,17 +44,7 @@ RANK = {unit: i for i, units in enumerate(LAYERS) for unit in units}
 
 # Known violations in files this change does not own, each with its reason. An entry that
 # no longer occurs fails the test: delete it once the import is gone.
-ALLOWED: dict[str, str] = {
-    "aerohrl.sweep -> aerohrl.eval.reproduce._evaluated":
-        "private helper of the reproduction study; the study moves to experiments/ and the sweep "
-        "stops importing it (the experiments work)",
-    "aerohrl.eval.reproduce -> aerohrl.sweep":
-        "the reproduction study (an eval module today) drives the sweep; it moves to experiments/, "
-        "above every package (the experiments work)",
-    "aerohrl.eval.feasibility -> aerohrl.datagen.reference._positive":
-        "the feasibility study borrows the reference generator's number check; the study is being split "
-        "and moved to experiments/ (the experiments work), which settles where the check lives",
-}
+ALLOWED: dict[str, str] = {}
 
 
 def _modules() -> dict[str, Path]:

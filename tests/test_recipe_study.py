@@ -1,4 +1,4 @@
-"""The recipe study (eval/recipe_study.py): seeds aggregated, floors beside, end to end."""
+"""The recipe study (experiments/recipe_study.py): seeds aggregated, floors beside, end to end."""
 
 import json
 import math
@@ -7,8 +7,10 @@ import sys
 import numpy as np
 import pytest
 
-from aerohrl.eval import recipe_study as rs
 from aerohrl.eval import results
+from conftest import load_experiment
+
+rs = load_experiment("recipe_study")
 
 
 def _fake_run(root, row: rs.Row, rates: dict, floors: dict | None = None):
@@ -78,3 +80,21 @@ def test_a_row_end_to_end(tmp_path, monkeypatch):
     assert "aerohrl.eval.cli" not in (tmp_path / "log.txt").read_text()[before:]  # up to date: nothing re-evaluated
     (rec,) = rs.aggregate([row], tmp_path / "runs")
     assert set(rec["cols"]) >= {"reach-novel", "reach-novel-goaltol0.5", "auc"} and "hover" in rec["floors"]
+
+
+def test_the_report_goes_to_a_dated_page(tmp_path, monkeypatch):
+    """``--report-only`` tabulates what is there into OUT/recipes.md and the dated results
+    page (the command first, the figure beside it); no README is touched."""
+    monkeypatch.setattr(rs, "critics_auc", lambda rd: 0.75)
+    rows = rs.PLANS["size"]
+    for r, base in zip(rows, (0.2, 0.5, 0.8, 0.9)):
+        _fake_run(tmp_path / "runs", r, {"reach-novel": [base, base], "ood": [0.0, 0.0]})
+    pages = tmp_path / "pages"
+    assert rs.main(["--plan", "size", "--report-only", "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
+                    "--results-dir", str(pages)]) == 0
+    (page,) = pages.glob("*-recipes.md")
+    text = page.read_text()
+    assert text.index("```\npython experiments/recipe_study.py --plan size --report-only") < text.index("**size**")
+    assert "| noise | 250 | 15k | 1 | — | 20.0 | — | 0.0 | 0.750 |" in text and "reach_novel_vs_size.png)" in text
+    assert (pages / "figures" / page.name.replace(".md", "-reach_novel_vs_size.png")).stat().st_size > 0
+    assert "**size**" in (tmp_path / "out" / "recipes.md").read_text()

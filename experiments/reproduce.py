@@ -1,8 +1,8 @@
 """``make results``: the whole chapter-3 reproduction, data to tables.
 
-    .venv/bin/python -m aerohrl.eval.reproduce                      # the real thing (hours on 2 CPU cores)
-    .venv/bin/python -m aerohrl.eval.reproduce --steps 200 --episodes 20 --checkpoints 2 --runs /tmp/r --out /tmp/res
-                                                                    # a smoke run of the same pipeline
+    .venv/bin/python experiments/reproduce.py                       # the real thing (hours on 2 CPU cores)
+    .venv/bin/python experiments/reproduce.py --steps 200 --episodes 20 --checkpoints 2 --runs /tmp/r --out /tmp/res \
+        --results-dir /tmp/pages                                    # a smoke run of the same pipeline
 
 1. ``datagen build --goals 250`` (seed 0; verified, not rebuilt, when it exists);
 2. ``train --algo A --preset cpu --checkpoint-every STEPS/30 --seed S`` for GCSL, TD3-BC,
@@ -25,9 +25,9 @@
    ``--critic-random-goal-prob`` (run ``gcsl-cpu-cont``), trained beside the others and
    evaluated like GCSL (OOD with every planner, oracle);
 5. ``aerohrl eval table`` -> ``OUT/tables.md`` + CSV, trajectory plots and learning
-   curves under ``OUT/``, and the tables with the wall time of every stage written into
-   ``README`` between the lines ``<!-- results:begin -->`` and ``<!-- results:end -->``
-   (when those markers exist; ``OUT/results.md`` always).
+   curves under ``OUT/``, and the tables with the wall time of every stage written as the
+   dated page ``RESULTS_DIR/YYYY-MM-DD-chapter3-tables.md`` (``--results-dir``, default
+   docs/results; the command first) and as ``OUT/results.md``.
 
 Every stage but training is the real command line run as a subprocess with ``OMP_NUM_THREADS=1``;
 training goes through ``aerohrl sweep``'s Ray tasks (``aerohrl.sweep.train_runs``), one thread each.
@@ -36,23 +36,26 @@ training goes through ``aerohrl sweep``'s Ray tasks (``aerohrl.sweep.train_runs`
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
 import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from aerohrl import atomic
 from aerohrl import cli_types as T
 from aerohrl.errors import ArgumentParser, UserError, run_cli
+from aerohrl.eval.results import evaluation_is_current, write_results_page
 
-PROG = "aerohrl.eval.reproduce"
+PROG = "experiments/reproduce.py"
 ALGOS = ("gcsl", "td3bc", "td3awbc", "cql")
-BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
+STUDY = "chapter3-tables"  # the results page: RESULTS_DIR/YYYY-MM-DD-chapter3-tables.md
 CONT_RANDOM_GOAL = 0.3  # the planner experiment's --critic-random-goal-prob (eval/README.md)
 
 
-def _run(cmd: list[str], log) -> str:
+def run_logged(cmd: list[str], log) -> str:
+    """Run a command line with one thread, its output appended to ``log``; its output, or a
+    one-line UserError when it fails."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     print("+ " + " ".join(cmd), flush=True)
     p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -83,40 +86,6 @@ def _train_all(items: list[tuple[str, Path, dict]], log, jobs: int, address: str
     return {label: done[label]["seconds"] for label, *_ in items}
 
 
-def _evaluated(rd: Path, name: str, episodes: int, checkpoints: int) -> bool:
-    """Does ``rd/eval/name/summary.json`` already cover the run's newest ``checkpoints``
-    checkpoints with ``episodes`` episodes each (and postdate them)?"""
-    import json
-
-    from aerohrl.algorithms.run import Run
-
-    f = rd / "eval" / name / "summary.json"
-    ckpts = Run(rd).checkpoints()[-checkpoints:]
-    if not f.exists() or not ckpts:
-        return False
-    try:
-        s = json.loads(f.read_text())
-    except (OSError, ValueError):
-        return False
-    done = [c.get("checkpoint") for c in s.get("checkpoints", [])]
-    return (s.get("episodes") == episodes and done == [c.name for c in ckpts]
-            and f.stat().st_mtime > max(c.stat().st_mtime for c in ckpts))
-
-
-def update_readme(readme: Path, block: str, begin: str = BEGIN, end: str = END) -> bool:
-    """Replace the text between the lines ``begin`` and ``end`` of ``readme`` (atomically);
-    False when the file or a marker is missing."""
-    if not readme.exists():
-        return False
-    text = readme.read_text()
-    if begin not in text or end not in text:
-        return False
-    head, rest = text.split(begin, 1)
-    _, tail = rest.split(end, 1)
-    atomic.write_text(readme, head + begin + "\n" + block.rstrip() + "\n" + end + tail)
-    return True
-
-
 def main(argv: list[str] | None = None) -> int:
     """``make results``: build the data, train all four algorithms, evaluate them and write the
     tables and plots; exit code."""
@@ -124,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
     ap.add_argument("--runs", default="runs", help="runs root [runs]")
     ap.add_argument("--out", default="results", help="tables and plots [results]")
-    ap.add_argument("--readme", default="README.md", help="README to write the tables into (between the markers) [README.md]")
+    ap.add_argument("--results-dir", default="docs/results",
+                    help="folder of the dated results page YYYY-MM-DD-chapter3-tables.md [docs/results]")
     ap.add_argument("--algos", nargs="+", default=list(ALGOS))
     ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=[0, 1, 2],
                     help="training seeds of every run; seed 0 keeps the names ALGO-cpu, others ALGO-cpu-sN [0 1 2]")
@@ -144,6 +114,7 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"planner experiment: the critics' random-goal probability [{CONT_RANDOM_GOAL}]")
     ap.add_argument("--reevaluate", action="store_true", help="redo evaluations whose results are up to date")
     a = ap.parse_args(argv)
+    command = " ".join(["python", PROG, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
 
     def go() -> int:
         a.seeds = list(dict.fromkeys(a.seeds))
@@ -163,10 +134,10 @@ def main(argv: list[str] | None = None) -> int:
             log.write(f"=== {datetime.now(timezone.utc).isoformat(timespec='seconds')} {' '.join(sys.argv)}\n")
             t0 = time.perf_counter()
             build = [py, "-m", "aerohrl.datagen.cli", "build", "--seed", "0", "--out", a.datasets, "--quiet"]
-            ds = _run(build + ["--goals", "250"], log).strip().splitlines()[-1].strip()
+            ds = run_logged(build + ["--goals", "250"], log).strip().splitlines()[-1].strip()
             if a.continuations:
                 n = str(a.continuations)
-                ds_cont = _run(build + ["--goals", n, "--continuations", n], log).strip().splitlines()[-1].strip()
+                ds_cont = run_logged(build + ["--goals", n, "--continuations", n], log).strip().splitlines()[-1].strip()
             times["datasets"] = time.perf_counter() - t0
 
             def config(**kw):  # the cpu preset, as `train --preset cpu --FLAG ...` would make it
@@ -193,8 +164,8 @@ def main(argv: list[str] | None = None) -> int:
 
             def evaluate(rd: Path, name: str, flags: list[str], checkpoints: int | None = None) -> None:
                 k = checkpoints or a.checkpoints
-                if a.reevaluate or not _evaluated(rd, name, a.episodes, k):
-                    _run(ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k),
+                if a.reevaluate or not evaluation_is_current(rd, name, a.episodes, k):
+                    run_logged(ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k),
                                        "--quiet"], log)
 
             for rd, algo, label, seed in runs:
@@ -208,17 +179,17 @@ def main(argv: list[str] | None = None) -> int:
                     for name, pl in (("none", ["none"]), ("single", ["single"]), ("multi2", ["multi", "--waypoints", "2"])):
                         evaluate(rd, f"ood-{name}", ["--task", "ood", "--planner"] + pl)
                 if algo in a.planner_algos and seed == a.seeds[0]:  # the oracle and the figures: the first seed's run
-                    rep = _run(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
+                    rep = run_logged(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
                                      str(a.oracle_candidates), "--quiet"], log)
                     oracles.append(f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
                                    f"{a.oracle_goals} --candidates {a.oracle_candidates}`, planning/oracle.py):\n\n```\n"
                                    + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:")) + "\n```\n")
-                    _run(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")], log)
-                _run(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log)
+                    run_logged(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")], log)
+                run_logged(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log)
                 times[f"eval {label}"] = time.perf_counter() - t0
             dirs = [str(rd) for rd, *_ in runs]
-            _run(ev + ["plot", "--curves", *dirs, "-o", str(out / "learning-curves.png")], log)
-            tables = _run(ev + ["table", *dirs, "-o", str(out / "tables")], log)
+            run_logged(ev + ["plot", "--curves", *dirs, "-o", str(out / "learning-curves.png")], log)
+            tables = run_logged(ev + ["table", *dirs, "-o", str(out / "tables")], log)
         total = time.perf_counter() - t_all
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         wall = ", ".join(f"{k} {v / 60:.1f} min" for k, v in times.items())
@@ -234,8 +205,8 @@ def main(argv: list[str] | None = None) -> int:
                  f"; wall time {total / 60:.1f} min ({wall}); gradient steps of each run ({a.jobs} at a time, one thread "
                  f"each): {trained}.\n\n" + tables + "".join("\n" + o for o in oracles))
         (out / "results.md").write_text(block)
-        where = a.readme if update_readme(Path(a.readme), block) else f"{out / 'results.md'} (no results markers in {a.readme})"
-        print(f"tables written to {where}; total {total / 60:.1f} min")
+        page = write_results_page(a.results_dir, STUDY, command, block, title="Chapter 3 tables (make results)")
+        print(f"tables written to {page} and {out / 'results.md'}; total {total / 60:.1f} min")
         return 0
 
     return run_cli(PROG, go)

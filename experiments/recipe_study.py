@@ -1,9 +1,9 @@
 """Expert-data recipes, measured: which data makes skills that generalise (eval/README.md "Recipes").
 
-    python -m aerohrl.eval.recipe_study --plan best table size      # build, train, evaluate, write the tables
-    python -m aerohrl.eval.recipe_study --plan best --report-only   # tables from what is there (nothing trained)
-    python -m aerohrl.eval.recipe_study --plan table --steps 200 --goals-scale 0.02 --runs /tmp/r --datasets /tmp/d --out /tmp/o
-                                                                    # a smoke run of the same pipeline
+    python experiments/recipe_study.py --plan best table size      # build, train, evaluate, write the tables
+    python experiments/recipe_study.py --plan best --report-only   # tables from what is there (nothing trained)
+    python experiments/recipe_study.py --plan table --steps 200 --goals-scale 0.02 --runs /tmp/r --datasets /tmp/d --out /tmp/o \
+        --results-dir /tmp/pages                                   # a smoke run of the same pipeline
 
 A *row* is (recipe, goals, seed, steps): ``datagen build --goals N <recipe flags>``, then
 GCSL with the cpu preset for ``steps`` gradient steps (checkpoints every steps/30), then
@@ -22,7 +22,8 @@ checkpoint). A seed's figure is the mean over its K checkpoints; a recipe's is t
 Every stage is the real command line in a subprocess with one thread (``--jobs`` rows at
 a time); an existing dataset is verified, an existing run resumed (a finished one left
 alone), an evaluation that covers the run's newest checkpoints kept. Interrupt it at
-will and run it again.
+will and run it again. The tables go to ``OUT/recipes.md`` and the dated page
+``RESULTS_DIR/YYYY-MM-DD-recipes.md`` (``--results-dir``, default docs/results).
 """
 
 from __future__ import annotations
@@ -30,6 +31,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import shlex
+import subprocess
 import sys
 import threading
 import time
@@ -41,11 +45,11 @@ from typing import TextIO
 import numpy as np
 
 from aerohrl.errors import UserError, run_cli
-from aerohrl.eval.reproduce import _evaluated, _run, update_readme  # one thread per subprocess, output to the log
-from aerohrl.eval.results import seed_cell, seed_stats
+from aerohrl.eval.harness import critics_auc
+from aerohrl.eval.results import evaluation_is_current, seed_cell, seed_stats, write_results_page
 
-PROG = "aerohrl.eval.recipe_study"
-BEGIN, END = "<!-- recipes:begin -->", "<!-- recipes:end -->"
+PROG = "experiments/recipe_study.py"
+STUDY = "recipes"  # the results page: RESULTS_DIR/YYYY-MM-DD-recipes.md
 
 # The recipes: datagen build flags on top of the default spec (SPEC.md "Expert-data recipes").
 NOISE = ["--action-noise", "1.0", "0.5"]  # sigma: 1.0 m/s^2 thrust, 0.5 rad/s per body rate; tau 0.2 s
@@ -76,6 +80,20 @@ EVAL_DIR = {"ood": "ood-none", "ood-goaltol0.5": "ood-none-goaltol0.5"}
 EPISODES = 250  # per task and checkpoint (Table 3.1 protocol)
 FLOORS = ("hover", "no-goal")  # eval/floors.py: flown on the newest checkpoint of every seed-0 run
 FLOOR_COLS = ("reach-desired", "reach-novel", "reach-intermediate", "ood")
+
+
+def run_logged(cmd: list[str], log: TextIO) -> str:
+    """Run a command line with one thread, its output appended to ``log``; its output, or a
+    one-line UserError when it fails."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    print("+ " + " ".join(cmd), flush=True)
+    p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    log.write("+ " + " ".join(cmd) + "\n" + p.stdout + "\n")
+    log.flush()
+    if p.returncode != 0:
+        tail = p.stdout.strip().splitlines()[-1:] or ["(no output)"]
+        raise UserError(f"`{' '.join(cmd[:4])} ...` failed (exit {p.returncode}): {tail[0]}")
+    return p.stdout
 
 
 @dataclass(frozen=True)
@@ -122,7 +140,7 @@ def dataset_for(py: str, recipe: str, goals: int, root: str, log: TextIO) -> str
         raise UserError(f"unknown recipe {recipe!r} (choose from {', '.join(RECIPES)})")
     flags = list(RECIPES[recipe])
     goals = max(1, goals // flights_per_goal(recipe))  # equal flights: k flights of goals / k goals
-    out = _run([py, "-m", "aerohrl.datagen.cli", "build", "--goals", str(goals), "--seed", "0", "--out", root, "--quiet",
+    out = run_logged([py, "-m", "aerohrl.datagen.cli", "build", "--goals", str(goals), "--seed", "0", "--out", root, "--quiet",
                 *flags], log)
     return out.strip().splitlines()[-1].strip()
 
@@ -132,9 +150,9 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log: TextIO) -> Path
     rd = runs / row.name
     train = [py, "-m", "aerohrl.algorithms.cli"]
     if (rd / "config.json").exists():
-        _run(train + ["--resume", str(rd), "--quiet", "--steps", str(row.steps)], log)
+        run_logged(train + ["--resume", str(rd), "--quiet", "--steps", str(row.steps)], log)
     else:
-        _run(train + ["--algo", "gcsl", "--preset", "cpu", *TRAIN_FLAGS.get(row.recipe, []), "--dataset", ds,
+        run_logged(train + ["--algo", "gcsl", "--preset", "cpu", *TRAIN_FLAGS.get(row.recipe, []), "--dataset", ds,
                       "--seed", str(row.seed), "--steps", str(row.steps),
                       "--checkpoint-every", str(max(1, row.steps // 30)), "--out", str(runs), "--name", row.name,
                       "--quiet"], log)
@@ -144,52 +162,10 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log: TextIO) -> Path
                  for f in FLOORS for col, flags in EVALS if col in FLOOR_COLS]
     for name, flags, kk in todo:
         n = min(EPISODES, row.goals) if name.startswith("reach-desired") else EPISODES  # one flight per own goal at most
-        if not _evaluated(rd, name, n, kk):
-            _run([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", str(n), "--checkpoints", str(kk),
+        if not evaluation_is_current(rd, name, n, kk):
+            run_logged([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", str(n), "--checkpoints", str(kk),
                   "--quiet"], log)
     return rd
-
-
-def critics_auc(rd: Path) -> float:
-    """ROC AUC of the critics' take-off value for Reach-Novel success (newest checkpoint)."""
-    import csv
-    from types import SimpleNamespace
-
-    import torch
-
-    from aerohrl.algorithms.base import load_policy
-    from aerohrl.algorithms.run import read_json
-    from aerohrl.eval.harness import run_checkpoints
-    from aerohrl.eval.tasks import reach_novel
-    from aerohrl.planning.oracle import roc_auc
-
-    ck = run_checkpoints(rd, 1)[-1]
-    f = rd / "eval" / "reach-novel" / f"episodes-{ck.stem}.csv"
-    if not f.exists():
-        return float("nan")
-    with open(f) as fh:
-        success = np.array([int(r["success"]) for r in csv.DictReader(fh)], bool)
-    from aerohrl.datagen.dataset import open_dataset
-
-    spec = open_dataset(read_json(rd / "config.json")["dataset"]["path"], verify=False).spec  # its ranges: the task's goals
-    eps = reach_novel(SimpleNamespace(info={"spec": spec}), len(success), 0)
-    if not np.allclose(eps.goals, _episode_goals(f)):
-        raise UserError(f"{f}: its Reach-Novel goals are not the task's (the dataset moved or changed?)")
-    algo, _ = load_policy(ck)
-    s = torch.as_tensor(eps.start_states, dtype=torch.float32)
-    g = torch.as_tensor(eps.goals, dtype=torch.float32)
-    v = algo.critics(s, g, algo.act(s, g)).mean(0).numpy()
-    return roc_auc(v, success)
-
-
-def _episode_goals(csv_path: Path) -> np.ndarray:
-    """(E, 15) goals of an evaluation's per-episode file."""
-    import csv
-
-    from aerohrl import task
-
-    with open(csv_path) as fh:
-        return np.array([[float(r[f"goal_{n}"]) for n in task.GOAL_NAMES] for r in csv.DictReader(fh)])
 
 
 def row_figures(rd: Path, suffix: str = "") -> dict:
@@ -313,14 +289,6 @@ def plot_size(recs: list[dict], path: Path) -> Path | None:
     return path
 
 
-def _figure_line(fig: Path, readme: Path) -> str:
-    """The plot as an image in the README when it sits beside it, else its path."""
-    try:
-        return f"![Reach-Novel against dataset size]({fig.relative_to(readme.parent).as_posix()})"
-    except ValueError:
-        return f"Plot: `{fig}`."
-
-
 def main(argv: list[str] | None = None) -> int:
     """The recipe study command: build the recipe datasets, train GCSL on each, evaluate
     and write the recipe table; exit code."""
@@ -330,12 +298,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
     ap.add_argument("--runs", default="runs/recipes", help="runs root [runs/recipes]")
     ap.add_argument("--out", default="results/recipes", help="tables and plots [results/recipes]")
-    ap.add_argument("--readme", default="eval/README.md", help="README to write the table into (between the markers)")
+    ap.add_argument("--results-dir", default="docs/results",
+                    help="folder of the dated results page YYYY-MM-DD-recipes.md [docs/results]")
     ap.add_argument("--jobs", type=int, default=2, help="rows at a time, one thread each [2]")
     ap.add_argument("--steps", type=int, default=None, help="override every row's steps (smoke runs)")
     ap.add_argument("--goals-scale", type=float, default=1.0, help="multiply every row's goal count (smoke runs) [1]")
     ap.add_argument("--report-only", action="store_true", help="write the tables from existing runs; train nothing")
     a = ap.parse_args(argv)
+    command = " ".join(["python", PROG, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
 
     def go() -> int:
         import concurrent.futures as cf
@@ -414,20 +384,15 @@ def main(argv: list[str] | None = None) -> int:
                             f"from 3 seeds] (per-seed values))\n\n" + table(recs))
         pooled = [r for recs in all_recs.values() for r in recs]
         fig = plot_size(pooled, out / "reach_novel_vs_size.png")
-        readme = Path(a.readme)
-        if fig and readme.exists() and BEGIN in readme.read_text():  # the figure beside the table it plots
-            shown = readme.parent / "figures" / fig.name
-            shown.parent.mkdir(parents=True, exist_ok=True)
-            shown.write_bytes(fig.read_bytes())
-            fig = shown
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        block = (f"Written by `python -m aerohrl.eval.recipe_study --plan {' '.join(a.plan)}` on {stamp}"
+        block = (f"Written by `{command}` on {stamp}"
                  + (f" (steps overridden: {a.steps})" if a.steps else "") + (f" (goals x {a.goals_scale})" if a.goals_scale != 1 else "")
-                 + ".\n\n" + "\n".join(sections) + (f"\n{_figure_line(fig, readme)}\n" if fig else ""))
-        (out / "recipes.md").write_text(block)
+                 + ".\n\n" + "\n".join(sections))
+        (out / "recipes.md").write_text(block + (f"\nPlot: `{fig}`.\n" if fig else ""))
         (out / "recipes.json").write_text(json.dumps(all_recs, indent=1))
-        where = a.readme if update_readme(Path(a.readme), block, BEGIN, END) else f"{out / 'recipes.md'}"
-        print(f"recipe tables written to {where} ({(time.perf_counter() - t0) / 60:.1f} min)")
+        page = write_results_page(a.results_dir, STUDY, command, block, title="Expert-data recipes",
+                                  figures=[fig] if fig else [])
+        print(f"recipe tables written to {page} and {out / 'recipes.md'} ({(time.perf_counter() - t0) / 60:.1f} min)")
         if failed:
             raise UserError(f"{failed} row(s) failed (see {out / 'study.log'}); the tables hold the others")
         return 0

@@ -1,78 +1,64 @@
-"""Reach beyond the data: OOD goal families flown straight and planned, over seeds (eval/README.md "Reach").
+"""Planners on the rings of OOD goal families: flown straight, planned, and declining.
 
-    python -m aerohrl.eval.reach --runs runs/recipes/noise-n25000-s{0,1,2}-30k     # evaluate, choose margins, write tables
-    python -m aerohrl.eval.reach --runs ... --report-only                           # tables from what is there
-    python -m aerohrl.eval.reach --runs ... --families velocity --episodes 40 --heldout 20   # a smaller study
-
-For every run (one per training seed) and every ring of every family of
-eval/families.py, ``aerohrl eval --task ood --family F --ring K`` flies the newest
-``--checkpoints`` checkpoints on ``--episodes`` test goals (episode-set seed 0) with
+The library half of the reach study (``experiments/reach_study.py``, eval/README.md
+"Reach beyond the data"). For runs (one per training seed) and every ring of the
+families of eval/families.py, a *variant* is one way to fly the ring's goals:
 
 * ``straight``: the policy flies to G (no planner);
 * ``single``: the thesis's planner (Eq. 3.7 over the dataset's achieved goals), which
   always inserts its waypoint;
 * ``single-decline``: the same planner, but flying straight stays a candidate: it
   inserts the waypoint only where the critics' composed value beats ``V(s0, G)`` by
-  the margin ``M`` (``--decline-margin``). Its test rows are composed from the straight
+  the margin ``M`` (``decline_margin``). Its test rows are composed from the straight
   and planned flights of the same goals (exact: a declining episode flies what the
   straight flight flew, and the flights of a batch are independent; a test checks it
-  against flying ``--decline-margin M``); ``--fly-declines`` flies them instead;
+  against flying ``--decline-margin M``); ``fly_declines`` flies them instead;
 * ``chain`` / ``chain-decline``: Eq. 3.6 with synthetic candidates (any state within
   rho_D relative to the current waypoint, planning/planner.py), ``n`` waypoints scaled to
-  the distance, re-planned at every reached waypoint (when this code has the synthetic
-  source).
+  the distance, re-planned at every reached waypoint.
 
-**The margin is chosen on held-out goals** (episode-set seed 1, ``--heldout`` goals per
+:func:`fly_group` flies one variant on several rings of one horizon in one batched
+closed loop and writes each ring's evaluation as ``aerohrl eval`` would;
+:func:`study` flies everything (resumable).
+
+**The margin is chosen on held-out goals** (episode-set seed 1, ``heldout_n`` goals per
 ring), never on the test goals: each planner's straight and planned flights of the
 held-out goals give, for any margin ``M``, the success of declining exactly (an episode
 that declines flies what the straight flight flew: the same start, goal and horizon, and
 every flight of the batch is independent). ``M`` maximises the mean paired gain over
 straight (pooled over seeds) among the margins whose worst ring loses at most 1 point
-(the issue's bar), then prefers the larger ``M`` (declining more).
+(:func:`choose_margin`), then prefers the larger ``M`` (declining more).
 
-Feasibility (eval/feasibility.py, when present): which test goals the expert reaches at
-all, directly from rest or through one run-up waypoint; planners are also reported on
-the feasible goals. Tables and the reach curves go to ``--out`` and
-between the ``reach`` markers of eval/README.md. Per run the evaluations sit in
-``RUN/eval/reach/`` (``reach-nN/`` for other test sizes; the held-out ones in ``heldout/``
-below it).
+:func:`collect` turns the evaluations into per-ring records (success per seed, on all
+and on expert-feasible goals, :func:`aerohrl.eval.feasibility.ring_feasibility`; paired
+gain over straight), :func:`tables` into Markdown, :func:`plot_curves` and
+:func:`plot_paths` into figures. Per run the evaluations sit in ``RUN/eval/reach/``
+(``reach-nN/`` for other test sizes; the held-out ones in ``heldout/`` below it).
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
-import sys
 import time
 from dataclasses import replace
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from aerohrl.errors import UserError, run_cli
+from aerohrl.errors import UserError
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.data import Dataset
     from aerohrl.eval.families import Ring
     from aerohrl.eval.harness import EvalOptions
 
-PROG = "aerohrl.eval.reach"
-BEGIN, END = "<!-- reach:begin -->", "<!-- reach:end -->"
 HELDOUT_SEED = 1  # episode-set seed of the goals the margins are chosen on (the test goals: seed 0)
 MARGIN_GRID = (-0.05, -0.02, -0.01, 0.0, 0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, math.inf)
 BASE_VARIANTS = ("straight", "single")
 PLANNED = {"single": "single", "chain": "chain"}  # planner variants that get a declining twin
-
-
-def has_chain() -> bool:
-    """Does this code have the synthetic candidate source (planning/planner.py)?"""
-    from aerohrl.eval.harness import EvalOptions
-
-    return hasattr(EvalOptions(), "candidate_source")
 
 
 CHAIN_CANDIDATES, CHAIN_BEAM = 64, 4  # synthetic offsets per extension and beam width (planning cost ~ E k C n^2)
@@ -107,7 +93,7 @@ def options(base: EvalOptions, ring: Ring, variant: str, margin: float | None = 
     return replace(base, **kw)
 
 
-def _episodes(summary_dir: Path) -> dict[int, dict]:
+def episode_outcomes(summary_dir: Path) -> dict[int, dict]:
     """Per evaluated checkpoint step: success (E,), and plan_score/direct_score when planned."""
     out = {}
     for f in sorted(summary_dir.glob("episodes-step-*.csv")):
@@ -210,7 +196,7 @@ def decline_success(straight: np.ndarray, planned: np.ndarray, diff: np.ndarray,
     return np.where(diff > margin, planned, straight)
 
 
-MAX_LOSS = 0.01  # the issue's bar: on every set the planner stays within 1 point of flying straight
+MAX_LOSS = 0.01  # the bar: on every set the planner stays within 1 point of flying straight
 
 
 def choose_margin(pairs: dict, max_loss: float = MAX_LOSS) -> tuple[float, dict]:
@@ -269,8 +255,8 @@ def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOp
         for ring in rings:
             for run in runs:
                 h = eval_root(run, base.episodes) / "heldout"
-                s = _episodes(h / replace(options(base, ring, "straight"), seed=HELDOUT_SEED).name())
-                q = _episodes(h / replace(options(base, ring, p), seed=HELDOUT_SEED).name())
+                s = episode_outcomes(h / replace(options(base, ring, "straight"), seed=HELDOUT_SEED).name())
+                q = episode_outcomes(h / replace(options(base, ring, p), seed=HELDOUT_SEED).name())
                 pairs.setdefault(ring.slug, []).extend((s[k]["success"], q[k]["success"], q[k]["diff"]) for k in q if k in s)
         margins[p], margin_tables[p] = choose_margin(pairs)
         log(f"margin of {p}: {margins[p]} (held-out worst ring {100 * margin_tables[p][margins[p]]['worst']:+.1f}, "
@@ -286,32 +272,6 @@ def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOp
     return {"margins": margins, "margin_tables": {p: {str(k): v for k, v in t.items()} for p, t in margin_tables.items()}}
 
 
-def feasibility_of(ring: Ring, n: int, spec: dict, cache: Path) -> dict | None:
-    """Expert feasibility of the ring's test goals (eval/feasibility.py), cached as JSON; None without it."""
-    try:
-        from aerohrl.eval import feasibility
-    except ImportError:
-        return None
-    f = cache / f"feasibility-{ring.slug}-n{n}.json"
-    if f.exists():
-        return {k: np.array(v) for k, v in json.loads(f.read_text()).items()}
-    from aerohrl.eval.families import sample_ring
-    from aerohrl.eval.tasks import DEFAULT_ACC_RANGE, DEFAULT_POS_RANGE, DEFAULT_VEL_RANGE
-
-    g = sample_ring(ring, n, 0, pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
-                    vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
-                    acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE))
-    # run-ups only for the goals the direct flight misses: "run-up" then counts the goals that need one
-    r = feasibility.feasibility(g, ring.horizon(), vehicle=spec.get("vehicle", "hummingbird"), fps=int(spec.get("fps", 100)),
-                                substeps=int(spec.get("substeps", 5)), runup="failed")
-    keep = {"direct": np.asarray(r.direct).tolist(), "runup": (np.asarray(r.runup) & ~np.asarray(r.direct)).tolist(),
-            "feasible": np.asarray(r.feasible).tolist()}
-    from aerohrl import atomic
-
-    atomic.write_text(f, json.dumps(keep))
-    return {k: np.array(v) for k, v in keep.items()}
-
-
 def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, margins: dict,
             feas: dict) -> list[dict]:
     """Per ring: per variant the success per seed (mean over checkpoints), on all and on
@@ -324,7 +284,7 @@ def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: Eval
         fz = feas.get(ring.slug)
         if fz is not None:
             rec["feasible"] = {k: 100 * float(np.mean(v)) for k, v in fz.items()}
-        straight = {run: _episodes(eval_root(run, base.episodes) / options(base, ring, "straight").name()) for run in runs}
+        straight = {run: episode_outcomes(eval_root(run, base.episodes) / options(base, ring, "straight").name()) for run in runs}
         for v in variants:
             m = margins.get(v.removesuffix("-decline")) if v.endswith("-decline") else None
             if v.endswith("-decline") and m is None:
@@ -337,14 +297,14 @@ def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: Eval
                     if math.isinf(m):  # declines everywhere: the straight flight
                         ep = straight[run]
                     elif (flown / "summary.json").exists():
-                        ep = _episodes(flown)
+                        ep = episode_outcomes(flown)
                     else:  # composed exactly: declining episodes fly what the straight flight flew
-                        planned = _episodes(root / options(base, ring, v.removesuffix("-decline")).name())
+                        planned = episode_outcomes(root / options(base, ring, v.removesuffix("-decline")).name())
                         ep = {k: {"success": decline_success(straight[run][k]["success"], q["success"], q["diff"], m),
                                   "near": decline_success(straight[run][k]["near"], q["near"], q["diff"], m)}
                               for k, q in planned.items() if k in straight[run]}
                 else:
-                    ep = _episodes(root / options(base, ring, v, m).name())
+                    ep = episode_outcomes(root / options(base, ring, v, m).name())
                 if not ep:
                     continue
                 per_seed.append(100 * np.mean([e["success"].mean() for e in ep.values()]))
@@ -504,123 +464,3 @@ def plot_paths(run: Path, rings: list[Ring], base: EvalOptions, variant: str, pa
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
-
-
-def main(argv: list[str] | None = None) -> int:
-    """The OOD reach study command (families flown straight and planned over seeds, decline
-    margins on held-out goals, tables and figures); exit code."""
-    ap = argparse.ArgumentParser(prog=PROG, description="OOD goal families flown straight and planned over seeds; decline "
-                                 "margins chosen on held-out goals; reach tables and curves.")
-    ap.add_argument("--runs", nargs="+", type=Path, required=True, help="one run per training seed (same recipe and algorithm)")
-    ap.add_argument("--families", nargs="+", default=None, help="families to fly [all of eval/families.py]")
-    ap.add_argument("--variants", nargs="+", default=None,
-                    help="straight | single | single-decline | chain | chain-decline [all available]")
-    ap.add_argument("--episodes", type=int, default=250, help="test goals per ring [250]")
-    ap.add_argument("--heldout", type=int, default=100, help="held-out goals per ring (margin choice) [100]")
-    ap.add_argument("--checkpoints", type=int, default=1, help="newest checkpoints per run [1]")
-    ap.add_argument("--candidates", type=int, default=1024, help="single: achieved goals scored [1024]")
-    ap.add_argument("--out", type=Path, default=Path("results/reach"), help="tables and plots [results/reach]")
-    ap.add_argument("--readme", type=Path, default=Path("eval/README.md"))
-    ap.add_argument("--section", default="reach", help="README markers <!-- SECTION:begin/end --> and file names in --out "
-                    "(a second study with other variants or sizes gets its own) [reach]")
-    ap.add_argument("--report-only", action="store_true", help="tables from existing evaluations; fly nothing")
-    ap.add_argument("--fly-declines", action="store_true",
-                    help="fly the declining variants on the test goals too (default: composed exactly from the straight "
-                         "and planned flights, which they equal episode by episode; tests/test_eval_reach.py)")
-    ap.add_argument("--threads", type=int, default=1)
-    a = ap.parse_args(argv)
-
-    def go() -> int:
-        import torch
-
-        from aerohrl.eval.families import FAMILIES, rings as family_rings
-        from aerohrl.eval.harness import EvalOptions
-        from aerohrl.eval.reproduce import update_readme
-
-        torch.set_num_threads(max(1, a.threads))
-        if a.episodes < 1 or a.heldout < 1 or a.checkpoints < 1:
-            raise UserError("--episodes, --heldout and --checkpoints must be >= 1")
-        for r in a.runs:
-            if not (r / "config.json").exists():
-                raise UserError(f"no run at {r} (config.json missing)")
-        fams = a.families or list(FAMILIES)
-        rings = [r for f in fams for r in family_rings(f)]
-        variants = a.variants or (["straight", "single", "single-decline"] + (["chain", "chain-decline"] if has_chain() else []))
-        bad = [v for v in variants if v not in VARIANT_LABEL]
-        if bad:
-            raise UserError(f"unknown variant {bad[0]!r} (choose from {', '.join(VARIANT_LABEL)})")
-        if any(v.startswith("chain") for v in variants) and not has_chain():
-            raise UserError("this code has no synthetic candidate source for chains (planning/planner.py)")
-        base = EvalOptions(task="ood", episodes=a.episodes, checkpoints=a.checkpoints, candidates=a.candidates,
-                           progress=sys.stderr.isatty())
-        a.out.mkdir(parents=True, exist_ok=True)
-        logf = open(a.out / "reach.log", "a")
-
-        def log(msg):
-            line = f"{datetime.now(timezone.utc).strftime('%H:%M:%S')} {msg}"
-            print(line, flush=True)
-            logf.write(line + "\n")
-            logf.flush()
-
-        t0 = time.perf_counter()
-        if not a.section.replace("-", "").isalnum():
-            raise UserError(f"--section must be letters, digits and '-', got {a.section!r}")
-        begin, end = f"<!-- {a.section}:begin -->", f"<!-- {a.section}:end -->"
-        state_f = a.out / f"{a.section}-margins.json"
-        if a.report_only:
-            if not state_f.exists():
-                raise UserError(f"{state_f} missing: run the study once without --report-only")
-            state = json.loads(state_f.read_text())
-        else:
-            state = study(a.runs, rings, variants, base, a.heldout, log, a.fly_declines)
-            from aerohrl import atomic
-
-            atomic.write_text(state_f, json.dumps(state, indent=1))
-        margins = {k: float(v) for k, v in state["margins"].items()}
-        from aerohrl.algorithms.run import read_json
-        from aerohrl.datagen.dataset import open_dataset
-
-        spec = open_dataset(read_json(a.runs[0] / "config.json")["dataset"]["path"], verify=False).spec
-        feas = {}
-        for ring in rings:
-            t1 = time.perf_counter()
-            f = feasibility_of(ring, a.episodes, spec, a.out)
-            if f is not None:
-                feas[ring.slug] = f
-                log(f"feasibility {ring.slug}: {100 * f['feasible'].mean():.1f} % ({time.perf_counter() - t1:.0f} s)")
-        recs = collect(a.runs, rings, variants, base, margins, feas)
-        curves = plot_curves(recs, variants, a.out / f"{a.section}_curves.png")
-        paths = plot_paths(a.runs[0], rings, base, "chain" if "chain" in variants else "single", a.out / f"{a.section}_paths.png")
-        md = tables(recs, variants, margins)
-        readme = a.readme
-        figs = []
-        for fig in (curves, paths):
-            if fig is None:
-                continue
-            if readme.exists() and begin in readme.read_text():
-                shown = readme.parent / "figures" / fig.name
-                shown.parent.mkdir(parents=True, exist_ok=True)
-                shown.write_bytes(fig.read_bytes())
-                figs.append(f"![{fig.stem}]({shown.relative_to(readme.parent).as_posix()})")
-            else:
-                figs.append(f"Plot: `{fig}`")
-        stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        runs_s = " ".join(str(r) for r in a.runs)
-        args = "" if a.episodes == 250 else f" --episodes {a.episodes} --heldout {a.heldout}"
-        args += f" --variants {' '.join(variants)}" + (f" --section {a.section}" if a.section != "reach" else "")
-        block = (f"Written by `python -m aerohrl.eval.reach --runs {runs_s}{args}` on {stamp}: {len(a.runs)} seeds, newest "
-                 f"{a.checkpoints} checkpoint(s) x {a.episodes} test goals per ring and seed; success %, mean ± std over seeds "
-                 f"[95 % bootstrap interval] (per-seed values); \"vs straight\": paired gain in points pooled over seeds "
-                 f"(episodes only this variant : only straight reaches, sign test).\n\n" + md + "\n" + "\n\n".join(figs) + "\n")
-        from aerohrl import atomic
-
-        atomic.write_text(a.out / f"{a.section}.md", block)
-        where = readme if update_readme(readme, block, begin, end) else a.out / f"{a.section}.md"
-        log(f"reach tables written to {where} ({(time.perf_counter() - t0) / 60:.1f} min)")
-        return 0
-
-    return run_cli(PROG, go)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
