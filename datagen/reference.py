@@ -158,7 +158,7 @@ def _durations(T, n: int) -> np.ndarray:
     return t
 
 
-def positive_number(name: str, x) -> float:
+def positive_number(name: str, x: object) -> float:
     """``x`` as a float, finite and > 0; a one-line error naming ``name`` otherwise."""
     try:
         v = float(x)

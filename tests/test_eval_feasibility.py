@@ -118,7 +118,7 @@ def test_runup_waypoints_behind_goal():
 ])
 def test_bad_arguments(kwargs, match):
     args = dict(goals=_goals(*IN_RHO), horizon_steps=100) | kwargs
-    with pytest.raises(UserError, match=match):
+    with pytest.raises(ValueError, match=match):
         fz.feasibility(**args)
 
 
