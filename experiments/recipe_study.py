@@ -31,9 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shlex
-import subprocess
 import sys
 import threading
 import time
@@ -47,6 +45,7 @@ import numpy as np
 from aerohrl.errors import UserError, run_cli
 from aerohrl.eval.harness import critics_auc
 from aerohrl.eval.results import evaluation_is_current, seed_cell, seed_stats, write_results_page
+from study_tools import run_logged
 
 PROG = "experiments/recipe_study.py"
 STUDY = "recipes"  # the results page: RESULTS_DIR/YYYY-MM-DD-recipes.md
@@ -81,19 +80,6 @@ EPISODES = 250  # per task and checkpoint (Table 3.1 protocol)
 FLOORS = ("hover", "no-goal")  # eval/floors.py: flown on the newest checkpoint of every seed-0 run
 FLOOR_COLS = ("reach-desired", "reach-novel", "reach-intermediate", "ood")
 
-
-def run_logged(cmd: list[str], log: TextIO) -> str:
-    """Run a command line with one thread, its output appended to ``log``; its output, or a
-    one-line UserError when it fails."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    print("+ " + " ".join(cmd), flush=True)
-    p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    log.write("+ " + " ".join(cmd) + "\n" + p.stdout + "\n")
-    log.flush()
-    if p.returncode != 0:
-        tail = p.stdout.strip().splitlines()[-1:] or ["(no output)"]
-        raise UserError(f"`{' '.join(cmd[:4])} ...` failed (exit {p.returncode}): {tail[0]}")
-    return p.stdout
 
 
 @dataclass(frozen=True)

@@ -35,36 +35,22 @@ training goes through ``aerohrl sweep``'s Ray tasks (``aerohrl.sweep.train_runs`
 
 from __future__ import annotations
 
-import os
 import shlex
-import subprocess
 import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
 
 from aerohrl import cli_types as T
-from aerohrl.errors import ArgumentParser, UserError, run_cli
+from aerohrl.errors import ArgumentParser, run_cli
 from aerohrl.eval.results import evaluation_is_current, write_results_page
+from study_tools import run_logged
 
 PROG = "experiments/reproduce.py"
 ALGOS = ("gcsl", "td3bc", "td3awbc", "cql")
 STUDY = "chapter3-tables"  # the results page: RESULTS_DIR/YYYY-MM-DD-chapter3-tables.md
 CONT_RANDOM_GOAL = 0.3  # the planner experiment's --critic-random-goal-prob (eval/README.md)
 
-
-def run_logged(cmd: list[str], log) -> str:
-    """Run a command line with one thread, its output appended to ``log``; its output, or a
-    one-line UserError when it fails."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    print("+ " + " ".join(cmd), flush=True)
-    p = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    log.write("+ " + " ".join(cmd) + "\n" + p.stdout + "\n")
-    log.flush()
-    if p.returncode != 0:
-        tail = p.stdout.strip().splitlines()[-1:] or ["(no output)"]
-        raise UserError(f"`{' '.join(cmd[:4])} ...` failed (exit {p.returncode}): {tail[0]}")
-    return p.stdout
 
 
 def _train_all(items: list[tuple[str, Path, dict]], log, jobs: int, address: str | None = None) -> dict[str, float]:
