@@ -58,7 +58,6 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, shift as nd_shift
 
 
 CLASSES = ("background", "building", "road", "vegetation", "water")
@@ -84,6 +83,8 @@ class SemanticConfig:
 # ------------------------------------------------------------------ procedural map
 def campus_map(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     """(size, size) int8 class map of a procedural campus (see the module docstring)."""
+    from scipy.ndimage import gaussian_filter  # here: the config classes stay scipy-free (--help)
+
     S = size
     g = np.arange(S, dtype=float)
     X, Y = np.meshgrid(g, g, indexing="xy")
@@ -244,6 +245,8 @@ class SemanticWorlds:
 
 def semantic_prior(rng: np.random.Generator, classes: np.ndarray, cfg: SemanticConfig) -> np.ndarray:
     """(S, S, C) prior class probabilities: smoothed, shifted, re-weighted indicators."""
+    from scipy.ndimage import gaussian_filter, shift as nd_shift
+
     C = cfg.n_classes
     out = np.empty(classes.shape + (C,), np.float64)
     for c in range(C):  # one filter per class (C = 5), not per cell
