@@ -88,3 +88,39 @@ def test_cross_field_rules():
                         ({"n_envs": 0}, "n_envs must be >= 1")):
         with pytest.raises(ConfigError, match=match):
             dataclasses.replace(TrainConfig(), **over).validate()
+
+
+def test_planner_environment_lattice_and_bench_checks_come_from_the_declarations():
+    from aerohrl.ipp.baselines import PlannerConfig
+    from aerohrl.ipp.bench import BenchConfig
+    from aerohrl.ipp.lattice import LatticeConfig, default_lattice
+    from aerohrl.ipp.world import WorldConfig
+
+    lat = default_lattice()
+    cases = [(lambda: PlannerConfig(scoring="bogus").validate(), "scoring must be one of ratio, additive"),
+             (lambda: PlannerConfig(cmaes_tol=float("nan")).validate(), "cmaes_tol must be a finite number"),
+             (lambda: PlannerConfig(cost_weight=-1.0).validate(), "cost_weight must be >= 0"),
+             (lambda: LatticeConfig(n_vertices=0).validate(), "lattice: n_vertices must be >= 1"),
+             (lambda: LatticeConfig(vertex_speed=1.0).validate(), "lattice: vertex_speed must be <= 0.99"),
+             (lambda: LatticeConfig(t_min=5.0).validate(), "lattice: need t_min < t_max"),  # cross-field
+             (lambda: LatticeConfig(hover_moves=(1, 9)).validate(), "hover_moves must lie in 1..reach"),
+             (lambda: EnvConfig(start="corner").validate(lat), "start must be one of center, random"),
+             (lambda: EnvConfig(found_threshold=0.5).validate(lat), "found_threshold must be > 0.5"),
+             (lambda: EnvConfig(map_size=600).validate(lat), "map_size must be <= 512"),
+             (lambda: EnvConfig(kind="mixed").validate(lat), "kind must be one of targets, semantic"),
+             (lambda: EnvConfig(map_size=40).validate(lat), "world.map_size must equal map_size"),  # cross-field
+             (lambda: EnvConfig(map_size=40, world=WorldConfig(map_size=40), budget=1.0).validate(lat),
+              "cannot pay for a single primitive"),
+             (lambda: semantic_config(map_size=64).__class__(**{**semantic_config(map_size=64).__dict__,
+                                                                "semantic": semantic_config().semantic}).validate(lat),
+              "semantic.map_size must equal map_size"),
+             (lambda: BenchConfig(envs=0).validate(), "envs must be >= 1"),
+             (lambda: BenchConfig(planners=("astar",)).validate(), "unknown planner 'astar'"),
+             (lambda: BenchConfig(execution="teleport").validate(), "execution must be one of ideal, flown, skill")]
+    for call, match in cases:
+        with pytest.raises(ValueError, match=match) as e:
+            call()
+        assert "\n" not in str(e.value)
+    for ok in (PlannerConfig(), LatticeConfig(), BenchConfig()):
+        ok.validate()
+    EnvConfig().validate(lat)
