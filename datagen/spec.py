@@ -110,7 +110,7 @@ class DatasetSpec:
         not an integer, or a combination that contradicts itself."""
         if not isinstance(self.name, str) or not self.name or any(c in self.name for c in "/\\") or self.name.startswith("."):
             raise UserError(f"invalid dataset name {self.name!r}")
-        for f in fields(self):  # an integer setting given as a whole float (3.0) is accepted, as it always was
+        for f in fields(self):  # a whole float (3.0) is an integer here
             v = getattr(self, f.name)
             if f.type in (int, "int") and (isinstance(v, bool) or not isinstance(v, (int, float)) or int(v) != v):
                 raise UserError(f"{f.name} must be an integer, got {v!r}")

@@ -8,8 +8,7 @@ import pytest
 from aerohrl.errors import UserError
 from aerohrl.eval.harness import FLOORS, EvalOptions, check_options
 
-# (options, folder name) as the name was built before the settings were declared (string
-# concatenation in EvalOptions.name): existing results must be found under these names
+# (options, folder name): the names of results already on disk, which must be found again
 NAMES = [
     ({}, "reach-desired"),
     ({"task": "reach-novel", "goal_tol": 0.5}, "reach-novel-goaltol0.5"),

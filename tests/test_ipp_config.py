@@ -13,8 +13,8 @@ from aerohrl.errors import UserError
 from aerohrl.ipp.env import EnvConfig, semantic_config
 from aerohrl.ipp.train_config import PolicyConfig, TrainConfig, from_nested, preset, preset_names
 
-# The presets as they were written in code before they became ipp/presets/*.toml
-# (copied from ipp/train.py): the files must resolve to exactly these.
+# The presets as TrainConfig instances, written out in code: each ipp/presets/NAME.toml must
+# resolve to exactly its entry.
 OLD_PRESETS = {
     "cpu": TrainConfig(bc_iterations=30, iterations=0, lr=3e-5, entropy_coef=0.001,
                        adv_weights=(0.25, 0.25, 1.0, 0.0, 0.0), bc_anchor=0.5, eval_every=10, eval_envs=100),
@@ -27,7 +27,7 @@ OLD_PRESETS = {
                         eval_every=2, eval_envs=3, policy=PolicyConfig(hidden=32),
                         env=EnvConfig(start="random", budget=1500.0)),
 }
-# TrainConfig's defaults before the declarations (ipp/train.py, ipp/policy.py)
+# TrainConfig's defaults, written out
 OLD_DEFAULTS = dict(n_envs=64, iterations=600, lr=3e-4, gamma=0.98, lam=0.8, clip=0.2, epochs=4, minibatches=4,
                     value_coef=0.5, entropy_coef=0.01, valid_coef=0.1, valid_beta=(1.0, 0.2), reward_scale=0.05,
                     grad_clip=5.0, adv_weights=(1.0,) * 5, seed=7, threads=1, log_every=10, init=None, bc_iterations=0,

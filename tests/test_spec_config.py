@@ -33,8 +33,8 @@ def test_spec_files_are_checked_by_the_config_layer(tmp_path):
 
 
 def test_version_names_are_unchanged(tmp_path):
-    # pinned before the settings were declared: an integer written for a float setting
-    # (a_max = 5) has always hashed as the integer it is
+    # the version names of existing specs; an integer written for a float setting
+    # (a_max = 5) hashes as the integer it is
     assert version_name(load_spec(None)) == version_name(DatasetSpec()) == "n250-s0-dbb240c0"
     assert version_name(load_spec(_spec(tmp_path, "a_max = 5\nt_max = 4\ngoals = 12\npos_range = [1, 2]\n"
                                                   "action_noise = [1, 0]\nnoise_tau = 1\n"))) == "n12-s0-409ffd64"
