@@ -36,7 +36,6 @@ class, and ``import aerohrl`` stays light.
 
 from __future__ import annotations
 
-import dataclasses
 import fcntl
 import json
 import os
@@ -157,57 +156,6 @@ def read_metrics(run_dir: str | Path) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- config
-
-
-def config_from_dict(cls: type, d: dict) -> Any:
-    """Rebuild a (nested, frozen) config dataclass from :func:`dataclasses.asdict` output
-    (as stored in ``config.json``); unknown keys are an error, missing keys default."""
-    if not isinstance(d, dict):
-        raise UserError(f"{cls.__name__}: expected a JSON object")
-    proto = cls()
-    kw = {}
-    names = {f.name for f in dataclasses.fields(cls)}
-    extra = set(d) - names
-    if extra:
-        raise UserError(f"{cls.__name__}: unknown keys {sorted(extra)}")
-    for f in dataclasses.fields(cls):
-        if f.name not in d:
-            continue
-        v, ref = d[f.name], getattr(proto, f.name)
-        if dataclasses.is_dataclass(ref):
-            v = config_from_dict(type(ref), v)
-        elif isinstance(ref, tuple):
-            if not isinstance(v, (list, tuple)):
-                raise UserError(f"{cls.__name__}.{f.name}: expected a list, got {v!r}")
-            v = tuple(_scalar(f"{cls.__name__}.{f.name}", x, ref[0] if ref else None)
-                      for x in v)
-        else:
-            v = _scalar(f"{cls.__name__}.{f.name}", v, ref)
-        kw[f.name] = v
-    return cls(**kw)
-
-
-def _scalar(name, v, ref):
-    """``v`` checked against the type of the default ``ref`` (None: str/number/None)."""
-    num = isinstance(v, (int, float)) and not isinstance(v, bool)
-    if ref is None:
-        ok = v is None or isinstance(v, str) or num
-    elif isinstance(ref, bool):
-        ok = isinstance(v, bool)
-    elif isinstance(ref, int):
-        ok = num and float(v).is_integer()
-        v = int(v) if ok else v
-    elif isinstance(ref, float):
-        ok = num
-        v = float(v) if ok else v
-    elif isinstance(ref, str):
-        ok = isinstance(v, str)
-    else:
-        ok = True
-    if not ok:
-        raise UserError(f"{name}: expected {type(ref).__name__ if ref is not None else 'a value'}"
-                        f", got {v!r}")
-    return v
 
 
 # ----------------------------------------------------------------------------- the lock
@@ -577,15 +525,21 @@ class Run:
                 raise UserError(f"{self.path / CONFIG_NAME} is damaged: {e}") from None
         return self._config
 
-    def read_config(self, cls: type) -> Any:
+    def read_config(self, cls: type, read: Any = None) -> Any:
         """The config section of config.json (``config``, an IPP run's ``train``) as the
-        dataclass ``cls`` (:func:`config_from_dict`); one-line UserError when malformed."""
+        dataclass ``cls``, read by ``read(cls, mapping, where=..., check=False)`` (default
+        :func:`aerohrl.config.from_mapping`; the IPP trainer's nested config passes
+        :func:`aerohrl.ipp.train_config.from_nested`). Missing keys keep their defaults, so
+        runs written before a setting existed stay readable; unknown keys and malformed
+        values are a one-line UserError naming the file."""
+        from aerohrl import config as K
+
         p = self.path / CONFIG_NAME
         try:
-            return config_from_dict(cls, self.meta[self.layout.section])
+            return (read or K.from_mapping)(cls, self.meta[self.layout.section], where=str(p), check=False)
         except UserError as e:
-            raise UserError(f"{p}: {e}") from None
-        except (ValueError, KeyError, TypeError) as e:
+            raise UserError(str(e) if str(e).startswith(str(p)) else f"{p}: {e}") from None
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise UserError(f"{p}: not a training config ({type(e).__name__})") from None
 
     def write_config(self, meta: dict, toml: str | None = None) -> None:
@@ -683,5 +637,5 @@ class Run:
 
 
 __all__ = ["Run", "RunLock", "MetricsLog", "Layout", "LAYOUTS", "CHECKPOINT_FORMAT", "CKPT_DIR", "LOGGERS", "check_logger",
-           "config_from_dict", "new_run_dir", "read_json", "read_metrics", "checkpoint_step", "load_checkpoint", "checkpoint_problem",
+           "new_run_dir", "read_json", "read_metrics", "checkpoint_step", "load_checkpoint", "checkpoint_problem",
            "rng_state", "set_rng_state", "seed_everything", "dataset_identity", "locate_dataset", "check_same_dataset"]

@@ -29,24 +29,9 @@ SPEC_CHOICES = {"vehicle": ("hummingbird", "crazyflie"), "solver": SOLVERS, "exp
 
 def _spec_flags(p: argparse.ArgumentParser) -> None:
     """One flag per DatasetSpec field (``--pos-range 1 2`` for tuples), default None = spec file / default."""
-    helps = {
-        "name": "dataset name (folder under --out)", "goals": "number of desired goals / expert episodes",
-        "pos_range": "|p_i| range per axis (m), random sign", "vel_range": "v_i range (m/s)",
-        "acc_range": "a_i range (m/s^2)", "vehicle": "vehicle preset",
-        "a_max": "reference acceleration bound per axis (m/s^2)", "degree": "polynomial degree per axis",
-        "solver": "closed-form (degree 5) | qp (OSQP)", "t_max": "bisection upper bracket (s)",
-        "bisection_tol": "bisection stop width (s)", "fps": "control/recording rate (Hz)", "substeps": "RK4 substeps per step",
-        "continuations": "extra episodes from states of the rest-start flights (moved to the origin) to fresh rho_D goals",
-        "expert": "open-loop (one take-off plan, the thesis) | replan (shrinking-horizon re-planning from the flown state)",
-        "replan_every": "replan: control steps between re-plans (steps)", "replan_endgame": "replan: no re-planning in the flight's last seconds (s)",
-        "action_noise": "DART noise: stationary std of the Ornstein-Uhlenbeck noise added to the flown command, "
-                        "per CTBR dimension c (m/s^2) wx wy wz (rad/s), or 2 numbers (c, rates)",
-        "noise_tau": "correlation time of the action noise (s)",
-        "start_states": "rest (hover at the origin) | perturbed (random velocity, attitude and body rates at the origin)",
-        "start_vel": "perturbed: |v_i| bound (m/s)", "start_tilt": "perturbed: rotation-vector component bound (rad)",
-        "start_rate": "perturbed: |w_i| bound (rad/s)",
-        "rollouts_per_goal": "flights per goal (each with its own noise / start)",
-    }
+    # each setting's meaning and unit as declared (aerohrl.config.param)
+    helps = {f.name: f.metadata["help"] + (f" ({f.metadata['unit']})" if f.metadata.get("unit") else "")
+             for f in fields(DatasetSpec)}
     # parse-time checks (aerohrl.cli_types); ranges are any finite LOW < HIGH (DatasetSpec.check)
     nonneg = {"seed", "continuations"}
     nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate"}  # 0 switches the part off

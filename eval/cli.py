@@ -26,51 +26,34 @@ from aerohrl.errors import ArgumentParser, UserError, run_cli
 PROG = "aerohrl eval"
 
 
+# EvalOptions settings whose flags are written here rather than by aerohrl.config.add_flags:
+# --task is required, --horizon and --decline-margin are optional numbers, --family lists
+# its choices (numpy-free here), and --seed, --device, --out are every command's
+EVAL_OWN_FLAGS = ("task", "horizon", "family", "decline_margin", "seed", "device", "out")
+
+
 def _eval_parser() -> ArgumentParser:
-    from aerohrl.eval.harness import EvalOptions, PLANNERS
+    from dataclasses import fields
+
+    from aerohrl.config import add_flags, describe, to_flat_dict
+    from aerohrl.eval.harness import EvalOptions
     from aerohrl.eval.tasks import TASKS
 
     FAMILIES = ("position", "velocity", "acceleration", "combined")  # = eval/families.py FAMILIES (numpy-free here)
     d = EvalOptions()
+    f = {x.name: x for x in fields(EvalOptions)}
     ap = ArgumentParser(prog=PROG, description="Evaluate the last checkpoints of a training run in the batched simulator "
                         "(subcommands: `table RUN...`, `plot ...`, `oracle ...`).")
-    ap.add_argument("--task", required=True, choices=tuple(TASKS), help="evaluation task (eval/tasks.py)")
+    ap.add_argument("--task", required=True, choices=tuple(TASKS), help=f["task"].metadata["help"])
     ap.add_argument("--run", required=True, type=Path, help="training run folder (runs/<run>)")
-    ap.add_argument("--episodes", type=T.positive_int, default=d.episodes, help=f"episodes per checkpoint [{d.episodes}]")
-    ap.add_argument("--checkpoints", type=T.positive_int, default=d.checkpoints, help=f"newest checkpoints evaluated [{d.checkpoints}]")
-    ap.add_argument("--planner", default=d.planner, choices=tuple(PLANNERS),
-                    help=f"ood only: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6) [{d.planner}]")
-    ap.add_argument("--waypoints", type=T.positive_int, default=d.waypoints, help=f"multi: intermediate goals (Eq. 3.6 n) [{d.waypoints}]")
-    ap.add_argument("--beam", type=T.positive_int, default=d.beam, help=f"multi: beam width [{d.beam}]")
-    ap.add_argument("--alpha", type=T.nonneg_float, default=d.alpha, help=f"variance penalty of Eq. 3.6/3.7 [{d.alpha}]")
-    ap.add_argument("--candidates", type=T.nonneg_int, default=d.candidates,
-                    help=f"achieved goals scored by the planner (seeded subset; 0 = all) [{d.candidates}]")
-    ap.add_argument("--candidate-source", default=d.candidate_source, choices=("dataset", "synthetic"),
-                    help="planner: dataset achieved goals | synthetic offsets chained from the start (far goals) [dataset]")
-    ap.add_argument("--replan-every", type=T.nonneg_int, default=d.replan_every,
-                    help="re-plan from the current state every K simulator steps during intermediate legs (0: never) [0]")
-    ap.add_argument("--no-replan", action="store_true", help="multi: keep the take-off plan (no re-planning at reached goals)")
-    ap.add_argument("--horizon", type=T.positive_int, default=None,
-                    help="ood: simulator steps per episode (100 Hz: 1000 = 10 s), every planner [1000; a family ring: its own, scaled to distance]")
-    ap.add_argument("--family", default=None, choices=FAMILIES, help="ood: goals that leave rho_D along one axis: position | velocity | "
-                    "acceleration | combined (eval/families.py) [the thesis's OOD set]")
-    ap.add_argument("--ring", default=None, help="ood --family: step 1..K of the family, or a range LO:HI of |x_i| "
-                    "(m, m/s or m/s^2) [1]")
-    ap.add_argument("--leg-horizon", type=T.nonneg_int, default=d.leg_horizon,
-                    help="ood: budget to reach an intermediate goal (simulator steps) [horizon / (intermediate goals + 1)]")
-    ap.add_argument("--min-leg", type=T.nonneg_float, default=d.min_leg,
-                    help=f"planner: skip candidates closer than this (m) to the start as first goal [{d.min_leg:g}: none skipped]")
+    add_flags(ap, EvalOptions, skip=EVAL_OWN_FLAGS)
+    # no preset under these flags: the parsed values are the settings, defaults included
+    ap.set_defaults(**{k: v for k, v in to_flat_dict(d).items() if k not in EVAL_OWN_FLAGS and f[k].metadata.get("flag", True)})
+    ap.add_argument("--horizon", type=T.positive_int, default=None, metavar="N",
+                    help=describe(f["horizon"], "1000; a family ring: its own, scaled to distance"))
+    ap.add_argument("--family", default=None, choices=FAMILIES, help=describe(f["family"], "the thesis's OOD set"))
     ap.add_argument("--decline-margin", type=T.finite_float, default=None, metavar="M",
-                    help="planner: fly straight to G where the plan's score <= V(s0, G) + M (flying straight stays a "
-                         "candidate; results go to ood-<planner>-decline<M>) [never: the thesis]")
-    ap.add_argument("--floor", default=d.floor, choices=["none", "hover", "no-goal"],
-                    help="fly a trivial floor instead of the run's policy: hover (constant [g, 0, 0, 0]) | no-goal (the "
-                         "policy with its goal inputs at their mean); results go to <task>-floor-<floor> [none]")
-    ap.add_argument("--goal-tol", type=T.positive_float, default=d.goal_tol,
-                    help=f"the task goal's tolerances x this (0.5: 0.075 m, 0.175 m/s, 0.075 rad; results go to <task>-goaltol0.5) [{d.goal_tol}]")
-    ap.add_argument("--waypoint-tol", type=T.positive_float, default=d.waypoint_tol,
-                    help=f"an intermediate goal is reached with the goal tolerances x this (2.5: near success) [{d.waypoint_tol}]")
-    ap.add_argument("--dataset", default=None, help="the run's dataset at another path (identity is checked)")
+                    help=describe(f["decline_margin"], "never: the thesis"))
     add_common(ap, out={"help": "result folder [RUN/eval/<task>[-<planner>]]"}, quiet=True, old_quiet=("--no-progress",),
                threads={"default": 1}, seed={"default": d.seed, "help": f"episode-set seed (>= 0) [{d.seed}]"},
                device={"default": d.device})
@@ -79,15 +62,13 @@ def _eval_parser() -> ArgumentParser:
 
 def cmd_eval(a: argparse.Namespace) -> int:
     """``aerohrl eval RUN``: evaluate a run's last checkpoints on a task; exit code."""
+    from aerohrl.config import given_flags
     from aerohrl.eval.harness import EvalOptions, evaluate_run
 
     set_threads(a.threads)
-    opt = EvalOptions(task=a.task, episodes=a.episodes, checkpoints=a.checkpoints, planner=a.planner, waypoints=a.waypoints,
-                      beam=a.beam, alpha=a.alpha, candidates=a.candidates, replan=not a.no_replan, replan_every=a.replan_every,
-                      horizon=a.horizon, family=a.family, ring=a.ring, leg_horizon=a.leg_horizon, waypoint_tol=a.waypoint_tol,
-                      goal_tol=a.goal_tol, floor=a.floor, decline_margin=a.decline_margin, min_leg=a.min_leg,
-                      candidate_source=a.candidate_source, seed=a.seed, device=a.device, dataset=a.dataset,
-                      out=None if a.out is None else str(a.out), progress=progress(a.quiet))
+    opt = EvalOptions(task=a.task, horizon=a.horizon, family=a.family, decline_margin=a.decline_margin, seed=a.seed,
+                      device=a.device, out=None if a.out is None else str(a.out), progress=progress(a.quiet),
+                      **given_flags(a, EvalOptions, skip=EVAL_OWN_FLAGS))
     s = evaluate_run(a.run, opt)
     print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "
           f"near success {100 * s['near_success_mean']:.1f} ± {100 * s['near_success_std']:.1f} % "

@@ -12,14 +12,17 @@ writing per-episode records and a summary under ``RUN/eval/<task>[-<planner>]/``
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from aerohrl import atomic
+from aerohrl.config import param, validate
 from aerohrl.errors import UserError
+from aerohrl.eval.tasks import TASKS
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
@@ -34,35 +37,63 @@ PLANNERS = ("none", "single", "multi")
 OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or not
 
 
+FLOORS = ("none", "hover", "no-goal")  # = eval/floors.py FLOORS (which loads torch)
+
+
+def _in_name(f: Any, rank: int, part: str, planned: bool = False) -> Any:
+    """The param field ``f`` whose value, when it differs from the default, adds
+    ``part.format(value)`` to the result folder's name (:meth:`EvalOptions.name`) at
+    position ``rank``; ``planned``: only when a planner flies (``planner`` is not none)."""
+    f.metadata = MappingProxyType({**f.metadata, "name_part": (rank, part, planned)})
+    return f
+
+
 @dataclass
 class EvalOptions:
-    task: str = "reach-desired"
-    episodes: int = 250
-    checkpoints: int = 10
-    planner: str = "none"  # none | single (Eq. 3.7) | multi (Eq. 3.6, beam search)
-    waypoints: int = 2  # multi: intermediate goals
-    beam: int = 8
-    alpha: float = 1.0
-    candidates: int = 1024  # 0 = every achieved goal of the dataset
-    replan: bool = True  # multi: re-plan the remaining goals at each reached intermediate goal
-    replan_every: int = 0  # also re-plan every K steps during intermediate legs (0: never)
-    horizon: int | None = None  # ood: total steps of every variant (none | single | multi); None: 1000 (2 legs of 500), a family ring's own
-    family: str | None = None  # ood: a goal family of eval/families.py (None: the thesis's OOD set)
-    ring: str | None = None  # ood --family: a 1-based step of the family, or LO:HI (eval/families.py)
-    leg_horizon: int = 0  # ood: step budget of an intermediate leg (0: horizon // (intermediate goals + 1))
-    waypoint_tol: float = 1.0  # an intermediate goal counts as reached with the tolerances x this
-    floor: str = "none"  # none | hover | no-goal: a trivial floor instead of the learned policy (eval/floors.py)
-    goal_tol: float = 1.0  # the task goal's tolerances x this (0.5: the precision variant; 1: the thesis's test)
-    decline_margin: float | None = None  # planner: fly straight where plan score <= direct score + this (None: never)
-    min_leg: float = 0.0  # planner: candidates closer than this (m) to the start are not chosen first (0: all)
-    candidate_source: str = "dataset"  # planner: dataset (achieved goals) | synthetic (chains of offsets, ChainPlanner)
-    seed: int = 0
-    device: str = "cpu"
-    record: bool = True  # keep trajectories of the newest checkpoint (for plots)
-    progress: bool = True
-    dataset: str | None = None
-    out: str | None = None  # default RUN/eval/<name>
-    extra: dict = field(default_factory=dict)
+    """The settings of one evaluation (``aerohrl eval`` flags). The result folder's name
+    (:meth:`name`) is the task, the planner and every option marked with its name part
+    that differs from its default, so that each variant has a folder of its own."""
+
+    task: str = param("reach-desired", "evaluation task (eval/tasks.py)", choices=TASKS)
+    episodes: int = param(250, "episodes per checkpoint", ge=1)
+    checkpoints: int = param(10, "newest checkpoints evaluated", ge=1)
+    planner: str = param("none", "ood only: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6)", choices=PLANNERS)
+    waypoints: int = param(2, "multi: intermediate goals (Eq. 3.6 n)", ge=1)
+    beam: int = param(8, "multi: beam width", ge=1)
+    alpha: float = _in_name(param(1.0, "variance penalty of Eq. 3.6/3.7", ge=0), 3, "-a{:g}", planned=True)
+    candidates: int = param(1024, "achieved goals scored by the planner (seeded subset; 0 = all)", ge=0)
+    replan: bool = param(True, "multi: re-plan the remaining goals at each reached intermediate goal")
+    replan_every: int = _in_name(param(0, "re-plan from the current state every K simulator steps during intermediate "
+                                       "legs (0: never)", unit="steps", ge=0), 1, "-replan{}", planned=True)
+    # horizon None: 1000 steps in 2 legs of 500, or a family ring's own
+    horizon: int | None = param(None, "ood: simulator steps per episode (100 Hz: 1000 = 10 s), every planner",
+                                unit="steps", ge=1)
+    family: str | None = param(None, "ood: goals that leave rho_D along one axis (eval/families.py)")
+    ring: str | None = param(None, "ood --family: step 1..K of the family, or a range LO:HI of |x_i| (m, m/s or m/s^2)")
+    leg_horizon: int = param(0, "ood: budget to reach an intermediate goal (0: horizon / (intermediate goals + 1))",
+                             unit="steps", ge=0)
+    waypoint_tol: float = _in_name(param(1.0, "an intermediate goal is reached with the goal tolerances x this "
+                                         "(2.5: near success)", gt=0), 2, "-tol{:g}", planned=True)
+    floor: str = _in_name(param("none", "fly a trivial floor instead of the run's policy: hover (constant [g, 0, 0, 0]) | "
+                                "no-goal (the policy with its goal inputs at their mean); results go to <task>-floor-<floor>",
+                                choices=FLOORS), 8, "-floor-{}")
+    goal_tol: float = _in_name(param(1.0, "the task goal's tolerances x this (0.5: 0.075 m, 0.175 m/s, 0.075 rad; "
+                                     "results go to <task>-goaltol0.5)", gt=0, le=10), 7, "-goaltol{:g}")
+    decline_margin: float | None = _in_name(param(None, "planner: fly straight to G where the plan's score <= V(s0, G) + M "
+                                                  "(flying straight stays a candidate; results go to "
+                                                  "ood-<planner>-decline<M>)"), 5, "-decline{:g}", planned=True)
+    min_leg: float = _in_name(param(0.0, "planner: skip candidates closer than this to the start as first goal (0: none "
+                                    "skipped)", unit="m", ge=0), 4, "-minleg{:g}", planned=True)
+    candidate_source: str = _in_name(param("dataset", "planner: dataset achieved goals | synthetic offsets chained from "
+                                           "the start (far goals, ChainPlanner)", choices=("dataset", "synthetic")),
+                                     6, "-synth", planned=True)
+    seed: int = param(0, "episode-set seed", ge=0)
+    device: str = param("cpu", "torch device")
+    record: bool = param(True, "keep the trajectories of the newest checkpoint (for plots)", flag=False)
+    progress: bool = param(True, "progress bars", flag=False)
+    dataset: str | None = param(None, "the run's dataset at another path (identity is checked)")
+    out: str | None = param(None, "result folder (none: RUN/eval/<name>)")
+    extra: dict = field(default_factory=dict, metadata={"help": "free-form notes", "flag": False})
 
     def ring_def(self) -> Ring | None:
         """The :class:`~aerohrl.eval.families.Ring` of ``family``/``ring`` (None: the thesis's OOD set)."""
@@ -73,22 +104,25 @@ class EvalOptions:
         return parse_ring(self.family, self.ring if self.ring is not None else "1")
 
     def name(self) -> str:
-        """The evaluation's folder name under ``RUN/eval/``: task, planner and the options that
-        differ from the defaults."""
-        ring = self.ring_def()
-        if ring is not None:  # ood-<family>-<ring>-<planner>...: a family's ring, planned or not
-            return "ood-" + ring.slug + "-" + self._ood_name()[len("ood-"):]
-        return self._ood_name()
-
-    def _ood_name(self) -> str:
-        tol = (f"-goaltol{self.goal_tol:g}" if self.goal_tol != 1.0 else "") + (f"-floor-{self.floor}" if self.floor != "none" else "")
-        return self.task + tol if self.task != "ood" else f"ood-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") \
-            + (f"-replan{self.replan_every}" if self.replan_every and self.planner != "none" else "") \
-            + (f"-tol{self.waypoint_tol:g}" if self.waypoint_tol != 1.0 and self.planner != "none" else "") \
-            + (f"-a{self.alpha:g}" if self.alpha != 1.0 and self.planner != "none" else "") \
-            + (f"-minleg{self.min_leg:g}" if self.min_leg > 0 and self.planner != "none" else "") \
-            + (f"-decline{self.decline_margin:g}" if self.decline_margin is not None and self.planner != "none" else "") \
-            + ("-synth" if self.candidate_source == "synthetic" and self.planner != "none" else "") + tol
+        """The evaluation's folder name under ``RUN/eval/``: the task (for ood: ``ood``, a
+        family ring's slug, the planner and, for multi, its waypoints), then the name part
+        of every option that differs from its default, in rank order."""
+        planned = self.task == "ood" and self.planner != "none"
+        if self.task != "ood":
+            head = self.task
+        else:
+            ring = self.ring_def()
+            head = "ood-" + (ring.slug + "-" if ring is not None else "") + self.planner \
+                + (f"{self.waypoints}" if self.planner == "multi" else "")
+        parts = []
+        for f in fields(self):
+            if "name_part" not in f.metadata:
+                continue
+            rank, part, needs_planner = f.metadata["name_part"]
+            value = getattr(self, f.name)
+            if value != f.default and (planned or not needs_planner):
+                parts.append((rank, part.format(value)))
+        return head + "".join(p for _, p in sorted(parts))
 
 
 def run_checkpoints(run_dir: str | Path | Run, k: int) -> list[Path]:
@@ -157,40 +191,20 @@ def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Plan
 
 
 def check_options(opt: EvalOptions) -> None:
-    """UserError (one line) for an unknown task or planner, or options that contradict each other."""
-    from aerohrl.eval.tasks import TASKS
-
-    if opt.task not in TASKS:
-        raise UserError(f"unknown task {opt.task!r} (choose from {', '.join(TASKS)})")
-    if opt.planner not in PLANNERS:
-        raise UserError(f"unknown planner {opt.planner!r} (choose from {', '.join(PLANNERS)})")
-    if opt.candidate_source not in ("dataset", "synthetic"):
-        raise UserError(f"unknown candidate source {opt.candidate_source!r} (choose from dataset, synthetic)")
+    """UserError (one line) for a setting out of its declared range or choices
+    (:func:`aerohrl.config.validate`), or options that contradict each other."""
+    validate(opt)
     if opt.planner != "none" and opt.task != "ood":
         raise UserError(f"--planner {opt.planner} applies to --task ood only")
-    if opt.episodes < 1:
-        raise UserError(f"empty goal set: --episodes must be >= 1, got {opt.episodes}")
     if opt.planner == "multi" and opt.waypoints < 2:
         raise UserError(f"--planner multi needs --waypoints >= 2, got {opt.waypoints}")
-    from aerohrl.eval.floors import FLOORS
-
-    if opt.floor not in FLOORS:
-        raise UserError(f"unknown floor {opt.floor!r} (choose from {', '.join(FLOORS)})")
     if opt.floor != "none" and opt.planner != "none":
         raise UserError("--floor replaces the policy; it takes no --planner")
-    if not 0 < opt.goal_tol <= 10:
-        raise UserError(f"--goal-tol must be in (0, 10] (a factor on the goal tolerances), got {opt.goal_tol}")
-    if opt.decline_margin is not None and not np.isfinite(opt.decline_margin):
-        raise UserError(f"--decline-margin must be a finite number, got {opt.decline_margin}")
-    if not opt.min_leg >= 0:
-        raise UserError(f"--min-leg must be >= 0 m, got {opt.min_leg}")
     if (opt.family is not None or opt.ring is not None) and opt.task != "ood":
         raise UserError("--family / --ring apply to --task ood only")
     if opt.ring is not None and opt.family is None:
         raise UserError("--ring needs --family (position | velocity | acceleration | combined)")
     opt.ring_def()  # one-line errors for unknown families and bad rings
-    if (opt.horizon is not None and opt.horizon < 1) or opt.leg_horizon < 0 or opt.beam < 1 or opt.candidates < 0 or opt.replan_every < 0:
-        raise UserError("--horizon and --beam must be >= 1, --leg-horizon, --candidates and --replan-every >= 0")
 
 
 def build_episodes(data: Dataset, opt: EvalOptions) -> EpisodeSet:

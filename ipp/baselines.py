@@ -45,6 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from aerohrl.config import param, validate
+
 
 from .env import SearchEnv
 from .scoring import info_gain  # noqa: F401  (re-exported: tests, features' docs)
@@ -63,39 +65,32 @@ THESIS_NAMES = {"greedy": "Greedy-IPP", "dp": "DP-IPP", "cmaes": "CMAES-IPP",
 class PlannerConfig:
     """Planner knobs (CLI flags of ``ipp bench``)."""
 
-    depth: int | None = None       # tree depth (None = the planner's default)
-    f1: float = 1.0                # greedy: weight of belief
-    f2: float = 1.0                # greedy: weight of entropy
-    eps: float = 0.05              # prioritised coverage: floor weight of a new cell
-    horizon: int = 5               # CMA-ES sequence length (thesis: 5)
-    popsize: int = 12              # CMA-ES population
-    generations: int = 15          # CMA-ES generations per replan
-    sigma0: float = 0.3            # CMA-ES initial step size on [0, 1]^horizon
-    max_nodes: int = 2_000_000     # memory bound per chunk for dense overlap maps
-    budget_aware: bool | None = None  # tree planners: None = planner default (detect only)
-    scoring: str = "ratio"         # "ratio": utility / cost; "additive": utility - w * cost
-    cost_weight: float = 0.0       # additive: w per cost unit (0: utility alone, as the
-                                   # original's coverage planners)
-    prio_revisit: bool = True      # prioritised coverage scores belief mass of every sensed
-                                   # cell, covered or not (the original); False: new cells only
-    info_weight: float = 0.0       # detect: + this x the expected information gain (bits)
-                                   # of the sensed cells, a value for looking at cells whose
-                                   # belief one pass cannot confirm (0: detections alone)
-    cmaes_tol: float = 0.0         # CMA-ES: stop an env's search when the std of its
-                                   # generation-best score over the last 10 generations is
-                                   # <= tol * |mean| (the original: absolute std < 0.1 in
-                                   # its reward units); 0 = run every generation
+    depth: int | None = param(None, "tree depth in primitives (none: the planner's own)", ge=1)
+    f1: float = param(1.0, "greedy: weight of belief", ge=0)
+    f2: float = param(1.0, "greedy: weight of entropy", ge=0)
+    eps: float = param(0.05, "prioritised coverage: floor weight of a new cell", ge=0)
+    horizon: int = param(5, "CMA-ES sequence length in primitives (thesis: 5)", ge=1)
+    popsize: int = param(12, "CMA-ES population", ge=2)
+    generations: int = param(15, "CMA-ES generations per replan", ge=1)
+    sigma0: float = param(0.3, "CMA-ES initial step size on [0, 1]^horizon", gt=0)
+    max_nodes: int = param(2_000_000, "memory bound per chunk for dense overlap maps", ge=1)
+    budget_aware: bool | None = param(None, "tree planners score by min(cost, remaining budget) (none: detect only)")
+    scoring: str = param("ratio", "utility per unit cost, or utility - w * cost (the original's form)",
+                         choices=("ratio", "additive"))
+    cost_weight: float = param(0.0, "additive scoring: w per cost unit (0: utility alone, as the original's "
+                               "coverage planners)", ge=0)
+    prio_revisit: bool = param(True, "prioritised coverage scores the belief mass of every sensed cell, covered "
+                               "or not (the original); false: new cells only")
+    info_weight: float = param(0.0, "detect: + this x the expected information gain (bits) of the sensed cells, "
+                               "a value for cells one pass cannot confirm (0: detections alone)", ge=0)
+    cmaes_tol: float = param(0.0, "CMA-ES: stop an environment's search when the std of its generation-best "
+                             "score over the last 10 generations is <= tol * |mean| (the original: absolute "
+                             "std < 0.1 in its reward units); 0: run every generation", ge=0)
 
     def validate(self) -> None:
-        """ValueError (one line) for an unknown scoring rule or an out-of-range planner setting."""
-        if self.scoring not in ("ratio", "additive"):
-            raise ValueError(f"unknown scoring {self.scoring!r} (ratio|additive)")
-        if not np.isfinite(self.cmaes_tol) or self.cmaes_tol < 0:
-            raise ValueError("--cmaes-tol must be a finite number >= 0")
-        if not np.isfinite(self.cost_weight) or self.cost_weight < 0:
-            raise ValueError("--cost-weight must be a finite number >= 0")
-        if not np.isfinite(self.info_weight) or self.info_weight < 0:
-            raise ValueError("--info-weight must be a finite number >= 0")
+        """ValueError (one line, naming the setting) for a setting out of its declared
+        range or choices (:func:`aerohrl.config.validate`)."""
+        validate(self)
 
 
 def sequence_score(util: np.ndarray, cost: np.ndarray, cfg: "PlannerConfig") -> np.ndarray:

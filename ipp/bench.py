@@ -9,17 +9,19 @@ decision) pairs it served.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from aerohrl.config import param, section, validate
 from aerohrl.errors import UserError
 
 from aerohrl.atomic import atomic_path
 from .baselines import PLANNERS, TEACHERS, THESIS_NAMES, PlannerConfig, make_planner
 from .env import EnvConfig, SearchEnv
+from .flown import EXECUTIONS
 from .factory import create_env, sample_for
 from .lattice import Lattice
 
@@ -35,18 +37,20 @@ TEST_SEED = 1000
 class BenchConfig:
     """``ipp bench`` flags."""
 
-    planners: tuple[str, ...] = ("dp",)
-    envs: int = 100
-    seed: int = TEST_SEED
-    batch: int = 100
-    env: EnvConfig = field(default_factory=EnvConfig)
-    planner: PlannerConfig = field(default_factory=PlannerConfig)
-    execution: str = "ideal"   # "ideal" (the lattice's sensing) or "flown" (.flown)
+    planners: tuple[str, ...] = param(("dp",), "planners to run: baselines, teachers, rl")
+    envs: int = param(100, "test worlds", ge=1)
+    seed: int = param(TEST_SEED, "test-suite seed", ge=0)
+    batch: int = param(100, "environments stepped together", ge=1)
+    env: EnvConfig = section(EnvConfig, "the test environment")
+    planner: PlannerConfig = section(PlannerConfig, "the planners' knobs")
+    execution: str = param("ideal", "the lattice's sensing (ideal), the simulator flying each primitive (flown) "
+                           "or the chapter-3 policy flying it (skill); see aerohrl.ipp.flown",
+                           choices=EXECUTIONS)
 
     def validate(self) -> None:
-        """UserError (one line) for a suite or batch size below 1 or an unknown planner."""
-        if self.envs < 1 or self.batch < 1:
-            raise UserError("--envs and --batch must be >= 1")
+        """UserError (one line) for a setting out of its declared range
+        (:func:`aerohrl.config.validate`) or an unknown planner."""
+        validate(self)
         for p in self.planners:
             if p not in PLANNERS + TEACHERS + ("rl",):
                 raise UserError(f"unknown planner {p!r} (choose from "

@@ -44,10 +44,6 @@ TEST_SEED = 1000  # bench.TEST_SEED
 BUDGETS = {"default": 9250.0, "tight": 5000.0}  # env.BUDGETS
 SEMANTIC_BUDGET = 30000.0  # env.SEMANTIC_BUDGET
 ENV_DEFAULTS = {"map_size": 30, "budget": 9250.0, "start": "center"}  # env.EnvConfig()
-TRAIN_PRESETS = ("cpu", "thesis", "quick", "semantic", "test")  # train.PRESETS
-TEACHER_PLANNERS = ("detect", "dp", "prio_coverage", "coverage", "greedy")  # train.TEACHER_PLANNERS
-CPU_PRESET = {"n_envs": 64, "iterations": 0, "bc_iterations": 30, "teacher": "detect", "seed": 7, "threads": 1,
-              "lr": 3e-5, "bc_lr": 1e-3, "bc_anchor": 0.5, "entropy_coef": 0.001, "eval_every": 10}  # train.PRESETS["cpu"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -124,38 +120,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="trained policy run directory (planner rl); bench takes several")
 
     tr = sub.add_parser("train", help="train the learned recurrent policy")
-    dt = SimpleNamespace(**CPU_PRESET)
-    tr.add_argument("--preset", default=None, choices=TRAIN_PRESETS,
-                    help="hyper-parameter preset [cpu; with --world semantic: semantic]")
-    tr.add_argument("--resume", metavar="RUN",
-                    help="continue RUN from its checkpoint.pt with its config.json "
-                    "(only --iterations, --lattice, --quiet may be given)")
-    tr.add_argument("--envs", type=T.positive_int, default=None, dest="n_envs",
-                    help=f"environments stepped per iteration [cpu: {dt.n_envs}]")
-    tr.add_argument("--iterations", type=T.nonneg_int, default=None, help=f"PPO iterations [cpu: {dt.iterations}]")
-    tr.add_argument("--bc-iterations", type=T.nonneg_int, default=None,
-                    help=f"DAgger warm-start iterations before PPO (0: none) [cpu: {dt.bc_iterations}]")
-    tr.add_argument("--teacher", default=None, choices=TEACHER_PLANNERS,
-                    help=f"DAgger teacher planner [cpu: {dt.teacher}]")
-    tr.add_argument("--teacher-depth", type=T.positive_int, default=None,
-                    help="teacher tree depth in primitives, 1..4 [the planner's own]")
-    tr.add_argument("--adv-weights", type=_floats, default=None,
-                    help="per-term advantage weights, comma-separated: entropy,coverage,"
-                    "target,cost,invalid (thesis: 1,1,1,1,1)")
-    add_common(tr, seed={"default": None, "help": f"random seed (>= 0) [cpu: {dt.seed}]"},
-               threads={"help": f"torch threads [cpu: {dt.threads}]"})
-    tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
-    tr.add_argument("--no-features", action="store_true",
-                    help="map observations only (thesis), no per-primitive features")
-    tr.add_argument("--lr", type=T.positive_float, default=None, help=f"PPO learning rate (Adam) [cpu: {dt.lr:g}]")
-    tr.add_argument("--bc-lr", type=T.positive_float, default=None, help=f"DAgger learning rate (Adam) [cpu: {dt.bc_lr:g}]")
-    tr.add_argument("--bc-anchor", type=T.nonneg_float, default=None,
-                    help=f"PPO: weight of a cross entropy to the teacher (0: off) [cpu: {dt.bc_anchor:g}]")
-    tr.add_argument("--entropy-coef", type=T.nonneg_float, default=None,
-                    help=f"PPO entropy bonus weight [cpu: {dt.entropy_coef:g}]")
-    tr.add_argument("--eval-every", type=T.nonneg_int, default=None,
-                    help=f"validate the greedy policy every N iterations (0: never) [cpu: {dt.eval_every}]")
-    tr.add_argument("--init", metavar="RUN", help="warm start from a trained run (fine-tuning)")
+    _train_flags(tr)
     tr.add_argument("--start", choices=("center", "random"), default=None,
                     help="training start cells (default random; test suite: center)")
     add_common(tr, out={"default": "runs", "type": str, "help": "folder of runs: the run goes to OUT/NAME [runs]"},
@@ -216,6 +181,78 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+# TrainConfig settings whose flags are written here rather than by aerohrl.config.add_flags:
+# spelled otherwise (--envs, --no-rnn, --no-features, comma-separated --adv-weights), shared
+# by every command (--seed, --threads), or an optional integer (--teacher-depth); the
+# environment's settings come from the world flags (--world, --map-size, --budget, --start)
+TRAIN_OWN_FLAGS = ("n_envs", "adv_weights", "seed", "threads", "teacher_depth")
+
+
+def _train_skip() -> list[str]:
+    from aerohrl.config import leaves
+
+    from .train_config import TrainConfig
+
+    return list(TRAIN_OWN_FLAGS) + [f.name for path, f, _ in leaves(TrainConfig) if path[0] in ("env", "policy")]
+
+
+def _train_flags(tr) -> None:
+    """``ipp train``'s flags: the preset and the run folder, then one flag per TrainConfig
+    setting (meaning, bounds and the cpu preset's value from the declarations)."""
+    from aerohrl.config import add_flags, describe
+
+    from .train_config import TrainConfig, preset, preset_names
+
+    cpu = preset("cpu")
+
+    def helps(name: str) -> str:
+        return describe(_train_field(name), getattr(cpu, name), default_label="cpu")
+
+    tr.add_argument("--preset", default=None, choices=preset_names(),
+                    help="hyper-parameter preset (ipp/presets/NAME.toml) [cpu; with --world semantic: semantic]")
+    tr.add_argument("--resume", metavar="RUN",
+                    help="continue RUN from its checkpoint.pt with its config.json "
+                    "(only --iterations, --lattice, --quiet may be given)")
+    tr.add_argument("--envs", type=_setting("n_envs", int), default=None, dest="n_envs", metavar="N", help=helps("n_envs"))
+    tr.add_argument("--teacher-depth", type=_setting("teacher_depth", int), default=None, metavar="N",
+                    help=describe(_train_field("teacher_depth"), "the planner's own"))
+    tr.add_argument("--adv-weights", type=_floats, default=None, metavar="W,W,W,W,W",
+                    help=helps("adv_weights").replace(" [", ", comma-separated [", 1))
+    add_common(tr, seed={"default": None, "help": f"random seed (>= 0) [cpu: {cpu.seed}]"},
+               threads={"help": f"torch threads [cpu: {cpu.threads}]"})
+    tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
+    tr.add_argument("--no-features", action="store_true",
+                    help="map observations only (thesis), no per-primitive features")
+    add_flags(tr, TrainConfig, skip=_train_skip(), defaults=cpu, default_label="cpu")
+
+
+def _train_field(name: str):
+    from dataclasses import fields
+
+    from .train_config import TrainConfig
+
+    return next(f for f in fields(TrainConfig) if f.name == name)
+
+
+def _setting(name: str, kind: type):
+    """The argparse type of TrainConfig's numeric setting ``name``: parse, then its declared bounds."""
+    from aerohrl.config import ConfigError, check_value
+
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {'an integer' if kind is int else 'a number'}: {text!r}") from None
+        try:
+            check_value(name, v, _train_field(name))
+        except ConfigError as e:
+            raise argparse.ArgumentTypeError(str(e).removeprefix(f"{name} ")) from None
+        return v
+
+    parse.__name__ = "integer" if kind is int else "number"
+    return parse
+
+
 def _budget_names() -> str:
     return ", ".join(f"{k} = {v:g}" for k, v in BUDGETS.items())
 
@@ -255,10 +292,22 @@ _executions.__name__ = "execution"
 
 
 def _floats(text: str) -> tuple[float, ...]:
+    """--adv-weights: one finite number per reward term, comma-separated."""
+    from aerohrl.config import ConfigError, check_value
+
+    from .env import TERMS
+
     try:
-        return tuple(float(x) for x in text.split(","))
+        w = tuple(float(x) for x in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a comma-separated list of numbers: {text!r}")
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of numbers: {text!r}") from None
+    if len(w) != len(TERMS):
+        raise argparse.ArgumentTypeError(f"needs {len(TERMS)} numbers ({', '.join(TERMS)}), got {text!r}")
+    try:
+        check_value("adv_weights", w, _train_field("adv_weights"))
+    except ConfigError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("adv_weights ")) from None
+    return w
 
 
 def _configs(a):
@@ -525,13 +574,12 @@ def _train(a) -> int:
             if a.world == "targets":
                 raise UserError("preset semantic trains on semantic worlds (--world semantic)")
             a.world = "semantic"
-        cfg = preset(a.preset, n_envs=a.n_envs, iterations=a.iterations, seed=a.seed,
-                     threads=a.threads, recurrent=False if a.no_rnn else None, lr=a.lr,
-                     init=a.init, bc_iterations=a.bc_iterations, teacher=a.teacher,
-                     teacher_depth=a.teacher_depth, adv_weights=a.adv_weights,
-                     bc_lr=a.bc_lr, bc_anchor=a.bc_anchor, entropy_coef=a.entropy_coef,
-                     eval_every=a.eval_every,
-                     features=False if a.no_features else None)
+        from aerohrl.config import given_flags
+
+        from .train_config import TrainConfig
+        cfg = preset(a.preset, n_envs=a.n_envs, seed=a.seed, threads=a.threads, teacher_depth=a.teacher_depth,
+                     adv_weights=a.adv_weights, recurrent=False if a.no_rnn else None,
+                     features=False if a.no_features else None, **given_flags(a, TrainConfig, skip=_train_skip()))
         cfg = replace(cfg, env=_env_config(a, a.start or "random"))
         # the shape of every command's run names (aerohrl.cli_common.run_name); two runs in one second differ
         run = Path(run_dir) if run_dir else Path(a.out) / (a.name or run_name("ipp", a.preset, "nornn" if a.no_rnn else None,
@@ -539,8 +587,6 @@ def _train(a) -> int:
         lat = get_lattice(a.lattice, cfg.env.kind)
     if a.threads is not None and a.threads < 1:
         raise UserError(f"--threads must be >= 1, got {a.threads}")
-    if cfg.teacher_depth is not None and not 1 <= cfg.teacher_depth <= 4:
-        raise UserError(f"--teacher-depth must be in 1..4, got {cfg.teacher_depth}")
     cfg.validate()
     from .factory import create_env
     create_env(cfg.env, lat)

@@ -29,11 +29,12 @@ leaving the map; see :func:`viability`.)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
+from aerohrl.config import param, section, validate
 
 from .lattice import Lattice
 from .scoring import detect_prob, info_gain
@@ -62,45 +63,41 @@ BUDGETS = {"default": BUDGET_DEFAULT, "tight": BUDGET_TIGHT}
 class EnvConfig:
     """Environment parameters; ``budget`` is in primitive-cost units."""
 
-    map_size: int = 30
-    budget: float = BUDGET_DEFAULT
-    found_threshold: float = 0.95
-    start: str = "center"          # "center" or "random" (valid, viable hover start)
-    r_entropy: float = 15.0
-    r_coverage: float = 10.0
-    r_target: float = 20.0
-    r_cost: float = 20.0
-    r_invalid: float = 1.0
-    obs_radius: int = 4            # windows are 2R x 2R cells at each scale
-    obs_scales: tuple[int, ...] = (1, 2, 4)
-    sensor: SensorConfig = field(default_factory=SensorConfig)
-    world: WorldConfig = field(default_factory=WorldConfig)
-    kind: str = "targets"          # "targets" (Table 2.1) or "semantic" (Table 2.2)
-    semantic: SemanticConfig = field(default_factory=SemanticConfig)
+    map_size: int = param(30, "map side", unit="cells", ge=1, le=512)
+    budget: float = param(BUDGET_DEFAULT, "cost budget (sum of rho*T + int |jerk|^2 over the primitives flown)",
+                          unit="primitive-cost units", gt=0)
+    found_threshold: float = param(0.95, "a target is found when its cell's belief first reaches this", gt=0.5, lt=1)
+    start: str = param("center", "start cell: the centre, or a random valid, viable hover start",
+                       choices=("center", "random"))
+    r_entropy: float = param(15.0, "reward for the whole map's entropy reduction", ge=0)
+    r_coverage: float = param(10.0, "reward for covering the whole map", ge=0)
+    r_target: float = param(20.0, "reward per target found", ge=0)
+    r_cost: float = param(20.0, "penalty for spending the whole budget", ge=0)
+    r_invalid: float = param(1.0, "penalty per invalid primitive", ge=0)
+    obs_radius: int = param(4, "observation windows are 2R x 2R cells at each scale: R", unit="cells", ge=1)
+    obs_scales: tuple[int, ...] = param((1, 2, 4), "pooling factor of each observation window", ge=1)
+    sensor: SensorConfig = section(SensorConfig, "the downward camera's errors")
+    world: WorldConfig = section(WorldConfig, "target worlds (kind targets)")
+    kind: str = param("targets", "target search (Table 2.1) or semantic feature detection (Table 2.2)",
+                      choices=("targets", "semantic"))
+    semantic: SemanticConfig = section(SemanticConfig, "semantic worlds (kind semantic)")
 
     def validate(self, lattice: Lattice) -> None:
-        """ValueError (one line) when the map does not fit the lattice or a setting is out of range."""
+        """ValueError (one line) for a setting out of its declared range
+        (:func:`aerohrl.config.validate`), a map the lattice's footprint does not fit, a
+        budget that cannot pay for the cheapest primitive, or a world whose map size
+        differs from ``map_size``."""
+        validate(self)
         if self.map_size < 2 * lattice.config.footprint_radius + 2:
             raise ValueError(f"map size {self.map_size} is too small for the lattice "
                             f"(needs >= {2 * lattice.config.footprint_radius + 2})")
-        if self.map_size > 512:
-            raise ValueError(f"map size {self.map_size} is too large (max 512)")
-        if not np.isfinite(self.budget) or self.budget < lattice.prim_cost.min():
+        if self.budget < lattice.prim_cost.min():
             raise ValueError(f"budget {self.budget:g} cannot pay for a single primitive "
                             f"(cheapest costs {lattice.prim_cost.min():.1f})")
-        if self.start not in ("center", "random"):
-            raise ValueError(f"unknown start {self.start!r} (center|random)")
-        if not 0.5 < self.found_threshold < 1:
-            raise ValueError("found_threshold must be in (0.5, 1)")
-        if self.kind not in ("targets", "semantic"):
-            raise ValueError(f"unknown world kind {self.kind!r} (targets|semantic)")
         if self.kind == "targets" and self.world.map_size != self.map_size:
             raise ValueError("world.map_size must equal map_size")
-        if self.kind == "semantic":
-            if self.semantic.map_size != self.map_size:
-                raise ValueError("semantic.map_size must equal map_size")
-            if not 2 <= self.semantic.n_classes <= 16:
-                raise ValueError("semantic worlds need 2..16 classes (background included)")
+        if self.kind == "semantic" and self.semantic.map_size != self.map_size:
+            raise ValueError("semantic.map_size must equal map_size")
 
 
 def viability(lattice: Lattice, size: int) -> np.ndarray:

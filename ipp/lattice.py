@@ -64,6 +64,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aerohrl.config import ConfigError, param, validate
+
 
 from aerohrl.atomic import atomic_path
 
@@ -77,39 +79,35 @@ SEMANTIC_PATH = Path(__file__).resolve().parent / "data" / "lattice_semantic.npz
 class LatticeConfig:
     """Parameters of :func:`build_lattice` (CLI flags of ``ipp lattice build``)."""
 
-    n_vertices: int = 9          # lattice vertices (velocity states), hover included
-    v_max: float = 3.0           # m/s, speed bound |v|
-    a_max: float = 3.0           # m/s^2, acceleration bound |a|
-    rho: float = 100.0           # weight of time in the cost rho*T + int |jerk|^2
-    reach: int = 7               # displacement window |dx|, |dy| <= reach (cells)
-    max_edges: int = 20          # primitives per vertex (action slots)
-    t_min: float = 0.5           # duration grid, s
-    t_max: float = 5.0
-    t_step: float = 0.1
-    tau: float = 1.0             # s; velocity weight in the edge-dispersion metric
-    hover_moves: tuple[int, ...] = (1, 5)  # cardinal hover->hover moves always kept
-    footprint_radius: int = 2    # footprint (2r+1)^2 cells
-    sense_dt: float = 0.1        # s, sampling of the trajectory for sensing
-    velocity_samples: float = 0.1  # m/s grid spacing of the dispersion sample X
-    vertex_speed: float = 0.9    # X is the disk |v| <= vertex_speed * v_max (turns need room)
+    n_vertices: int = param(9, "lattice vertices (velocity states), hover included", ge=1)
+    v_max: float = param(3.0, "speed bound |v|", unit="m/s", gt=0)
+    a_max: float = param(3.0, "acceleration bound |a|", unit="m/s^2", gt=0)
+    rho: float = param(100.0, "weight of time in the primitive cost rho*T + int |jerk|^2", unit="1/s", gt=0)
+    reach: int = param(7, "displacement window |dx|, |dy| <= reach", unit="cells", ge=1)
+    max_edges: int = param(20, "primitives per vertex (action slots)", ge=1)
+    t_min: float = param(0.5, "shortest primitive duration", unit="s", gt=0)
+    t_max: float = param(5.0, "longest primitive duration", unit="s", gt=0)
+    t_step: float = param(0.1, "step of the duration grid", unit="s", gt=0)
+    tau: float = param(1.0, "velocity weight in the edge-dispersion metric", unit="s", gt=0)
+    hover_moves: tuple[int, ...] = param((1, 5), "cardinal hover->hover moves always kept (1..reach)",
+                                         unit="cells", ge=1)
+    footprint_radius: int = param(2, "sensor footprint (2r+1)^2: r", unit="cells", ge=0)
+    sense_dt: float = param(0.1, "sampling of the trajectory for sensing", unit="s", gt=0)
+    velocity_samples: float = param(0.1, "grid spacing of the dispersion sample X", unit="m/s", gt=0)
+    vertex_speed: float = param(0.9, "X is the disk |v| <= vertex_speed * v_max (turns need room)", gt=0, le=0.99)
 
     def validate(self) -> None:
-        """ValueError (one line) for an inconsistent lattice configuration (counts, speeds,
-        durations, footprint, hover moves)."""
-        if self.n_vertices < 1:
-            raise ValueError("lattice: n_vertices must be >= 1")
-        if self.v_max <= 0 or self.a_max <= 0 or self.rho <= 0:
-            raise ValueError("lattice: v_max, a_max and rho must be positive")
-        if self.reach < 1 or self.max_edges < 1:
-            raise ValueError("lattice: reach and max_edges must be >= 1")
-        if not (0 < self.t_min < self.t_max) or self.t_step <= 0:
-            raise ValueError("lattice: need 0 < t_min < t_max and t_step > 0")
-        if not 0 < self.vertex_speed <= 0.99:
-            raise ValueError("lattice: vertex_speed must be in (0, 0.99]")
-        if self.footprint_radius < 0 or self.sense_dt <= 0:
-            raise ValueError("lattice: footprint_radius >= 0 and sense_dt > 0 required")
-        if any(m < 1 or m > self.reach for m in self.hover_moves):
-            raise ValueError("lattice: hover_moves must lie in 1..reach")
+        """ValueError (one line, naming the setting) for a setting out of its declared range
+        (:func:`aerohrl.config.validate`), durations with ``t_min >= t_max``, or a hover
+        move beyond ``reach``."""
+        try:
+            validate(self)
+        except ConfigError as e:
+            raise ConfigError(f"lattice: {e}") from None
+        if self.t_min >= self.t_max:
+            raise ConfigError(f"lattice: need t_min < t_max, got {self.t_min:g} and {self.t_max:g}")
+        if any(m > self.reach for m in self.hover_moves):
+            raise ConfigError("lattice: hover_moves must lie in 1..reach")
 
 
 # Semantic setting (4 m cells): 5 cells/s = 20 m/s, reach 10 cells, 15 x 15-cell footprint

@@ -19,7 +19,7 @@ them) and a per-slot scoring head adds ``w . relu(emb_a + ctx(h))`` to the slot'
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -31,14 +31,7 @@ from aerohrl.errors import UserError, warn
 
 from .baselines import Planner
 from .env import TERMS
-
-
-@dataclass(frozen=True)
-class PolicyConfig:
-    hidden: int = 128
-    recurrent: bool = True
-    mask_invalid: bool = True   # sample only valid primitives (see train.py)
-    features: bool = True       # per-primitive look-ahead features (features.py)
+from .train_config import PolicyConfig  # noqa: F401  (declared torch-free for the flags)
 
 
 class ActorCritic(nn.Module):

@@ -58,7 +58,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, shift as nd_shift
+
+from aerohrl.config import param
 
 
 CLASSES = ("background", "building", "road", "vegetation", "water")
@@ -71,19 +72,21 @@ PALETTE = np.array([[255, 255, 255], [200, 60, 60], [90, 90, 90], [60, 160, 60],
 class SemanticConfig:
     """Semantic worlds: procedural campus maps (or a user raster) and wrong priors."""
 
-    map_size: int = 256              # cells per side (4 m cells: 1024 m)
-    cell_m: float = 4.0              # metres per cell (documentation and figures)
-    n_classes: int = len(CLASSES)    # background included
-    raster: str | None = None        # class raster file; None = procedural campus
-    prior_sigma: float = 6.0         # cells; smoothing of the class indicators
-    shift_max: float = 12.0          # cells; std of the per-class prior shift ~ U[0, max]
-    weight_noise: float = 0.5        # std of log weight noise per class
-    prior_floor: float = 0.02        # added to every class before normalising
+    map_size: int = param(256, "cells per side (4 m cells: 1024 m)", unit="cells", ge=1)
+    cell_m: float = param(4.0, "metres per cell (documentation and figures)", unit="m", gt=0)
+    n_classes: int = param(len(CLASSES), "classes, background included", ge=2, le=16)
+    raster: str | None = param(None, "class raster file (none: procedural campus maps)")
+    prior_sigma: float = param(6.0, "smoothing of the class indicators", unit="cells", ge=0)
+    shift_max: float = param(12.0, "std of the per-class prior shift ~ U[0, shift_max]", unit="cells", ge=0)
+    weight_noise: float = param(0.5, "std of the log weight noise per class", ge=0)
+    prior_floor: float = param(0.02, "added to every class before normalising", ge=0)
 
 
 # ------------------------------------------------------------------ procedural map
 def campus_map(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     """(size, size) int8 class map of a procedural campus (see the module docstring)."""
+    from scipy.ndimage import gaussian_filter  # here: the config classes stay scipy-free (--help)
+
     S = size
     g = np.arange(S, dtype=float)
     X, Y = np.meshgrid(g, g, indexing="xy")
@@ -244,6 +247,8 @@ class SemanticWorlds:
 
 def semantic_prior(rng: np.random.Generator, classes: np.ndarray, cfg: SemanticConfig) -> np.ndarray:
     """(S, S, C) prior class probabilities: smoothed, shifted, re-weighted indicators."""
+    from scipy.ndimage import gaussian_filter, shift as nd_shift
+
     C = cfg.n_classes
     out = np.empty(classes.shape + (C,), np.float64)
     for c in range(C):  # one filter per class (C = 5), not per cell

@@ -19,12 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from aerohrl.config import param
+
 
 @dataclass(frozen=True)
 class SensorConfig:
-    err0: float = 0.01        # error probability at the footprint centre
-    err_slope: float = 0.1    # added per cell of Chebyshev distance
-    logodds_clip: float = 20.0  # |L| bound (numerical safety only)
+    err0: float = param(0.01, "classification error probability at the footprint centre", ge=0, le=0.5)
+    err_slope: float = param(0.1, "error probability added per cell of Chebyshev distance from the centre", unit="1/cell", ge=0)
+    logodds_clip: float = param(20.0, "bound on |log-odds| (numerical safety only)", gt=0)
 
     def error_levels(self, n_levels: int) -> np.ndarray:
         """Per sensing level (n_levels,): the classification error ``err0 + err_slope * level``,

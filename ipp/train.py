@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -60,114 +60,17 @@ from aerohrl import atomic
 from aerohrl.algorithms.run import Run, rng_state, seed_everything, set_rng_state
 from aerohrl.errors import UserError
 from .curve import plot_learning_curve, read_metrics
-from .env import TERMS, EnvConfig, semantic_config
+from .env import TERMS, EnvConfig
 from .factory import create_env, sample_for
 from .features import N_FEAT
 from .lattice import Lattice
-from .policy import ActorCritic, PolicyConfig, save_policy, valid_loss
+from .policy import ActorCritic, save_policy, valid_loss
+from .train_config import (TEACHER_PLANNERS, VAL_SEED, PolicyConfig, TrainConfig,  # noqa: F401  (re-exported)
+                           from_nested, preset, preset_names)
 
 CHECKPOINT_VERSION = 1  # the format is the Run layout's (aerohrl.algorithms.run.LAYOUTS["ipp"])
-TEACHER_PLANNERS = ("detect", "dp", "prio_coverage", "coverage", "greedy")  # stateless trees
-VAL_SEED = 500  # validation suite (training: TrainConfig.seed, test: bench.TEST_SEED = 1000)
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    n_envs: int = 64
-    iterations: int = 600         # PPO iterations (after the bc_iterations)
-    lr: float = 3e-4
-    gamma: float = 0.98
-    lam: float = 0.8              # thesis: lambda = 0.8
-    clip: float = 0.2
-    epochs: int = 4
-    minibatches: int = 4
-    value_coef: float = 0.5
-    entropy_coef: float = 0.01
-    valid_coef: float = 0.1
-    valid_beta: tuple[float, float] = (1.0, 0.2)   # Eq. 2.7 beta1 (invalid), beta2 (valid)
-    reward_scale: float = 0.05    # rewards / 20: one target = 1
-    grad_clip: float = 5.0
-    adv_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0)  # per TERMS; thesis: all 1
-    seed: int = 7
-    threads: int = 1
-    log_every: int = 10           # checkpoint (and model.pt) cadence, iterations
-    init: str | None = None       # warm start: a run directory / model.pt (fine-tuning)
-    # behaviour-cloning warm start (DAgger), see the module docstring
-    bc_iterations: int = 0
-    teacher: str = "detect"
-    teacher_depth: int | None = None
-    bc_beta0: float = 1.0
-    bc_beta_decay: float = 0.7
-    bc_epochs: int = 2
-    bc_lr: float = 1e-3
-    bc_buffer: int = 20
-    bc_anchor: float = 0.0        # PPO: + bc_anchor * cross entropy to the teacher's labels
-    # validation on a fixed suite (never the test seed)
-    eval_every: int = 0
-    eval_envs: int = 64
-    eval_seed: int = VAL_SEED
-    policy: PolicyConfig = field(default_factory=PolicyConfig)
-    env: EnvConfig = field(default_factory=lambda: EnvConfig(start="random"))
-
-    @property
-    def total_iterations(self) -> int:
-        """Behaviour-cloning plus PPO iterations."""
-        return self.bc_iterations + self.iterations
-
-    def validate(self) -> None:
-        """UserError (one line) for an out-of-range setting (sizes, iterations, rates, weights,
-        teacher) or a training or validation seed equal to the test suite's."""
-        from .bench import TEST_SEED
-        if self.n_envs < 1 or self.iterations < 0 or self.bc_iterations < 0 \
-                or self.total_iterations < 1:
-            raise UserError("--envs and --iterations + --bc-iterations must be >= 1")
-        if not (0 < self.lr < 1 and 0 < self.bc_lr < 1):
-            raise UserError(f"--lr and --bc-lr must be in (0, 1), got {self.lr}, {self.bc_lr}")
-        if len(self.adv_weights) != len(TERMS) or not all(np.isfinite(self.adv_weights)):
-            raise UserError(f"--adv-weights needs {len(TERMS)} finite numbers "
-                            f"({', '.join(TERMS)}), got {list(self.adv_weights)}")
-        if self.teacher not in TEACHER_PLANNERS:
-            raise UserError(f"unknown teacher {self.teacher!r} "
-                            f"(choose from {', '.join(TEACHER_PLANNERS)})")
-        if not (self.bc_anchor >= 0 and np.isfinite(self.bc_anchor)):
-            raise UserError(f"--bc-anchor must be >= 0, got {self.bc_anchor}")
-        if not 0 <= self.bc_beta0 <= 1 or not 0 <= self.bc_beta_decay <= 1:
-            raise UserError("--bc-beta0 and --bc-beta-decay must be in [0, 1]")
-        if self.bc_epochs < 1 or self.bc_buffer < 1 or self.log_every < 1 \
-                or self.epochs < 1 or self.minibatches < 1:
-            raise UserError("epochs, minibatches, buffer and log cadence must be >= 1")
-        if self.eval_every < 0 or self.eval_envs < 1:
-            raise UserError("--eval-every must be >= 0 and --eval-envs >= 1")
-        if TEST_SEED in (self.seed, self.eval_seed):
-            raise UserError(f"seed {TEST_SEED} is the test suite's: train and validate "
-                            "on other seeds")
-
-
-PRESETS = {
-    # the shipped recipe: 30 DAgger iterations from the budget-aware detection tree
-    # (64 x 30 = 1920 episodes). PPO after it (--iterations N) uses these settings; it
-    # lowered validation search efficiency in every setting tried (README), so the
-    # preset stops after the warm start
-    "cpu": TrainConfig(bc_iterations=30, iterations=0, lr=3e-5, entropy_coef=0.001,
-                       adv_weights=(0.25, 0.25, 1.0, 0.0, 0.0), bc_anchor=0.5,
-                       eval_every=10, eval_envs=100),
-    # thesis-faithful: map observations only, no warm start, equal term weights, and
-    # 64 x 782 = 50 048 episodes (the thesis: A3C with up to 50k episodes)
-    "thesis": TrainConfig(iterations=782, policy=PolicyConfig(features=False)),
-    "quick": TrainConfig(n_envs=32, bc_iterations=8, iterations=0, eval_every=4,
-                         eval_envs=32),
-    # semantic feature detection (Table 2.2): DAgger from the same teacher, whose
-    # features and scores come from the windowed fast path (features.semantic_fast);
-    # 12 x 32 = 384 episodes of ~150 primitives on 256 x 256 maps, a short buffer
-    # (a stored step holds 21 x 24 x 24 maps), validation on 30 worlds of seed 500
-    "semantic": TrainConfig(n_envs=32, bc_iterations=12, iterations=0, bc_buffer=4,
-                            log_every=4, lr=3e-5, entropy_coef=0.001,
-                            adv_weights=(0.25, 0.25, 1.0, 0.0, 0.0), bc_anchor=0.5,
-                            eval_every=4, eval_envs=30, env=semantic_config(start="random")),
-    "test": TrainConfig(n_envs=4, iterations=1, epochs=1, minibatches=1, bc_iterations=2,
-                        bc_epochs=1, log_every=1, eval_every=2, eval_envs=3,
-                        policy=PolicyConfig(hidden=32), env=EnvConfig(start="random", budget=1500.0)),
-}
+# every shipped preset, resolved (ipp/presets/NAME.toml over the TrainConfig defaults)
+PRESETS = {name: preset(name) for name in preset_names()}
 
 
 def _gae(rew, val, alive, gamma, lam):
@@ -198,7 +101,7 @@ def _discounted(rew, alive, gamma):
 def load_run_config(run_dir: str | Path | Run) -> TrainConfig:
     """The :class:`TrainConfig` of an ``ipp train`` run (``RUN/config.json``); a one-line
     UserError when it is missing or malformed."""
-    return Run.open(run_dir, kind="ipp").read_config(TrainConfig)
+    return Run.open(run_dir, kind="ipp").read_config(TrainConfig, read=from_nested)
 
 
 # --------------------------------------------------------------------------- rollouts
@@ -465,18 +368,3 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
                 progress.set_postfix(ret=f"{last['return']:.1f}", eff=f"{last['search_efficiency']:.0f}")
     plot_learning_curve(run_dir)
     return last
-
-
-def preset(name: str, **overrides: Any) -> TrainConfig:
-    """The training preset ``name`` with the non-None ``overrides`` applied."""
-    if name not in PRESETS:
-        raise UserError(f"unknown preset {name!r} (choose from {', '.join(PRESETS)})")
-    cfg = PRESETS[name]
-    over = {k: v for k, v in overrides.items() if v is not None}
-    pol = over.pop("recurrent", None)
-    if pol is not None:
-        cfg = replace(cfg, policy=replace(cfg.policy, recurrent=pol))
-    feat = over.pop("features", None)
-    if feat is not None:
-        cfg = replace(cfg, policy=replace(cfg.policy, features=feat))
-    return replace(cfg, **over)

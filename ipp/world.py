@@ -16,21 +16,24 @@ from typing import Sequence
 
 import numpy as np
 
+from aerohrl.config import param
+
 
 @dataclass(frozen=True)
 class WorldConfig:
-    map_size: int = 30                 # cells per side (1 m cells)
-    n_centres: tuple[int, int] = (3, 4)  # inclusive range of true mixture centres
-    var_range: tuple[float, float] = (30.0, 40.0)  # diagonal variances, cells^2
-    max_cov: float = 15.0              # |off-diagonal covariance|, cells^2
-    n_targets: tuple[int, int] = (10, 29)  # inclusive range of targets (distinct cells)
-    shift_max: float = 8.0             # prior centre shift std ~ U[0, shift_max] cells
-    n_spurious: tuple[int, int] = (1, 4)  # spurious prior components
-    spurious_var: tuple[float, float] = (40.0, 50.0)
-    prior_peak: float = 0.8            # prior belief = floor + peak * mixture/max + noise
-    prior_floor: float = 0.02
-    prior_noise: float = 0.05
-    prior_clip: tuple[float, float] = (0.01, 0.9)
+    map_size: int = param(30, "cells per side (1 m cells)", unit="cells", ge=1)
+    n_centres: tuple[int, int] = param((3, 4), "inclusive range of true mixture centres", ge=1)
+    var_range: tuple[float, float] = param((30.0, 40.0), "range of the diagonal variances", unit="cells^2", gt=0)
+    max_cov: float = param(15.0, "bound on |off-diagonal covariance|", unit="cells^2", ge=0)
+    n_targets: tuple[int, int] = param((10, 29), "inclusive range of targets (distinct cells)", ge=0)
+    shift_max: float = param(8.0, "prior centre shift std ~ U[0, shift_max]", unit="cells", ge=0)
+    n_spurious: tuple[int, int] = param((1, 4), "inclusive range of spurious prior components", ge=0)
+    spurious_var: tuple[float, float] = param((40.0, 50.0), "range of the spurious components' variances",
+                                              unit="cells^2", gt=0)
+    prior_peak: float = param(0.8, "prior belief = floor + peak * mixture/max + noise: the peak", ge=0)
+    prior_floor: float = param(0.02, "the prior belief's floor", ge=0)
+    prior_noise: float = param(0.05, "std of the prior belief's noise", ge=0)
+    prior_clip: tuple[float, float] = param((0.01, 0.9), "the prior belief is clipped to this range", gt=0, lt=1)
 
 
 @dataclass

@@ -200,7 +200,7 @@ def test_harness_and_cli_reach_the_chain_planner():
     assert opt.name() == "ood-multi4-synth"
     assert EvalOptions(task="ood", planner="multi", waypoints=4).name() == "ood-multi4"
     assert EvalOptions(task="ood", planner="none", candidate_source="synthetic").name() == "ood-none"
-    with pytest.raises(Exception, match="candidate source"):
+    with pytest.raises(Exception, match="candidate.source"):
         check_options(EvalOptions(task="ood", planner="single", candidate_source="grid"))
     a = _eval_parser().parse_args(["--task", "ood", "--run", "x", "--candidate-source", "synthetic"])
     assert a.candidate_source == "synthetic"

@@ -143,5 +143,5 @@ def test_detect_info_weight_adds_information_gain(lat):
                                plain._util(b, None, lp, lam) + 0.5 * ig, atol=1e-12)
     assert ig[0] > 0 and plain._util(b, None, lp, lam)[0] < 1e-3  # a low-belief look: IG only
     for w in (-1.0, float("nan")):
-        with pytest.raises(ValueError, match="--info-weight"):
+        with pytest.raises(ValueError, match="info.weight"):
             PlannerConfig(info_weight=w).validate()

@@ -16,9 +16,9 @@ from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
 from aerohrl.ipp.metrics import paired_differences
 from aerohrl.ipp.policy import load_policy
-from aerohrl.algorithms.run import config_from_dict
 from aerohrl.ipp.curve import plot_learning_curve
 from aerohrl.ipp.train import load_run_config, preset, train
+from aerohrl.ipp.train_config import from_nested
 from test_ipp_policy import random_walk  # tests/ helpers (pytest puts tests/ on sys.path)
 
 
@@ -199,8 +199,8 @@ def test_paired_differences_by_hand():
 def test_config_round_trip_and_curve(full_run, tmp_path):
     cfg = load_run_config(full_run)
     assert cfg == preset("test") and isinstance(cfg.env.world.n_targets, tuple)
-    with pytest.raises(UserError, match="unknown keys"):
-        config_from_dict(type(cfg), {"n_envs": 3, "colour": "red"})
+    with pytest.raises(UserError, match="unknown key"):
+        from_nested(type(cfg), {"n_envs": 3, "colour": "red"})
     out = plot_learning_curve(full_run, tmp_path / "c.png")
     assert out.stat().st_size > 5000
 

@@ -153,15 +153,15 @@ def test_clean_flights_do_not_depend_on_the_rollout_block(monkeypatch):
 
 
 @pytest.mark.parametrize("kw, msg", [
-    ({"action_noise": (-1.0, 0.5)}, "--action-noise"),
+    ({"action_noise": (-1.0, 0.5)}, "action_noise must be >= 0"),
     ({"action_noise": (1.0, 0.5, 0.5)}, "4 numbers"),
-    ({"expert": "mpc"}, "--expert"),
-    ({"start_states": "random"}, "--start-states"),
-    ({"noise_tau": 0.0}, "--noise-tau"),
-    ({"replan_every": 0}, "--replan-every"),
-    ({"start_vel": 7.0}, "--start-vel"),
+    ({"expert": "mpc"}, "expert must be one of open-loop, replan"),
+    ({"start_states": "random"}, "start_states must be one of rest, perturbed"),
+    ({"noise_tau": 0.0}, "noise_tau must be > 0"),
+    ({"replan_every": 0}, "replan_every must be >= 1"),
+    ({"start_vel": 7.0}, "start_vel must be <= 3"),
     ({"rollouts_per_goal": 3}, "identical flights"),
-    ({"action_noise": (9.0, 0.5)}, "--action-noise"),
+    ({"action_noise": (9.0, 0.5)}, "action_noise .* is beyond what the expert flies through"),
 ])
 def test_bad_recipes_are_one_line_errors(kw, msg):
     with pytest.raises(UserError, match=msg) as e:

@@ -1,0 +1,206 @@
+"""The settings of ``aerohrl ipp train``: :class:`TrainConfig` with its policy and
+environment sections, its presets (``ipp/presets/NAME.toml``, data read by
+:func:`preset`) and :func:`from_nested`, which reads a config back from its nested
+mapping (a run's ``config.json``, a preset file).
+
+Each setting is declared once with :func:`aerohrl.config.param` (meaning, unit,
+choices, bounds); :func:`aerohrl.config.validate` checks them and the ``ipp train``
+flags are built from them (:func:`aerohrl.config.add_flags`). This module loads neither
+torch nor scipy, so that ``--help`` stays fast.
+
+The environment section nests sections of its own (sensor, world, semantic) whose
+settings share names (``map_size`` is the environment's, the world's and the semantic
+map's). :func:`aerohrl.config.from_mapping` reads configs whose settings have unique
+names (flat keys); :func:`from_nested` reads the nested form, one table per section,
+with the same unknown-key check and type rules.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from aerohrl import config as K
+from aerohrl.config import param
+
+from .env import TERMS, EnvConfig
+
+PRESET_DIR = Path(__file__).parent / "presets"  # package data: one TOML file per preset
+TEACHER_PLANNERS = ("detect", "dp", "prio_coverage", "coverage", "greedy")  # stateless trees
+VAL_SEED = 500  # validation suite (training: TrainConfig.seed, test: bench.TEST_SEED = 1000)
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """The learned planner's network (:class:`aerohrl.ipp.policy.ActorCritic`)."""
+
+    hidden: int = param(128, "width of the trunk and the recurrent core", unit="units", ge=1)
+    recurrent: bool = param(True, "GRU core (false: an MLP core, the thesis's 'no-LSTM')")
+    mask_invalid: bool = param(True, "sample only valid primitives (see aerohrl.ipp.train)")
+    features: bool = param(True, "read the per-primitive look-ahead features (false: map observations only)")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Synchronous PPO with an optional DAgger warm start (see :mod:`aerohrl.ipp.train`)."""
+
+    n_envs: int = param(64, "environments stepped per iteration", ge=1)
+    iterations: int = param(600, "PPO iterations (after the bc_iterations)", ge=0)
+    lr: float = param(3e-4, "PPO learning rate (Adam)", gt=0, lt=1)
+    gamma: float = param(0.98, "discount per primitive", gt=0, le=1)
+    lam: float = param(0.8, "GAE lambda (thesis: 0.8)", ge=0, le=1)
+    clip: float = param(0.2, "PPO ratio clip", gt=0)
+    epochs: int = param(4, "PPO epochs per iteration", ge=1)
+    minibatches: int = param(4, "minibatches per epoch (over environments)", ge=1)
+    value_coef: float = param(0.5, "weight of the critic loss", ge=0)
+    entropy_coef: float = param(0.01, "PPO entropy bonus weight", ge=0)
+    valid_coef: float = param(0.1, "weight of the valid-primitive loss (Eq. 2.7)", ge=0)
+    valid_beta: tuple[float, float] = param((1.0, 0.2), "Eq. 2.7 beta1 (invalid), beta2 (valid)", ge=0)
+    reward_scale: float = param(0.05, "rewards are multiplied by this (1/20: one target = 1)", gt=0)
+    grad_clip: float = param(5.0, "gradient norm clip", gt=0)
+    adv_weights: tuple[float, ...] = param((1.0, 1.0, 1.0, 1.0, 1.0),
+                                           "per-term advantage weights: " + ",".join(TERMS) + " (thesis: all 1)")
+    seed: int = param(7, "random seed (training worlds: this suite seed)", ge=0)
+    threads: int = param(1, "torch threads", ge=1)
+    log_every: int = param(10, "checkpoint (and model.pt) every N iterations", ge=1)
+    init: str | None = param(None, "warm start from a trained run or model.pt (fine-tuning)")
+    # behaviour-cloning warm start (DAgger), see aerohrl.ipp.train
+    bc_iterations: int = param(0, "DAgger warm-start iterations before PPO (0: none)", ge=0)
+    teacher: str = param("detect", "DAgger teacher planner", choices=TEACHER_PLANNERS)
+    teacher_depth: int | None = param(None, "teacher tree depth in primitives", ge=1, le=4)
+    bc_beta0: float = param(1.0, "DAgger: probability that the teacher acts, first iteration", ge=0, le=1)
+    bc_beta_decay: float = param(0.7, "DAgger: that probability's factor per iteration", ge=0, le=1)
+    bc_epochs: int = param(2, "DAgger epochs over the buffer per iteration", ge=1)
+    bc_lr: float = param(1e-3, "DAgger learning rate (Adam)", gt=0, lt=1)
+    bc_buffer: int = param(20, "DAgger buffer: the last N iterations' batches", ge=1)
+    bc_anchor: float = param(0.0, "PPO: weight of a cross entropy to the teacher (0: off)", ge=0)
+    # validation on a fixed suite (never the test seed)
+    eval_every: int = param(0, "validate the greedy policy every N iterations (0: never)", ge=0)
+    eval_envs: int = param(64, "validation worlds", ge=1)
+    eval_seed: int = param(VAL_SEED, "validation suite seed", ge=0)
+    policy: PolicyConfig = K.section(PolicyConfig, "the network")
+    env: EnvConfig = param(EnvConfig(start="random"), "the training environment (random starts)")
+
+    @property
+    def total_iterations(self) -> int:
+        """Behaviour-cloning plus PPO iterations."""
+        return self.bc_iterations + self.iterations
+
+    def validate(self) -> None:
+        """ConfigError (a UserError, one line) for a setting out of its declared range, or
+        for the cross-field rules: at least one iteration, one advantage weight per reward
+        term, no training or validation seed equal to the test suite's."""
+        from .bench import TEST_SEED  # here: bench loads scipy
+
+        K.validate(self)
+        if self.total_iterations < 1:
+            raise K.ConfigError("iterations + bc_iterations must be >= 1")
+        if len(self.adv_weights) != len(TERMS):
+            raise K.ConfigError(f"adv_weights needs {len(TERMS)} numbers ({', '.join(TERMS)}), got {list(self.adv_weights)}")
+        if TEST_SEED in (self.seed, self.eval_seed):
+            raise K.ConfigError(f"seed {TEST_SEED} is the test suite's: train and validate on other seeds")
+
+
+# ----------------------------------------------------------------------------- presets
+
+
+def preset_names() -> tuple[str, ...]:
+    """The presets shipped in ``ipp/presets`` (sorted)."""
+    return K.preset_names(PRESET_DIR)
+
+
+def preset(name: str, **overrides: Any) -> TrainConfig:
+    """The training preset ``name`` (``ipp/presets/NAME.toml`` over the defaults) with the
+    non-None ``overrides`` applied: settings of TrainConfig, whole ``policy``/``env``
+    sections, or the policy's ``recurrent`` and ``features``."""
+    where = f"preset {name}"
+    cfg = from_nested(TrainConfig, K.load_preset(PRESET_DIR, name), where=where, check=False)
+    over = {k: v for k, v in overrides.items() if v is not None}
+    pol = {k: over.pop(k) for k in ("recurrent", "features") if k in over}
+    if pol:
+        cfg = dataclasses.replace(cfg, policy=dataclasses.replace(cfg.policy, **pol))
+    K.unknown_keys(list(over), [f.name for f in dataclasses.fields(TrainConfig)], where)
+    return dataclasses.replace(cfg, **over)
+
+
+# ----------------------------------------------------------------------------- nested mappings
+
+
+def from_nested(cls: type, values: Mapping[str, Any], *, where: str = "config", base: Any = None,
+                check: bool = True) -> Any:
+    """A ``cls`` from the nested mapping ``values`` (:func:`dataclasses.asdict` output, or
+    TOML with one table per section) over ``base`` (default ``cls()``): missing keys keep
+    their value, unknown keys and values of the wrong type are a
+    :class:`~aerohrl.config.ConfigError` naming the key's path. Lists become tuples, an
+    integer a float where the field is a float (and an integral float an int, as JSON
+    may write it). With ``check`` the result is :func:`aerohrl.config.validate`-d."""
+    cfg = _read(cls, values, where, "", base if base is not None else cls())
+    if check:
+        K.validate(cfg)
+    return cfg
+
+
+def _read(cls: type, values: Any, where: str, prefix: str, base: Any) -> Any:
+    if not isinstance(values, Mapping):
+        raise K.ConfigError(f"{where}: {prefix.rstrip('.') or cls.__name__} must be a table, got {values!r}")
+    hints = typing.get_type_hints(cls)
+    known = [f.name for f in dataclasses.fields(cls) if f.init]
+    K.unknown_keys(list(values), known, f"{where}: {prefix.rstrip('.')}" if prefix else where)
+    kw = {}
+    for k, v in values.items():
+        current = getattr(base, k)
+        if dataclasses.is_dataclass(current):
+            kw[k] = _read(type(current), v, where, f"{prefix}{k}.", current)
+        else:
+            kw[k] = _coerce(prefix + k, v, hints[k], where)
+    return dataclasses.replace(base, **kw)
+
+
+def _coerce(name: str, value: Any, hint: Any, where: str) -> Any:
+    """``value`` as the type ``hint`` says (bool, int, float, str, a tuple of them, or one of
+    these or None)."""
+    args = typing.get_args(hint)
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        (hint,) = [a for a in args if a is not type(None)]
+        args = typing.get_args(hint)
+    origin = typing.get_origin(hint) or hint
+
+    def bad(what: str) -> K.ConfigError:
+        return K.ConfigError(f"{where}: {name} must be {what}, got {value!r}")
+
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise bad("a list")
+        elem = next((a for a in args if a is not Ellipsis), float)
+        return tuple(_scalar(value, x, elem, bad) for x in value)
+    return _scalar(value, value, origin, bad)
+
+
+def _scalar(whole: Any, x: Any, kind: type, bad: Any) -> Any:
+    number = isinstance(x, (int, float)) and not isinstance(x, bool)
+    if kind is bool:
+        if not isinstance(x, bool):
+            raise bad("true or false")
+        return x
+    if kind is int:
+        if not number or (isinstance(x, float) and not (math.isfinite(x) and x.is_integer())):
+            raise bad("an integer" if x is whole else "a list of integers")
+        return int(x)
+    if kind is float:
+        if not number:
+            raise bad("a number" if x is whole else "a list of numbers")
+        return float(x)
+    if not isinstance(x, str):
+        raise bad("a string")
+    return x
+
+
+__all__ = ["PolicyConfig", "TrainConfig", "TEACHER_PLANNERS", "VAL_SEED", "PRESET_DIR", "preset", "preset_names",
+           "from_nested"]
