@@ -77,7 +77,10 @@ def test_core_only_venv_builds_and_validates(tmp_path):
     """A fresh venv with `pip install aerohrl` (core dependencies, pinned by constraints.txt)."""
     src = tmp_path / "src"
     src.mkdir()
-    for name in ("aerohrl", "sim", "datagen", "algorithms", "eval", "ipp"):
+    import tomllib
+
+    package_dirs = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+    for name in sorted(set(package_dirs.values())):  # every folder the install maps into aerohrl.*
         shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         shutil.copy(ROOT / name, src / name)
