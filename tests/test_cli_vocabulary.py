@@ -188,13 +188,12 @@ def test_choices_are_shown_and_checked(capsys):
     assert len(err) == 1 and "invalid choice: 'sac'" in err[0]
 
 
-def test_every_train_flag_has_a_written_help():
-    """No flag falls back to its field name as help."""
+def test_every_train_setting_declares_its_meaning():
+    """Every setting (sections included) is declared with param(default, "meaning", ...)."""
+    from aerohrl import config as K
     from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.cli import COMMON_FIELDS, HELP
 
-    missing = [f.name for f in dataclasses.fields(C.TrainConfig)
-               if f.name not in C.INTERNAL and f.name not in COMMON_FIELDS and f.name not in HELP]
+    missing = [f.name for _, f, _ in K.leaves(C.TrainConfig) if not f.metadata.get("help")]
     assert not missing, missing
 
 
@@ -304,7 +303,7 @@ def test_config_file_may_be_partial(tmp_path):
     ('steps = "many"\n', "steps must be an integer"),
     ('hidden = [64, "x"]\n', "hidden must be a list of integers"),
     ('algo = "gcsl"\nsteps = \n', "is not valid TOML"),
-    ('algo = "sac"\ndataset = "d"\n', "unknown algorithm 'sac'"),
+    ('algo = "sac"\ndataset = "d"\n', "algo must be one of gcsl, td3bc, td3awbc, cql, got 'sac'"),
 ])
 def test_bad_config_file_is_one_line(tmp_path, capsys, text, match):
     from aerohrl.algorithms.cli import main
