@@ -46,7 +46,7 @@ def parser() -> ArgumentParser:
                     help=f"a TOML train config (every run saves its own as RUN/{C.TOML_NAME}); flags override its values")
     ap.add_argument("--resume", type=Path, default=None, metavar="RUN", help="continue RUN from its last checkpoint")
     add_common(ap, out={"default": Path("runs"), "help": "folder of runs: the run goes to OUT/NAME [runs]"},
-               quiet=True, old_quiet=("--no-progress",),
+               quiet=True,
                threads={"help": "torch threads [torch's default: all cores]"},
                seed={"default": None, "help": "random seed (>= 0) [cpu: 0]"},
                device={"default": None, "help": "torch device: cpu | cuda | cuda:N [cpu: cpu]"})
