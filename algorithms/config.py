@@ -34,7 +34,6 @@ from typing import Any, Mapping
 from aerohrl.config import (ConfigError, from_mapping, load_preset, param, preset_names, section, to_flat_dict,
                             unknown_keys, validate)
 from aerohrl.config import to_toml as _flat_toml
-from aerohrl.errors import UserError
 from aerohrl.hardware import AMP_MODES  # auto | none | bf16
 
 ALGORITHMS = ("gcsl", "td3bc", "td3awbc", "cql")

@@ -9,7 +9,6 @@ import argparse
 import dataclasses
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
