@@ -164,6 +164,15 @@ def test_choices_are_shown_and_checked(capsys):
     assert len(err) == 1 and "invalid choice: 'sac'" in err[0]
 
 
+def test_train_help_shows_units_cpu_defaults_and_per_algorithm_values():
+    from aerohrl.algorithms.cli import parser
+
+    text = " ".join(parser().format_help().split())
+    assert "cap on the relabelling offset (0: to the episode's end) (steps) [cpu: 0]" in text
+    assert "[cpu: 0.05; gcsl: 0.01]" in text  # relabel_prob: the cpu preset's [algo.gcsl] table
+    assert "--alpha N TD3-BC alpha" in text and "{constant,linear}" in text and "{std,none}" in text
+
+
 def test_every_train_setting_declares_its_meaning():
     """Every setting (sections included) is declared with param(default, "meaning", ...)."""
     from aerohrl import config as K
