@@ -65,7 +65,8 @@ def param(default: Any, help: str, *, unit: str = "", choices: Sequence[Any] | N
     if isinstance(default, dict):
         return field(default_factory=lambda: dict(default), metadata={**meta, "flag": False})
     if is_dataclass(default):
-        return field(default_factory=lambda: dataclasses.replace(default), metadata=meta)
+        instance: Any = default  # an instance (is_dataclass is also true of a class)
+        return field(default_factory=lambda: dataclasses.replace(instance), metadata=meta)
     return field(default=default, metadata=meta)
 
 

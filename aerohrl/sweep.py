@@ -421,7 +421,7 @@ def train_on_ray(ray: Any, items: list[tuple[str, str, dict]], *, cpus_per_run: 
     run that fails for good (bad data, divergence) does not stop the others."""
     train = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(train_task)
     refs = {train.remote(rd, cfg, cpus_per_run): label for label, rd, cfg in items}
-    report = {"runs": {}, "errors": {}}
+    report: dict[str, dict[str, Any]] = {"runs": {}, "errors": {}}
     pending = list(refs)
     while pending:
         ready, pending = ray.wait(pending, num_returns=1)
