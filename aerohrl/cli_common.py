@@ -10,10 +10,7 @@ meaning (README "Command-line conventions")::
     --device DEV     cpu | cuda | cuda:N
 
 :func:`add_common` adds them (only those asked for, each with the command's default
-and help) and the old spellings each command had before (``--no-progress``,
-``--run-dir``, ``--out-dir``, ``--output``), hidden from ``--help``; an old spelling
-still works for one release and prints one line on stderr,
-``train: --no-progress is deprecated, use --quiet``.
+and help).
 
 This module imports nothing heavy: ``--help`` of every command stays under a second
 (bench/bench_cli_help.py). argparse stays (rather than tyro or draccus): the flags are
@@ -37,34 +34,13 @@ COMMON = ("out", "quiet", "threads", "seed", "device")
 DEVICE_HELP = "torch device: cpu | cuda | cuda:N"
 
 
-class _Deprecated(argparse.Action):
-    """An old spelling of a flag: stores like the new one and says so on stderr, once per use."""
-
-    def __init__(self, option_strings, dest, new: str = "", const=None, nargs=None, **kw):
-        self.new = new
-        super().__init__(option_strings, dest, nargs=nargs, const=const, **kw)
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        print(f"{parser.prog}: {option_string} is deprecated, use {self.new}", file=sys.stderr)
-        setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
-
-
-def deprecated(p: argparse.ArgumentParser, old: str, new: str, dest: str, *, flag: bool = False,
-               type: Callable[[str], Any] | None = None) -> None:
-    """``old`` as a hidden alias of ``new`` (same ``dest``): it works and prints a deprecation note.
-    ``flag``: a switch (no value; stores True)."""
-    kw: dict[str, Any] = {"nargs": 0, "const": True} if flag else {"type": type}
-    p.add_argument(old, dest=dest, action=_Deprecated, new=new, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kw)
-
-
 def add_common(p: argparse.ArgumentParser, *, out: dict | None = None, quiet: bool = False, threads: dict | None = None,
-               seed: dict | None = None, device: dict | None = None, old_out: tuple[str, ...] = (),
-               old_quiet: tuple[str, ...] = ()) -> argparse.ArgumentParser:
+               seed: dict | None = None, device: dict | None = None) -> argparse.ArgumentParser:
     """Add the common flags to ``p``: each given dict holds the command's argparse keywords
     for that flag (``default``, ``help``, ``type``, ``required``...), on top of these defaults:
 
-    - ``out``: ``-o/--out PATH`` (type Path); ``old_out`` lists old spellings (``--run-dir``).
-    - ``quiet``: ``--quiet`` (dest ``quiet``); ``old_quiet`` lists old spellings (``--no-progress``).
+    - ``out``: ``-o/--out PATH`` (type Path).
+    - ``quiet``: ``--quiet`` (dest ``quiet``).
     - ``threads``: ``--threads N`` (>= 1) [default None: torch's and OpenMP's own].
     - ``seed``: ``--seed N`` (>= 0) [0].
     - ``device``: ``--device DEV`` [cpu].
@@ -72,18 +48,10 @@ def add_common(p: argparse.ArgumentParser, *, out: dict | None = None, quiet: bo
     if out is not None:
         kw = {"type": Path, "default": None, "metavar": "PATH", **out}
         short = ("-o",) if kw.pop("short", True) else ()
-        if kw.get("required") and old_out:  # argparse would not count the old spelling: errors.ArgumentParser checks it
-            kw["required"] = False
-            kw["help"] = kw.get("help", "") + " (required)"
-            p.required_dests = [*getattr(p, "required_dests", ()), ("out", "-o/--out")]  # type: ignore[attr-defined]
         p.add_argument(*short, "--out", dest="out", **kw)
-        for o in old_out:
-            deprecated(p, o, "--out", "out", type=kw["type"])
     if quiet:
         p.add_argument("--quiet", dest="quiet", action="store_true", default=False,
                        help="no progress bars (drawn on terminals only anyway)")
-        for o in old_quiet:
-            deprecated(p, o, "--quiet", "quiet", flag=True)
     if threads is not None:
         kw = {"type": T.positive_int, "default": None, "metavar": "N", **threads}
         kw.setdefault("help", "torch and OpenMP threads of this process" +
@@ -178,4 +146,4 @@ def to_toml(values: dict, header: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["COMMON", "add_common", "add_run", "deprecated", "set_threads", "progress", "run_name", "toml_value", "to_toml"]
+__all__ = ["COMMON", "add_common", "add_run", "set_threads", "progress", "run_name", "toml_value", "to_toml"]

@@ -56,13 +56,17 @@ def param(default: Any, help: str, *, unit: str = "", choices: Sequence[Any] | N
     """A dataclass field with its one-line meaning (``help``), its ``unit``, and what it may
     hold: one of ``choices``, or a number within ``ge``/``gt``/``le``/``lt`` (for a tuple,
     every element). ``flag=False`` keeps it off the command line (a run's identity, say).
-    Numbers must be finite unless a bound says otherwise (``le=math.inf``)."""
+    Numbers must be finite unless a bound says otherwise (``le=math.inf``). A dict default
+    (a free-form table, e.g. a sweep's overrides) is copied for each instance and has no flag."""
     meta = {"help": help, "unit": unit, "choices": tuple(choices) if choices is not None else None,
             "ge": ge, "gt": gt, "le": le, "lt": lt, "flag": flag}
-    if isinstance(default, (list, dict, set)):
+    if isinstance(default, (list, set)):
         raise TypeError("a mutable default: use a tuple")
+    if isinstance(default, dict):
+        return field(default_factory=lambda: dict(default), metadata={**meta, "flag": False})
     if is_dataclass(default):
-        return field(default_factory=lambda: dataclasses.replace(default), metadata=meta)
+        instance: Any = default  # an instance (is_dataclass is also true of a class)
+        return field(default_factory=lambda: dataclasses.replace(instance), metadata=meta)
     return field(default=default, metadata=meta)
 
 
@@ -117,11 +121,11 @@ def _flat_names(cls: type) -> dict[str, tuple[str, ...]]:
 
 def _kind(hint: Any, default: Any) -> type:
     """The scalar type of a field: bool, int, float, str, or tuple (of ints or floats)."""
-    for t in (bool, int, float, str, tuple):
+    for t in (bool, int, float, str, tuple, dict):
         if isinstance(default, t) and not (t is int and isinstance(default, bool)):
             return t
     origin = typing.get_origin(hint) or hint
-    if origin in (tuple, bool, int, float, str):
+    if origin in (tuple, bool, int, float, str, dict):
         return origin
     return str
 
@@ -140,9 +144,12 @@ def check_value(name: str, value: Any, f: dataclasses.Field) -> None:
     """:class:`ConfigError` if ``value`` breaks field ``f``'s choices or bounds."""
     m = f.metadata
     choices = m.get("choices")
-    if choices is not None and value not in choices:
-        raise ConfigError(f"{name} must be one of {', '.join(map(str, choices))}, got {value!r}")
     items = value if isinstance(value, tuple) else (value,)
+    if choices is not None:  # for a tuple, each element
+        bad = next((v for v in items if v not in choices), None)
+        if bad is not None or (not isinstance(value, tuple) and value not in choices):
+            got = value if not isinstance(value, tuple) else bad
+            raise ConfigError(f"{name} must be one of {', '.join(map(str, choices))}, got {got!r}")
     for v in items:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             continue
@@ -183,6 +190,10 @@ def _coerce(name: str, value: Any, f: dataclasses.Field, hint: Any, where: str) 
         if not isinstance(value, bool):
             raise bad("true or false")
         return value
+    if kind is dict:
+        if not isinstance(value, Mapping):
+            raise bad("a table")
+        return dict(value)
     if kind is tuple:
         if not isinstance(value, (list, tuple)):
             raise bad("a list")
@@ -229,13 +240,17 @@ def from_mapping(cls: type, values: Mapping[str, Any], *, where: str = "config",
     keys and values of the wrong type are :class:`ConfigError`; with ``check`` the result is
     :func:`validate`-d."""
     names = _flat_names(cls)
+    sections = {s for path in names.values() for s in path[:-1]}
     flat: dict[str, Any] = {}
-    for k, v in values.items():
-        if isinstance(v, Mapping) and k not in names:  # a section written as a sub-table
-            for k2, v2 in v.items():
-                flat[k2] = v2
-        else:
-            flat[k] = v
+
+    def add(items: Mapping[str, Any]) -> None:
+        for k, v in items.items():
+            if isinstance(v, Mapping) and k in sections and k not in names:  # a section written as a sub-table
+                add(v)
+            else:
+                flat[k] = v
+
+    add(values)
     unknown_keys(list(flat), list(names), where, hint)
     cfg = base if base is not None else cls()
     by_name = {p[-1]: (p, f, h) for p, f, h in leaves(cls)}
@@ -313,8 +328,9 @@ def flag_name(name: str) -> str:
     return "--" + name.replace("_", "-")
 
 
-def describe(f: dataclasses.Field, default: Any, *, default_label: str = "") -> str:
-    """A field's help text: meaning, unit, choices, default."""
+def describe(f: dataclasses.Field, default: Any, *, default_label: str = "", note: str = "") -> str:
+    """A field's help text: meaning, unit, default (and ``note`` beside it, e.g. a preset's
+    value for one algorithm); argparse shows the choices."""
     m = f.metadata
     h = m.get("help") or f.name.replace("_", " ")
     unit = f" ({m['unit']})" if m.get("unit") else ""
@@ -322,16 +338,19 @@ def describe(f: dataclasses.Field, default: Any, *, default_label: str = "") -> 
         d = " ".join(map(str, default)) or "none"
     else:
         d = str(default)
+    if d == "" and not note:  # no default (a path the user gives, say)
+        return f"{h}{unit}".replace("%", "%%")
     label = f"{default_label}: " if default_label else ""
-    return f"{h}{unit} [{label}{d}]".replace("%", "%%")
+    extra = f"; {note}" if note else ""
+    return f"{h}{unit} [{label}{d}{extra}]".replace("%", "%%")
 
 
 def add_flags(parser: argparse.ArgumentParser | Any, cls: type, *, skip: Sequence[str] = (), defaults: Any = None,
-              default_label: str = "") -> None:
+              default_label: str = "", notes: Mapping[str, str] | None = None) -> None:
     """One flag per setting of ``cls`` (but ``skip`` and fields declared ``flag=False``), all
     defaulting to None so that :func:`given_flags` tells the flags given from the others.
     The help shows the default of ``defaults`` (an instance; default: ``cls()``), labelled
-    ``default_label`` (e.g. the preset's name). A number out of its field's bounds is a
+    ``default_label`` (e.g. the preset's name), then ``notes[name]`` if any. A number out of its field's bounds is a
     one-line usage error when the command line is parsed, by the same rule
     (:func:`check_value`) that :func:`validate` applies to a TOML key."""
     ref = defaults if defaults is not None else cls()
@@ -342,14 +361,15 @@ def add_flags(parser: argparse.ArgumentParser | Any, cls: type, *, skip: Sequenc
         default = flat[f.name]
         default = tuple(default) if isinstance(default, list) else default
         kind = _kind(hint, _default(f))
-        help_ = describe(f, default, default_label=default_label)
+        help_ = describe(f, default, default_label=default_label, note=(notes or {}).get(f.name, ""))
         choices = f.metadata.get("choices")
         if kind is bool:
             parser.add_argument(flag_name(f.name), action=argparse.BooleanOptionalAction, default=None, help=help_)
         elif kind is tuple:
             elem = _elem(hint, _default(f))
             typ = _flag_type(f, elem) if elem in (int, float) else str
-            parser.add_argument(flag_name(f.name), type=typ, nargs="*", default=None, metavar="X", help=help_)
+            parser.add_argument(flag_name(f.name), type=typ, nargs="*", default=None, metavar="N" if typ is not str else "X",
+                                help=help_)
         elif kind in (int, float):
             parser.add_argument(flag_name(f.name), type=_flag_type(f, kind), default=None,
                                 choices=choices, metavar="N" if choices is None else None, help=help_)

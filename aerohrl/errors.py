@@ -70,11 +70,7 @@ def run_cli(prog: str, fn: Callable[[], int | None]) -> int:
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line (``prog: error: ...``) and exit status 2.
-
-    A flag that is required but also has a deprecated spelling (aerohrl.cli_common) is
-    declared not required to argparse, which cannot see the old spelling as the same
-    flag, and listed in ``required_dests``: checked here after parsing."""
+    """argparse, but a usage error is one line (``prog: error: ...``) and exit status 2."""
 
     def error(self, message: str) -> NoReturn:  # noqa: D401 - argparse API
         """Print ``PROG: error: MESSAGE (see --help)`` and exit with status 2."""
@@ -94,7 +90,4 @@ class ArgumentParser(argparse.ArgumentParser):
             namespace.run = namespace.run if flag is None else flag
             if namespace.run is None:
                 self.error("the following arguments are required: RUN (or --run RUN)")
-        for dest, flag in getattr(self, "required_dests", ()):
-            if getattr(namespace, dest, None) is None:
-                self.error(f"the following arguments are required: {flag}")
         return namespace, extras

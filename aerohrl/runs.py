@@ -90,7 +90,7 @@ def parser() -> ArgumentParser:
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
     s = sub.add_parser("show", help="config, dataset version, progress and learning-curve plot of a run")
     add_run(s, help="run folder (runs/<run>; a train or an ipp train run)")
-    add_common(s, out={"help": "plot file [RUN/learning_curve.png]"}, old_out=("--output",))
+    add_common(s, out={"help": "plot file [RUN/learning_curve.png]"})
     s.add_argument("--no-plot", action="store_true", help="no plot")
     return ap
 

@@ -36,12 +36,14 @@ import re
 import sys
 import time
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from aerohrl import atomic
 from aerohrl import cli_types as T
+from aerohrl import config as K
+from aerohrl.algorithms.config import ALGORITHMS, presets
 from aerohrl.cli_common import add_common, toml_value
 from aerohrl.cluster import ray_connect
 from aerohrl.errors import ArgumentParser, UserError, run_cli
@@ -60,15 +62,19 @@ EVAL_TASKS = ("reach-desired", "reach-intermediate")
 
 @dataclass
 class SweepSpec:
-    algos: list[str]
-    seeds: list[int]
-    datasets: list[str]
-    preset: str = "cpu"
-    set: dict = field(default_factory=dict)  # overrides of every run
-    grid: dict = field(default_factory=dict)  # overrides swept: key -> list of values
-    tasks: list[str] = field(default_factory=lambda: list(EVAL_TASKS))
-    episodes: int = 250
-    checkpoints: int = 10
+    """A sweep's grid, as its file (TOML or YAML, ``--config``) and its flags give it."""
+
+    algos: tuple[str, ...] = K.param((), "algorithms", choices=ALGORITHMS)
+    seeds: tuple[int, ...] = K.param((0,), "training seeds", ge=0)
+    datasets: tuple[str, ...] = K.param((), "dataset folders (datasets/<name>/<version>)")
+    preset: str = K.param("cpu", "train preset under every run", choices=presets())
+    set: dict = K.param({}, "train settings of every run (setting -> value)")
+    grid: dict = K.param({}, "train settings swept (setting -> list of values)")
+    # the evaluation of every run (a file may hold these under [eval]); a task's name is
+    # checked against aerohrl.eval.tasks in check_spec, which --help does not import
+    tasks: tuple[str, ...] = K.param(EVAL_TASKS, "evaluation tasks")
+    episodes: int = K.param(250, "evaluation episodes per run and task", ge=1)
+    checkpoints: int = K.param(10, "newest checkpoints evaluated per run", ge=1)
 
     def to_toml(self) -> str:
         """The grid as TOML (what ``--config`` reads back), saved as ``OUT/sweep.toml``."""
@@ -113,13 +119,14 @@ def _key_values(items: list[str], flag: str, many: bool) -> dict:
 
 
 def check_spec(sp: SweepSpec) -> SweepSpec:
-    """One-line errors for what cannot run: unknown algorithm / preset / grid key, an
-    identity key swept as an override, a missing dataset, an empty axis, a value the
-    config refuses."""
+    """One-line errors for what cannot run (the per-key rules are SweepSpec's declarations,
+    :func:`aerohrl.config.validate`): an unknown grid key, an identity key swept as an
+    override, a missing dataset, an empty axis, an unknown task, a value the config refuses."""
     from aerohrl.algorithms import config as C
     from aerohrl.eval.tasks import TASKS
 
-    names = {f.name for f in fields(C.TrainConfig)} - set(C.INTERNAL)
+    K.validate(sp)
+    names = set(C.to_dict(C.TrainConfig())) - set(C.INTERNAL)
     for table in ("set", "grid"):
         for k in getattr(sp, table):
             if k in IDENTITY:
@@ -132,14 +139,6 @@ def check_spec(sp: SweepSpec) -> SweepSpec:
     for axis in ("algos", "seeds", "datasets"):
         if not getattr(sp, axis):
             raise UserError(f"the sweep has no {axis} (--{axis})")
-    for a in sp.algos:
-        if a not in C.ALGORITHMS:
-            raise UserError(f"unknown algorithm {a!r} (choose from {', '.join(C.ALGORITHMS)})")
-    if sp.preset not in C.PRESETS:
-        raise UserError(f"unknown preset {sp.preset!r} (choose from {', '.join(C.PRESETS)})")
-    for s in sp.seeds:
-        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
-            raise UserError(f"seeds must be integers >= 0, got {s!r}")
     for t in sp.tasks:
         if t not in TASKS or t == "ood":
             raise UserError(f"unknown evaluation task {t!r} (choose from {', '.join(x for x in TASKS if x != 'ood')})")
@@ -155,7 +154,9 @@ def check_spec(sp: SweepSpec) -> SweepSpec:
 def load_spec(path: Path | None, a: argparse.Namespace) -> SweepSpec:
     """The grid: ``--config`` TOML, with the flags given on top."""
     d: dict = {}
+    where = "the sweep"
     if path is not None:
+        where = str(path)
         try:
             text = Path(path).read_text()
             if Path(path).suffix in (".yaml", ".yml"):  # the same keys as YAML (pyyaml comes with lerobot)
@@ -172,10 +173,8 @@ def load_spec(path: Path | None, a: argparse.Namespace) -> SweepSpec:
             raise
         except Exception as e:  # a TOML/YAML syntax error, an unreadable file
             raise UserError(f"cannot read {path}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
-        unknown = set(d) - {f.name for f in fields(SweepSpec)} - {"eval"}
-        if unknown:
-            raise UserError(f"unknown key(s) in {path}: {', '.join(sorted(unknown))} (a run override goes under [set] or [grid])")
-        d.update(d.pop("eval", {}))
+        if isinstance(d.get("eval"), dict):
+            d.update(d.pop("eval"))
     if a.algos:
         d["algos"] = a.algos
     if a.seeds:
@@ -194,14 +193,9 @@ def load_spec(path: Path | None, a: argparse.Namespace) -> SweepSpec:
     d["grid"] = {**d.get("grid", {}), **_key_values(a.grid, "--grid", True)}
     if a.device:
         d["set"]["device"] = a.device
-    d.setdefault("algos", [])
-    d.setdefault("seeds", [0])
-    d.setdefault("datasets", [])
-    d["datasets"] = [str(Path(x).resolve()) for x in d["datasets"]]
-    try:
-        return check_spec(SweepSpec(**d))
-    except TypeError as e:
-        raise UserError(f"bad sweep grid: {e}") from None
+    sp = K.from_mapping(SweepSpec, d, where=where, check=False, hint="a run override goes under [set] or [grid]")
+    sp.datasets = tuple(str(Path(x).resolve()) for x in sp.datasets)
+    return check_spec(sp)
 
 
 @dataclass(frozen=True)
@@ -236,11 +230,9 @@ def _config(sp: SweepSpec, p: Point):
     ov = {**sp.set, **dict(p.overrides), "algo": p.algo, "seed": p.seed, "dataset": p.dataset}
     ov = {k: tuple(v) if isinstance(v, list) else v for k, v in ov.items()}
     try:
-        cfg = C.make_config(sp.preset, **ov)
-        C.check(cfg)
-    except TypeError as e:
-        raise UserError(f"bad override for {p.name()}: {e}") from None
-    return cfg
+        return C.make_config(sp.preset, **ov)
+    except K.ConfigError as e:
+        raise UserError(f"run {p.name()}: {e}") from None
 
 
 # ----------------------------------------------------------------------------- tasks (run in Ray workers)
@@ -429,7 +421,7 @@ def train_on_ray(ray: Any, items: list[tuple[str, str, dict]], *, cpus_per_run: 
     run that fails for good (bad data, divergence) does not stop the others."""
     train = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(train_task)
     refs = {train.remote(rd, cfg, cpus_per_run): label for label, rd, cfg in items}
-    report = {"runs": {}, "errors": {}}
+    report: dict[str, dict[str, Any]] = {"runs": {}, "errors": {}}
     pending = list(refs)
     while pending:
         ready, pending = ray.wait(pending, num_returns=1)

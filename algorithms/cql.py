@@ -12,6 +12,8 @@
   deterministic action ``tanh(loc)`` (Alg. 2: the next action comes from the learned
   policy). ``critics()`` returns that ensemble, as for every algorithm.
 * Targets of both critic sets: ``SoftUpdate``.
+
+Its settings: :class:`CQLConfig` (``cfg.cql``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from torchrl.objectives import CQLLoss
 
 from typing import TYPE_CHECKING
 
-from aerohrl.algorithms.config import critic_sizes
+from aerohrl.algorithms.config import CQLConfig, critic_sizes
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.networks import EnsembleSoftUpdate, ACT_DIM, IN_DIM, make_critic, make_critic_loss, mlp, use_clipped_td0
 
@@ -80,9 +82,9 @@ class CQL(Algorithm):
         )
         self.cql_loss = CQLLoss(
             self.actor, [make_critic(critic_sizes(cfg)) for _ in range(2)], loss_function="l2",
-            action_spec=spec, min_q_weight=cfg.cql_min_q_weight, num_random=cfg.cql_num_random,
-            deterministic_backup=False, with_lagrange=cfg.cql_lagrange_thresh > 0,
-            lagrange_thresh=cfg.cql_lagrange_thresh,
+            action_spec=spec, min_q_weight=cfg.cql.cql_min_q_weight, num_random=cfg.cql.cql_num_random,
+            deterministic_backup=False, with_lagrange=cfg.cql.cql_lagrange_thresh > 0,
+            lagrange_thresh=cfg.cql.cql_lagrange_thresh,
         )
         use_clipped_td0(self.cql_loss, cfg.gamma, self.cql_loss.tensor_keys.value)
         self.critic_loss = make_critic_loss(
@@ -96,7 +98,7 @@ class CQL(Algorithm):
         self.alpha_opt = torch.optim.Adam([self.cql_loss.log_alpha], lr=cfg.lr_actor)
         # the Lagrange variant's multiplier (its own optimiser: gradient ascent on the gap)
         self.alpha_prime_opt = (torch.optim.Adam([self.cql_loss.log_alpha_prime], lr=cfg.lr_critic)
-                                if cfg.cql_lagrange_thresh > 0 else None)
+                                if cfg.cql.cql_lagrange_thresh > 0 else None)
         self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         # tanh(loc) as a module sharing the actor's weights; kept out of the module tree
         # (its weights are the actor's, already in the state dict)
@@ -124,7 +126,7 @@ class CQL(Algorithm):
         opts = [self.actor_opt, self.cql_critic_opt, self.alpha_opt]
         if self.alpha_prime_opt is not None:  # Lagrange form: α' scales the penalty, and ascends on it
             penalty, loss_alpha_prime, alpha_prime, gap = lagrange_terms(
-                out["loss_cql"], self.cql_loss.log_alpha_prime, self.cfg.cql_lagrange_thresh)
+                out["loss_cql"], self.cql_loss.log_alpha_prime, self.cfg.cql.cql_lagrange_thresh)
             penalty = penalty + loss_alpha_prime  # disjoint gradients: critics | log α'
             lagrange = {"loss_alpha_prime": loss_alpha_prime.detach(), "alpha_prime": alpha_prime, "cql_gap": gap}
             opts.append(self.alpha_prime_opt)
@@ -153,3 +155,6 @@ class CQL(Algorithm):
             "q_mean": meta["pred_value"].mean(),
             "target_mean": meta["target_value"].mean(),
         }
+
+
+__all__ = ["CQL", "CQLConfig"]

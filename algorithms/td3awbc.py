@@ -11,7 +11,8 @@ lie in [0, 1], so raw advantages are ~1e-3 and exp(A / 1) is 1 +- 0.003 (the
 weighting then does nothing). The logged ``awr_weight_std`` and ``awr_clipped`` (share of
 weights at the clip) show whether it does something.
 
-Critics, targets and the update schedule are TD3-BC's (see td3bc.py).
+Critics, targets and the update schedule are TD3-BC's (see td3bc.py). Its settings:
+:class:`TD3AWBCConfig` (``cfg.td3awbc``) beside TD3-BC's (``cfg.td3bc``).
 
 ``TD3BCLoss`` has no hook for a weighted BC term, so :class:`TD3AWBCLoss` extends it and
 overrides ``actor_loss`` only; the critic loss, the ensemble, the target networks and
@@ -25,7 +26,7 @@ from typing import TYPE_CHECKING
 import torch
 from torchrl.objectives import TD3BCLoss
 
-from aerohrl.algorithms.config import critic_sizes
+from aerohrl.algorithms.config import TD3AWBCConfig, critic_sizes
 from aerohrl.algorithms.networks import make_critic_loss
 from aerohrl.algorithms.td3bc import TD3BC
 
@@ -77,13 +78,16 @@ class TD3AWBC(TD3BC):
     def _make_loss(self, cfg, actor):
         loss = make_critic_loss(
             actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma, delay_actor=True,
-            policy_noise=cfg.policy_noise, noise_clip=cfg.noise_clip, alpha=cfg.alpha, loss_cls=TD3AWBCLoss,
+            policy_noise=cfg.td3bc.policy_noise, noise_clip=cfg.td3bc.noise_clip, alpha=cfg.td3bc.alpha, loss_cls=TD3AWBCLoss,
         )
-        loss.awr_temperature = cfg.awr_temperature
-        loss.awr_max_weight = cfg.awr_max_weight
-        loss.awr_normalize = cfg.awr_normalize
+        loss.awr_temperature = cfg.td3awbc.awr_temperature
+        loss.awr_max_weight = cfg.td3awbc.awr_max_weight
+        loss.awr_normalize = cfg.td3awbc.awr_normalize
         return loss
 
     def _actor_extras(self, meta):
         return {"lambda": meta["lmbd"].detach(), "awr_loss": meta["awr_loss"], "awr_weight": meta["awr_weight"],
                 "awr_weight_std": meta["awr_weight_std"], "awr_clipped": meta["awr_clipped"]}
+
+
+__all__ = ["TD3AWBC", "TD3AWBCLoss", "TD3AWBCConfig"]

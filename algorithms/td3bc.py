@@ -11,6 +11,9 @@
   the original TD3-BC reads Q1; kept as is (the 5 critics share targets, so Q_0 is one
   member of the same ensemble).
 * targets (actor and critics): ``SoftUpdate`` on the delayed steps, as in TD3.
+
+Its settings: :class:`TD3BCConfig` (``cfg.td3bc``; declared in algorithms/config.py, which
+``train --help`` imports without torch).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import nn
 
-from aerohrl.algorithms.config import critic_sizes
+from aerohrl.algorithms.config import TD3BCConfig, critic_sizes
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.networks import EnsembleSoftUpdate, make_actor, make_critic_loss
 
@@ -34,7 +37,7 @@ class TD3BC(Algorithm):
     def _make_loss(self, cfg, actor):
         return make_critic_loss(
             actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma, delay_actor=True,
-            policy_noise=cfg.policy_noise, noise_clip=cfg.noise_clip, alpha=cfg.alpha,
+            policy_noise=cfg.td3bc.policy_noise, noise_clip=cfg.td3bc.noise_clip, alpha=cfg.td3bc.alpha,
         )
 
     def __init__(self, cfg, normalizer):
@@ -63,9 +66,9 @@ class TD3BC(Algorithm):
         loss_q.backward()
         self.critic_opt.step()
         self.num_updates += 1
-        if self.num_updates % self.cfg.policy_delay == 0:
-            if self.cfg.alpha_schedule == "linear":  # the Q-term fades to 0 at the last step; BC stays
-                self.critic_loss.alpha = self.cfg.alpha * max(0.0, 1.0 - (self.num_updates - 1) / self.cfg.steps)
+        if self.num_updates % self.cfg.td3bc.policy_delay == 0:
+            if self.cfg.td3bc.alpha_schedule == "linear":  # the Q-term fades to 0 at the last step; BC stays
+                self.critic_loss.alpha = self.cfg.td3bc.alpha * max(0.0, 1.0 - (self.num_updates - 1) / self.cfg.steps)
             loss_pi, ameta = self.critic_loss.actor_loss(self.actor_batch(batch))
             self.actor_opt.zero_grad(set_to_none=True)
             loss_pi.backward()
@@ -82,3 +85,6 @@ class TD3BC(Algorithm):
 
     def _actor_extras(self, meta):
         return {"lambda": meta["lmbd"].detach()}
+
+
+__all__ = ["TD3BC", "TD3BCConfig"]

@@ -292,9 +292,7 @@ def resume_run(run_dir: str | Path | Run, *, data: Dataset | None = None, progre
     """Continue ``run_dir`` from its newest intact checkpoint (or from scratch when it has none)."""
     run = Run.open(run_dir, kind="train")
     meta, cfg = run.meta, run.config
-    for k, v in (overrides or {}).items():
-        if v is not None and k != "dataset" and getattr(cfg, k) != v:
-            setattr(cfg, k, v)
+    cfg = C.update(cfg, **{k: v for k, v in (overrides or {}).items() if v is not None and k != "dataset"})
     C.check(cfg)
     resolve_device(cfg.device)
     logger = logger or meta.get("logger", "tensorboard")  # the run's own, unless asked otherwise

@@ -82,12 +82,12 @@ def parser() -> argparse.ArgumentParser:
     m = sub.add_parser("export-mcap", help="one episode as MCAP (Foxglove-viewable)")
     m.add_argument("path", type=Path)
     m.add_argument("--episode", type=T.nonneg_int, required=True, help="episode index (0-based)")
-    add_common(m, out={"required": True, "help": "the .mcap file to write"}, old_out=("--output",))
+    add_common(m, out={"required": True, "help": "the .mcap file to write"})
 
     x = sub.add_parser("export", help="convert a dataset: minari (Minari dataset), ogbench (OGBench .npz), mcap (one episode)")
     x.add_argument("path", type=Path)
     x.add_argument("--format", required=True, choices=("minari", "ogbench", "mcap"), help="target format")
-    add_common(x, old_out=("--output",), out={
+    add_common(x, out={
                    "help": "minari: datasets root [$MINARI_DATASETS_PATH or ~/.minari/datasets]; ogbench: the .npz file "
                         "[<name>-<version>.npz]; mcap: the .mcap file (required)"})
     x.add_argument("--dataset-id", default=None, help="minari: dataset id [aerohrl/<name>/<version>-v0]")
@@ -103,7 +103,7 @@ def parser() -> argparse.ArgumentParser:
 
     pl = sub.add_parser("plot", help="3-D expert trajectories and goals (thesis Fig. 3.2 analogue)")
     pl.add_argument("path", type=Path)
-    add_common(pl, out={"required": True, "help": "figure file (.png, .pdf, .svg)"}, old_out=("--output",))
+    add_common(pl, out={"required": True, "help": "figure file (.png, .pdf, .svg)"})
     pl.add_argument("--max-episodes", type=T.positive_int, default=250, help="episodes drawn [250]")
     return ap
 

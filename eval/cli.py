@@ -54,7 +54,7 @@ def _eval_parser() -> ArgumentParser:
     ap.add_argument("--family", default=None, choices=FAMILIES, help=describe(f["family"], "the thesis's OOD set"))
     ap.add_argument("--decline-margin", type=T.finite_float, default=None, metavar="M",
                     help=describe(f["decline_margin"], "never: the thesis"))
-    add_common(ap, out={"help": "result folder [RUN/eval/<task>[-<planner>]]"}, quiet=True, old_quiet=("--no-progress",),
+    add_common(ap, out={"help": "result folder [RUN/eval/<task>[-<planner>]]"}, quiet=True,
                threads={"default": 1}, seed={"default": d.seed, "help": f"episode-set seed (>= 0) [{d.seed}]"},
                device={"default": d.device})
     return ap
@@ -82,7 +82,7 @@ def _table_parser() -> ArgumentParser:
     ap = ArgumentParser(prog=f"{PROG} table", description="Table 3.1 / 3.2 analogues (Markdown on stdout; with -o also "
                         "PREFIX.md, PREFIX-t31.csv, PREFIX-t32.csv).")
     ap.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="run folders (or folders of runs)")
-    add_common(ap, out={"help": "file prefix: writes OUT.md, OUT-t31.csv, OUT-t32.csv [stdout only]"}, old_out=("--output",))
+    add_common(ap, out={"help": "file prefix: writes OUT.md, OUT-t31.csv, OUT-t32.csv [stdout only]"})
     return ap
 
 
@@ -112,7 +112,7 @@ def _plot_parser() -> ArgumentParser:
     ap.add_argument("--run", type=Path, default=None, help="training run folder (runs/<run>)")
     ap.add_argument("--curves", type=Path, nargs="+", default=None, metavar="RUN", help="learning curves of these runs")
     ap.add_argument("--max", type=T.positive_int, default=12, help="trajectories per panel [12]")
-    add_common(ap, out={"required": True, "help": "figure file (.png, .pdf, .svg)"}, old_out=("--output",))
+    add_common(ap, out={"required": True, "help": "figure file (.png, .pdf, .svg)"})
     return ap
 
 
@@ -144,7 +144,7 @@ def _oracle_parser() -> ArgumentParser:
     ap.add_argument("--candidates", type=T.positive_int, default=150, help="achieved goals (seeded subset) [150]")
     ap.add_argument("--leg-horizon", type=T.positive_int, default=500, help="simulator steps per leg (100 Hz) [500]")
     ap.add_argument("--alpha", type=T.nonneg_float, default=1.0, help="variance penalty of the Eq. 3.7 choice [1.0]")
-    add_common(ap, out={"help": "report folder [RUN/eval/oracle-TASK]"}, quiet=True, old_quiet=("--no-progress",),
+    add_common(ap, out={"help": "report folder [RUN/eval/oracle-TASK]"}, quiet=True,
                threads={"default": 1}, seed={"help": "goal and candidate seed (>= 0) [0]"})
     return ap
 

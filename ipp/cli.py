@@ -58,7 +58,7 @@ def _parser() -> argparse.ArgumentParser:
     lat = sub.add_parser("lattice", help="motion-primitive lattices")
     lsub = lat.add_subparsers(dest="lcmd", required=True, parser_class=_Parser)
     b = lsub.add_parser("build", help="build a dispersion-minimising lattice")
-    add_common(b, out={"required": True, "type": str, "help": "lattice file to write (.npz)"}, old_out=("--output",))
+    add_common(b, out={"required": True, "type": str, "help": "lattice file to write (.npz)"})
     b.add_argument("--plot", metavar="PATH", help="figure path [OUT with .png]")
     b.add_argument("--no-plot", action="store_true", help="no figure")
     b.add_argument("--vertices", type=T.positive_int, default=lc.n_vertices, dest="n_vertices",
@@ -124,19 +124,16 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--start", choices=("center", "random"), default=None,
                     help="training start cells (default random; test suite: center)")
     add_common(tr, out={"default": "runs", "type": str, "help": "folder of runs: the run goes to OUT/NAME [runs]"},
-               quiet=True, old_quiet=("--no-progress",))
+               quiet=True)
     tr.add_argument("--name", default=None,
                     help="run folder name, must be new [ipp-PRESET[-nornn]-sSEED-YYYYMMDD-HHMMSS-XXXXXX]")
-    # the old spelling: the whole run folder (OUT/NAME)
-    from aerohrl.cli_common import deprecated
-    deprecated(tr, "--run-dir", "--out DIR --name NAME", "run_dir")
     tr.add_argument("--lattice", help="lattice file (default: the shipped one)")
     world_flags(tr)
     tr.set_defaults(_defaults={a.dest: a.default for a in tr._actions})
 
     cu = sub.add_parser("curve", help="learning curve of a training run (PNG)")
     add_run(cu, help="training run directory", type=str)
-    add_common(cu, out={"type": str, "help": "figure path [RUN/learning_curve.png]"}, old_out=("--output",))
+    add_common(cu, out={"type": str, "help": "figure path [RUN/learning_curve.png]"})
 
     be = sub.add_parser("bench", help="Table 2.1 analogue on the seeded test suite")
     g = be.add_mutually_exclusive_group()
@@ -146,7 +143,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="test environments (default 100; semantic 30, as the thesis)")
     be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together [100]")
     add_common(be, out={"default": "runs/ipp-bench", "type": str, "help": "Markdown, CSV and plot go here [runs/ipp-bench]"},
-               old_out=("--out-dir",), quiet=True, old_quiet=("--no-progress",),
+               quiet=True,
                threads={"help": "torch and OpenMP threads (policy rl, --execution skill) [their default]"})
     be.add_argument("--execution", type=_executions, default=("ideal",),
                     help="ideal (the lattice's sensing, default), flown (the 6-DoF "
@@ -171,7 +168,7 @@ def _parser() -> argparse.ArgumentParser:
     sh = sub.add_parser("show", help="Fig. 2.3 analogue: truth, prior, path over the budget")
     sh.add_argument("--env", type=T.nonneg_int, default=0, help="test-suite world index")
     sh.add_argument("--planner", default="dp", help=f"one of {', '.join(PLANNERS + TEACHERS)}, rl [dp]")
-    add_common(sh, out={"required": True, "type": str, "help": "figure file (.png)"}, old_out=("--output",))
+    add_common(sh, out={"required": True, "type": str, "help": "figure file (.png)"})
     sh.add_argument("--gif", help="also write an animated episode (GIF): belief, path, found "
                     "and missed targets, one frame per primitive")
     sh.add_argument("--execution", type=_executions, default=("ideal",),
@@ -565,9 +562,6 @@ def _train(a) -> int:
         if saved is not None and saved != json.loads(json.dumps(asdict(lat.config))):
             raise UserError(f"{run}: trained on another lattice (pass the same --lattice)")
     else:
-        run_dir = getattr(a, "run_dir", None)  # the deprecated --run-dir: the whole folder
-        if run_dir is not None and (a.name is not None or a.out != "runs"):
-            raise UserError("--run-dir is --out DIR --name NAME; give those instead")
         if a.preset is None:
             a.preset = "semantic" if a.world == "semantic" else "cpu"
         if a.preset == "semantic":
@@ -582,8 +576,7 @@ def _train(a) -> int:
                      features=False if a.no_features else None, **given_flags(a, TrainConfig, skip=_train_skip()))
         cfg = replace(cfg, env=_env_config(a, a.start or "random"))
         # the shape of every command's run names (aerohrl.cli_common.run_name); two runs in one second differ
-        run = Path(run_dir) if run_dir else Path(a.out) / (a.name or run_name("ipp", a.preset, "nornn" if a.no_rnn else None,
-                                                                              seed=cfg.seed))
+        run = Path(a.out) / (a.name or run_name("ipp", a.preset, "nornn" if a.no_rnn else None, seed=cfg.seed))
         lat = get_lattice(a.lattice, cfg.env.kind)
     if a.threads is not None and a.threads < 1:
         raise UserError(f"--threads must be >= 1, got {a.threads}")

@@ -104,7 +104,7 @@ def test_gcsl_policy_fits_the_data(data):
 
 
 def test_unknown_algorithm_and_preset():
-    with pytest.raises(UserError, match="unknown algorithm"):
+    with pytest.raises(UserError, match="algo must be one of gcsl, td3bc, td3awbc, cql, got 'ppo'"):
         make_config("cpu", algo="ppo")
     with pytest.raises(UserError, match="unknown preset"):
         make_config("gpu")

@@ -121,7 +121,7 @@ def test_train_returns_a_trained_run_and_resume_extends_it(run, ds):
         aerohrl.train({"dataset": ds, **TINY}, out=run.path.parent, name="g")
     with pytest.raises(UserError, match="dataset"):
         aerohrl.train({"algo": "gcsl"})
-    with pytest.raises(UserError, match="unknown"):
+    with pytest.raises(UserError, match="algo must be one of"):
         aerohrl.train({"dataset": ds, "algo": "ppo"})
 
 

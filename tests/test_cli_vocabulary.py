@@ -1,6 +1,6 @@
 """One CLI vocabulary: every command's parser takes the common flags
-where they mean something (--out, --quiet, --threads, --seed, --device), the old
-spellings still work with a one-line deprecation note, help texts show choices, and
+where they mean something (--out, --quiet, --threads, --seed, --device), the 0.x
+spellings are unknown arguments, help texts show choices, and
 ``train --config`` round-trips a run's run.toml. Parse level only: nothing trains."""
 
 from __future__ import annotations
@@ -9,7 +9,6 @@ import argparse
 import dataclasses
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -100,58 +99,46 @@ def test_o_is_the_short_form_of_out(name):
     assert str(p.parse_args(prefix + extra + ["-o", "z"]).out) == "z"
 
 
-DEPRECATED = [  # (command, old spelling and value, the new dest and value)
-    ("train", ["--no-progress"], "quiet", True),
-    ("aerohrl eval", ["--no-progress"], "quiet", True),
-    ("aerohrl eval oracle", ["--no-progress"], "quiet", True),
-    ("aerohrl eval table", ["--output", "t"], "out", "t"),
-    ("aerohrl eval plot", ["--output", "f.png"], "out", "f.png"),
-    ("datagen plot", ["--output", "f.png"], "out", "f.png"),
-    ("datagen export-mcap", ["--output", "e.mcap"], "out", "e.mcap"),
-    ("datagen export", ["--output", "d.npz"], "out", "d.npz"),
-    ("aerohrl runs show", ["--output", "c.png"], "out", "c.png"),
-    ("aerohrl ipp bench", ["--out-dir", "b"], "out", "b"),
-    ("aerohrl ipp bench", ["--no-progress"], "quiet", True),
-    ("aerohrl ipp train", ["--no-progress"], "quiet", True),
-    ("aerohrl ipp train", ["--run-dir", "runs/r"], "run_dir", "runs/r"),
-    ("aerohrl ipp lattice build", ["--output", "l.npz"], "out", "l.npz"),
-    ("aerohrl ipp show", ["--output", "s.png"], "out", "s.png"),
-    ("aerohrl ipp curve", ["--output", "c.png"], "out", "c.png"),
+OLD_SPELLINGS = [  # (command, a 0.x spelling with its value): gone, each an unknown argument now
+    ("train", ["--no-progress"]),
+    ("aerohrl eval", ["--no-progress"]),
+    ("aerohrl eval oracle", ["--no-progress"]),
+    ("aerohrl eval table", ["--output", "t"]),
+    ("aerohrl eval plot", ["--output", "f.png"]),
+    ("datagen plot", ["--output", "f.png"]),
+    ("datagen export-mcap", ["--output", "e.mcap"]),
+    ("datagen export", ["--output", "d.npz"]),
+    ("aerohrl runs show", ["--output", "c.png"]),
+    ("aerohrl ipp bench", ["--out-dir", "b"]),
+    ("aerohrl ipp bench", ["--no-progress"]),
+    ("aerohrl ipp train", ["--no-progress"]),
+    ("aerohrl ipp train", ["--run-dir", "runs/r"]),
+    ("aerohrl ipp lattice build", ["--output", "l.npz"]),
+    ("aerohrl ipp show", ["--output", "s.png"]),
+    ("aerohrl ipp curve", ["--output", "c.png"]),
 ]
 
 
-@pytest.mark.parametrize("name,old,dest,value", DEPRECATED, ids=[f"{n} {o[0]}" for n, o, _, _ in DEPRECATED])
-def test_old_spellings_work_and_say_they_are_deprecated(name, old, dest, value, capsys):
-    factory, extra, _ = COMMANDS[name]
+@pytest.mark.parametrize("name,old", OLD_SPELLINGS, ids=[f"{n} {o[0]}" for n, o in OLD_SPELLINGS])
+def test_old_spellings_are_unknown_arguments(name, old, capsys):
+    factory, extra, common = COMMANDS[name]
     p, prefix = factory()
-    a = p.parse_args(prefix + extra + old)
-    assert (str(getattr(a, dest)) if dest in ("out", "run_dir") else getattr(a, dest)) == value
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].endswith(f"{old[0]} is deprecated, use " + ("--quiet" if dest == "quiet" else
-                                                                                    "--out DIR --name NAME" if dest == "run_dir"
-                                                                                    else "--out")), err
-    assert err[0].startswith(p.prog if not prefix or prefix[0].startswith("-") else "")  # names the command
+    required = ["--out", "x"] if "out" in common else []
+    from aerohrl.errors import UserError
+
+    try:  # argparse's one-line usage error, or a UserError that the command prints as one line (ipp)
+        p.parse_args(prefix + extra + required + old)
+    except SystemExit as e:
+        assert e.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+    except UserError as e:
+        err = [str(e)]
+    else:
+        raise AssertionError(f"{name} accepted {old[0]}")
+    assert len(err) == 1 and "unrecognized arguments: " + old[0] in err[0], err
 
 
-def test_deprecation_note_names_the_command(capsys):
-    from aerohrl.algorithms.cli import parser
-
-    parser().parse_args(["--no-progress"])
-    assert capsys.readouterr().err == "train: --no-progress is deprecated, use --quiet\n"
-
-
-def test_old_spellings_are_hidden_from_help():
-    from aerohrl.algorithms.cli import parser as train_parser
-    from aerohrl.ipp.cli import _parser
-
-    assert "--no-progress" not in train_parser().format_help()
-    ipp = _parser()
-    sub = next(a for a in ipp._actions if isinstance(a, argparse._SubParsersAction))
-    text = sub.choices["train"].format_help() + sub.choices["bench"].format_help()
-    assert "--run-dir" not in text and "--out-dir" not in text and "--quiet" in text
-
-
-def test_a_required_out_is_required_in_either_spelling(capsys):
+def test_a_required_out_is_required(capsys):
     from aerohrl.datagen.cli import parser
 
     with pytest.raises(SystemExit) as e:
@@ -159,18 +146,7 @@ def test_a_required_out_is_required_in_either_spelling(capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "required: -o/--out" in err[0]
-    assert str(parser().parse_args(["plot", "ds", "--output", "p.png"]).out) == "p.png"
-
-
-def test_ipp_run_dir_maps_to_out_and_name(tmp_path, monkeypatch):
-    """--run-dir X still names the run folder X; with --out/--name it is refused in one line."""
-    from aerohrl.errors import UserError
-    from aerohrl.ipp import cli
-
-    a = cli._parser().parse_args(["train", "--preset", "test", "--run-dir", str(tmp_path / "r"), "--name", "n"])
-    monkeypatch.setattr(cli, "_env_config", lambda a, start: (_ for _ in ()).throw(AssertionError("not reached")))
-    with pytest.raises(UserError, match="--run-dir is --out DIR --name NAME"):
-        cli._train(a)
+    assert str(parser().parse_args(["plot", "ds", "--out", "p.png"]).out) == "p.png"
 
 
 # ----------------------------------------------------------------------------- help texts
@@ -188,18 +164,26 @@ def test_choices_are_shown_and_checked(capsys):
     assert len(err) == 1 and "invalid choice: 'sac'" in err[0]
 
 
-def test_every_train_flag_has_a_written_help():
-    """No flag falls back to its field name as help."""
-    from aerohrl.algorithms import config as C
-    from aerohrl.algorithms.cli import COMMON_FIELDS, HELP
+def test_train_help_shows_units_cpu_defaults_and_per_algorithm_values():
+    from aerohrl.algorithms.cli import parser
 
-    missing = [f.name for f in dataclasses.fields(C.TrainConfig)
-               if f.name not in C.INTERNAL and f.name not in COMMON_FIELDS and f.name not in HELP]
+    text = " ".join(parser().format_help().split())
+    assert "cap on the relabelling offset (0: to the episode's end) (steps) [cpu: 0]" in text
+    assert "[cpu: 0.05; gcsl: 0.01]" in text  # relabel_prob: the cpu preset's [algo.gcsl] table
+    assert "--alpha N TD3-BC alpha" in text and "{constant,linear}" in text and "{std,none}" in text
+
+
+def test_every_train_setting_declares_its_meaning():
+    """Every setting (sections included) is declared with param(default, "meaning", ...)."""
+    from aerohrl import config as K
+    from aerohrl.algorithms import config as C
+
+    missing = [f.name for _, f, _ in K.leaves(C.TrainConfig) if not f.metadata.get("help")]
     assert not missing, missing
 
 
 def test_every_flag_has_help():
-    """Every option of every command says what it is (argparse.SUPPRESS: the hidden old spellings)."""
+    """Every option of every command says what it is."""
     undocumented = []
     for name, (factory, _, _) in COMMANDS.items():
         p, prefix = factory()
@@ -302,7 +286,7 @@ def test_config_file_may_be_partial(tmp_path):
     ('steps = "many"\n', "steps must be an integer"),
     ('hidden = [64, "x"]\n', "hidden must be a list of integers"),
     ('algo = "gcsl"\nsteps = \n', "is not valid TOML"),
-    ('algo = "sac"\ndataset = "d"\n', "unknown algorithm 'sac'"),
+    ('algo = "sac"\ndataset = "d"\n', "algo must be one of gcsl, td3bc, td3awbc, cql, got 'sac'"),
 ])
 def test_bad_config_file_is_one_line(tmp_path, capsys, text, match):
     from aerohrl.algorithms.cli import main

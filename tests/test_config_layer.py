@@ -92,3 +92,30 @@ def test_a_setting_declared_twice_is_refused():
         K.from_mapping(Twice, {})
     with pytest.raises(TypeError, match="mutable default"):
         K.param([1], "a list")
+
+
+@dataclass
+class Grid:
+    algos: tuple[str, ...] = K.param((), "algorithms", choices=("a", "b"))
+    seeds: tuple[int, ...] = K.param((0,), "seeds", ge=0)
+    path: str = K.param("", "a path")
+    set: dict = K.param({}, "overrides of every run")
+
+
+def test_tuple_choices_hold_for_each_element_and_tables_are_dicts():
+    g = K.from_mapping(Grid, {"algos": ["a", "b"], "set": {"steps": 3}})
+    assert g.algos == ("a", "b") and g.set == {"steps": 3}
+    assert Grid().set == {} and Grid().set is not Grid().set  # a table is copied for each instance
+    with pytest.raises(K.ConfigError, match="algos must be one of a, b, got 'c'"):
+        K.from_mapping(Grid, {"algos": ["a", "c"]})
+    with pytest.raises(K.ConfigError, match="set must be a table"):
+        K.from_mapping(Grid, {"set": 3})
+    with pytest.raises(K.ConfigError, match=r"unknown key\(s\) eval"):  # only a section may be a sub-table
+        K.from_mapping(Grid, {"eval": {"seeds": [1]}})
+
+
+def test_flag_help_notes_and_no_empty_default():
+    p = ArgumentParser(prog="demo")
+    K.add_flags(p, Grid, notes={"seeds": "b: 1 2"}, default_label="cpu")
+    text = " ".join(p.format_help().split())
+    assert "seeds [cpu: 0; b: 1 2]" in text and "a path" in text and "a path [" not in text and "--set" not in text

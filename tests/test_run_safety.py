@@ -107,7 +107,7 @@ def test_a_run_being_trained_cannot_be_resumed_twice(trained, tmp_path, capsys):
     (["--hidden", "16", "0"], "--hidden: must be >= 1"),
     (["--gamma", "nan"], "--gamma: must be a finite number"),
     (["--tau", "2"], "tau"),
-    (["--relabel-prob", "1.5"], "relabel probability"),
+    (["--relabel-prob", "1.5"], "--relabel-prob: must be <= 1"),
     (["--device", "tpu"], "unknown device"),
 ] + ([] if torch.cuda.is_available() else [(["--device", "cuda"], "no CUDA device")]))
 def test_bad_arguments_fail_before_the_run_folder_exists(flags, msg, dataset_dir, tmp_path, capsys):

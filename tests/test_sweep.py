@@ -63,7 +63,7 @@ def test_bad_inputs_are_one_line_errors(dataset_dir, tmp_path, capsys):
         (["--grid", "batch_sz=32,64"], "unknown grid key 'batch_sz'"),
         (["--set", "learning=3"], "unknown grid key 'learning'"),
         (["--grid", "seed=1,2"], "the seed is an axis of the sweep"),
-        (["--algos", "ppo"], "unknown algorithm 'ppo'"),
+        (["--algos", "ppo"], "algos must be one of gcsl, td3bc, td3awbc, cql, got 'ppo'"),
         (["--datasets", str(tmp_path / "none")], "no dataset at"),
         (["--set", "steps=0"], "steps"),
         (["--tasks", "fly"], "unknown evaluation task 'fly'"),
@@ -77,6 +77,13 @@ def test_bad_inputs_are_one_line_errors(dataset_dir, tmp_path, capsys):
     for extra, msg in cases:
         code, err = _main(base + extra, capsys)
         assert code == 2 and msg in err and err.count("\n") == 0, (extra, err)
+    for text, msg in (('algos = ["gcsl"]\nseeds = [-1]\n', "seeds must be >= 0, got -1"),
+                      ('algos = ["gcsl"]\n[eval]\nepisodes = 0\n', "episodes must be >= 1, got 0"),
+                      ('algos = "gcsl"\n', "algos must be a list")):
+        (tmp_path / "v.toml").write_text(text)
+        code, err = _main(["--out", str(tmp_path / "s"), "--config", str(tmp_path / "v.toml"), "--datasets", str(dataset_dir)],
+                          capsys)
+        assert code == 2 and msg in err and err.count("\n") == 0, err
     bad = tmp_path / "bad.toml"
     bad.write_text('algos = ["gcsl"]\nlearning_rate = 3\n')
     code, err = _main(["--out", str(tmp_path / "s"), "--config", str(bad)], capsys)

@@ -238,7 +238,7 @@ def test_cosine_schedule_resumes_exactly(data, tmp_path):
     again = resume_run(tmp_path / "part", data=data, progress=False)
     again.train()
     assert _same(full.algo, again.algo)
-    with pytest.raises(UserError, match="lr schedule"):
+    with pytest.raises(UserError, match="lr_schedule must be one of constant, cosine"):
         make_config("cpu", lr_schedule="step")
 
 
@@ -275,8 +275,9 @@ def test_relabel_offset_flags_reach_the_sampler(data, tmp_path):
     tr = start_run(cfg, tmp_path / "r", data=data, progress=False)
     assert tr.sampler.future == {"strategy": "geometric", "mean": 12.5, "window": 60}
     assert json.loads((tmp_path / "r" / "config.json").read_text())["config"]["relabel_offset"] == "geometric"
-    for bad, msg in [({"relabel_offset": "final"}, "unknown relabel offset 'final'"), ({"relabel_window": -1}, "relabel window"),
-                     ({"relabel_mean_offset": 0.5}, "relabel mean offset")]:
+    for bad, msg in [({"relabel_offset": "final"}, "relabel_offset must be one of uniform, geometric, got 'final'"),
+                     ({"relabel_window": -1}, "relabel_window must be >= 0"),
+                     ({"relabel_mean_offset": 0.5}, "relabel_mean_offset must be >= 1")]:
         with pytest.raises(UserError, match=msg):
             make_config("cpu", **bad)
     with pytest.raises(SystemExit) as e:  # a choice: refused when the command line is parsed
