@@ -24,13 +24,12 @@ from .env import EnvConfig, SearchEnv
 from .flown import EXECUTIONS
 from .factory import create_env, sample_for
 from .lattice import Lattice
+from .world import TEST_SEED
 
 if TYPE_CHECKING:
     from aerohrl.envs.rollout import PolicyFn
 
     from .policy import ActorCritic
-
-TEST_SEED = 1000
 
 
 @dataclass

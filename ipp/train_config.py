@@ -95,7 +95,7 @@ class TrainConfig:
         """ConfigError (a UserError, one line) for a setting out of its declared range, or
         for the cross-field rules: at least one iteration, one advantage weight per reward
         term, no training or validation seed equal to the test suite's."""
-        from .bench import TEST_SEED  # here: bench loads scipy
+        from .world import TEST_SEED
 
         K.validate(self)
         if self.total_iterations < 1:

@@ -19,6 +19,9 @@ import numpy as np
 from aerohrl.config import param
 
 
+TEST_SEED = 1000  # the test suite: worlds 0..n-1 of this suite seed (the bench's, never trained on)
+
+
 @dataclass(frozen=True)
 class WorldConfig:
     map_size: int = param(30, "cells per side (1 m cells)", unit="cells", ge=1)
