@@ -38,6 +38,7 @@ import dataclasses
 import difflib
 import math
 import tomllib
+import types
 import typing
 from dataclasses import MISSING, field, fields, is_dataclass
 from pathlib import Path
@@ -178,9 +179,26 @@ def validate(cfg: Any) -> None:
 # ----------------------------------------------------------------------------- mappings
 
 
-def _coerce(name: str, value: Any, f: dataclasses.Field, hint: Any, where: str) -> Any:
-    """``value`` as the field's type (an int for a float, a list for a tuple); ConfigError otherwise."""
+def _optional(hint: Any) -> Any:
+    """The type inside ``X | None`` (``Optional[X]``), or None when ``hint`` admits no None."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in typing.get_args(hint):
+        inner = [a for a in typing.get_args(hint) if a is not type(None)]
+        return inner[0] if len(inner) == 1 else str
+    return None
+
+
+def _coerce(name: str, value: Any, f: dataclasses.Field, hint: Any, where: str, integral_floats: bool = False) -> Any:
+    """``value`` as the field's type (an int for a float, a list for a tuple, None where the
+    type admits it; with ``integral_floats``, 4.0 for an int, as JSON may write it);
+    ConfigError otherwise."""
     default = _default(f)
+    inner = _optional(hint)
+    if inner is not None:
+        if value is None:
+            return None
+        hint = inner
+        if default is None:
+            default = MISSING
     kind = _kind(hint, default)
 
     def bad(what: str) -> ConfigError:
@@ -208,6 +226,8 @@ def _coerce(name: str, value: Any, f: dataclasses.Field, hint: Any, where: str) 
             out.append(elem(x))
         return tuple(out)
     if kind is int:
+        if integral_floats and isinstance(value, float) and math.isfinite(value) and value.is_integer():
+            return int(value)
         if isinstance(value, bool) or not isinstance(value, int):
             raise bad("an integer")
         return value
@@ -260,6 +280,35 @@ def from_mapping(cls: type, values: Mapping[str, Any], *, where: str = "config",
     if check:
         validate(cfg)
     return cfg
+
+
+def from_nested(cls: type, values: Mapping[str, Any], *, where: str = "config", base: Any = None,
+                check: bool = True) -> Any:
+    """A ``cls`` from the nested mapping ``values`` (:func:`dataclasses.asdict` output, or TOML
+    with one table per section) over ``base`` (default ``cls()``): for configs whose sections
+    reuse setting names, which :func:`from_mapping`'s flat keys cannot tell apart. Missing keys
+    keep their value; unknown keys and values of the wrong type are :class:`ConfigError`
+    naming the key's path; with ``check`` the result is :func:`validate`-d."""
+    cfg = _read_nested(cls, values, where, "", base if base is not None else cls())
+    if check:
+        validate(cfg)
+    return cfg
+
+
+def _read_nested(cls: type, values: Any, where: str, prefix: str, base: Any) -> Any:
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{where}: {prefix.rstrip('.') or cls.__name__} must be a table, got {values!r}")
+    hints = _hints(cls)
+    by_name = {f.name: f for f in fields(cls) if f.init}
+    unknown_keys(list(values), list(by_name), f"{where}: {prefix.rstrip('.')}" if prefix else where)
+    kw = {}
+    for k, v in values.items():
+        current = getattr(base, k)
+        if is_dataclass(current):
+            kw[k] = _read_nested(type(current), v, where, f"{prefix}{k}.", current)
+        else:
+            kw[k] = _coerce(prefix + k, v, by_name[k], hints[k], where, integral_floats=True)
+    return dataclasses.replace(base, **kw)
 
 
 def _replace_at(cfg: Any, path: tuple[str, ...], value: Any) -> Any:
@@ -337,7 +386,7 @@ def describe(f: dataclasses.Field, default: Any, *, default_label: str = "", not
     if isinstance(default, tuple):
         d = " ".join(map(str, default)) or "none"
     else:
-        d = str(default)
+        d = "none" if default is None else str(default)
     if d == "" and not note:  # no default (a path the user gives, say)
         return f"{h}{unit}".replace("%", "%%")
     label = f"{default_label}: " if default_label else ""
@@ -408,5 +457,5 @@ def given_flags(args: argparse.Namespace, cls: type, *, skip: Sequence[str] = ()
 
 
 __all__ = ["ConfigError", "param", "section", "leaves", "validate", "check_value", "unknown_keys", "from_mapping",
-           "to_flat_dict", "load_toml", "load_preset", "preset_names", "to_toml", "flag_name", "describe", "add_flags",
+           "from_nested", "to_flat_dict", "load_toml", "load_preset", "preset_names", "to_toml", "flag_name", "describe", "add_flags",
            "given_flags"]

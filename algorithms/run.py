@@ -529,7 +529,7 @@ class Run:
         """The config section of config.json (``config``, an IPP run's ``train``) as the
         dataclass ``cls``, read by ``read(cls, mapping, where=..., check=False)`` (default
         :func:`aerohrl.config.from_mapping`; the IPP trainer's nested config passes
-        :func:`aerohrl.ipp.train_config.from_nested`). Missing keys keep their defaults, so
+        :func:`aerohrl.config.from_nested`). Missing keys keep their defaults, so
         runs written before a setting existed stay readable; unknown keys and malformed
         values are a one-line UserError naming the file."""
         from aerohrl import config as K

@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from aerohrl import atomic
+from aerohrl import config as K
 from aerohrl.algorithms.run import Run, rng_state, seed_everything, set_rng_state
 from aerohrl.errors import UserError
 from .curve import plot_learning_curve, read_metrics
@@ -66,7 +66,7 @@ from .features import N_FEAT
 from .lattice import Lattice
 from .policy import ActorCritic, save_policy, valid_loss
 from .train_config import (TEACHER_PLANNERS, VAL_SEED, PolicyConfig, TrainConfig,  # noqa: F401  (re-exported)
-                           from_nested, preset, preset_names)
+                           preset, preset_names)
 
 CHECKPOINT_VERSION = 1  # the format is the Run layout's (aerohrl.algorithms.run.LAYOUTS["ipp"])
 # every shipped preset, resolved (ipp/presets/NAME.toml over the TrainConfig defaults)
@@ -101,7 +101,7 @@ def _discounted(rew, alive, gamma):
 def load_run_config(run_dir: str | Path | Run) -> TrainConfig:
     """The :class:`TrainConfig` of an ``ipp train`` run (``RUN/config.json``); a one-line
     UserError when it is missing or malformed."""
-    return Run.open(run_dir, kind="ipp").read_config(TrainConfig, read=from_nested)
+    return Run.open(run_dir, kind="ipp").read_config(TrainConfig, read=K.from_nested)
 
 
 # --------------------------------------------------------------------------- rollouts

@@ -1,6 +1,6 @@
 """The settings of ``aerohrl ipp train``: :class:`TrainConfig` with its policy and
 environment sections, its presets (``ipp/presets/NAME.toml``, data read by
-:func:`preset`) and :func:`from_nested`, which reads a config back from its nested
+:func:`preset`) and :func:`aerohrl.config.from_nested`, which reads a config back from its nested
 mapping (a run's ``config.json``, a preset file).
 
 Each setting is declared once with :func:`aerohrl.config.param` (meaning, unit,
@@ -11,19 +11,16 @@ torch nor scipy, so that ``--help`` stays fast.
 The environment section nests sections of its own (sensor, world, semantic) whose
 settings share names (``map_size`` is the environment's, the world's and the semantic
 map's). :func:`aerohrl.config.from_mapping` reads configs whose settings have unique
-names (flat keys); :func:`from_nested` reads the nested form, one table per section,
+names (flat keys); :func:`aerohrl.config.from_nested` reads the nested form, one table per section,
 with the same unknown-key check and type rules.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import types
-import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from aerohrl import config as K
 from aerohrl.config import param
@@ -119,7 +116,7 @@ def preset(name: str, **overrides: Any) -> TrainConfig:
     non-None ``overrides`` applied: settings of TrainConfig, whole ``policy``/``env``
     sections, or the policy's ``recurrent`` and ``features``."""
     where = f"preset {name}"
-    cfg = from_nested(TrainConfig, K.load_preset(PRESET_DIR, name), where=where, check=False)
+    cfg = K.from_nested(TrainConfig, K.load_preset(PRESET_DIR, name), where=where, check=False)
     over = {k: v for k, v in overrides.items() if v is not None}
     pol = {k: over.pop(k) for k in ("recurrent", "features") if k in over}
     if pol:
@@ -128,79 +125,4 @@ def preset(name: str, **overrides: Any) -> TrainConfig:
     return dataclasses.replace(cfg, **over)
 
 
-# ----------------------------------------------------------------------------- nested mappings
-
-
-def from_nested(cls: type, values: Mapping[str, Any], *, where: str = "config", base: Any = None,
-                check: bool = True) -> Any:
-    """A ``cls`` from the nested mapping ``values`` (:func:`dataclasses.asdict` output, or
-    TOML with one table per section) over ``base`` (default ``cls()``): missing keys keep
-    their value, unknown keys and values of the wrong type are a
-    :class:`~aerohrl.config.ConfigError` naming the key's path. Lists become tuples, an
-    integer a float where the field is a float (and an integral float an int, as JSON
-    may write it). With ``check`` the result is :func:`aerohrl.config.validate`-d."""
-    cfg = _read(cls, values, where, "", base if base is not None else cls())
-    if check:
-        K.validate(cfg)
-    return cfg
-
-
-def _read(cls: type, values: Any, where: str, prefix: str, base: Any) -> Any:
-    if not isinstance(values, Mapping):
-        raise K.ConfigError(f"{where}: {prefix.rstrip('.') or cls.__name__} must be a table, got {values!r}")
-    hints = typing.get_type_hints(cls)
-    known = [f.name for f in dataclasses.fields(cls) if f.init]
-    K.unknown_keys(list(values), known, f"{where}: {prefix.rstrip('.')}" if prefix else where)
-    kw = {}
-    for k, v in values.items():
-        current = getattr(base, k)
-        if dataclasses.is_dataclass(current):
-            kw[k] = _read(type(current), v, where, f"{prefix}{k}.", current)
-        else:
-            kw[k] = _coerce(prefix + k, v, hints[k], where)
-    return dataclasses.replace(base, **kw)
-
-
-def _coerce(name: str, value: Any, hint: Any, where: str) -> Any:
-    """``value`` as the type ``hint`` says (bool, int, float, str, a tuple of them, or one of
-    these or None)."""
-    args = typing.get_args(hint)
-    if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        (hint,) = [a for a in args if a is not type(None)]
-        args = typing.get_args(hint)
-    origin = typing.get_origin(hint) or hint
-
-    def bad(what: str) -> K.ConfigError:
-        return K.ConfigError(f"{where}: {name} must be {what}, got {value!r}")
-
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise bad("a list")
-        elem = next((a for a in args if a is not Ellipsis), float)
-        return tuple(_scalar(value, x, elem, bad) for x in value)
-    return _scalar(value, value, origin, bad)
-
-
-def _scalar(whole: Any, x: Any, kind: type, bad: Any) -> Any:
-    number = isinstance(x, (int, float)) and not isinstance(x, bool)
-    if kind is bool:
-        if not isinstance(x, bool):
-            raise bad("true or false")
-        return x
-    if kind is int:
-        if not number or (isinstance(x, float) and not (math.isfinite(x) and x.is_integer())):
-            raise bad("an integer" if x is whole else "a list of integers")
-        return int(x)
-    if kind is float:
-        if not number:
-            raise bad("a number" if x is whole else "a list of numbers")
-        return float(x)
-    if not isinstance(x, str):
-        raise bad("a string")
-    return x
-
-
-__all__ = ["PolicyConfig", "TrainConfig", "TEACHER_PLANNERS", "VAL_SEED", "PRESET_DIR", "preset", "preset_names",
-           "from_nested"]
+__all__ = ["PolicyConfig", "TrainConfig", "TEACHER_PLANNERS", "VAL_SEED", "PRESET_DIR", "preset", "preset_names"]

@@ -119,3 +119,28 @@ def test_flag_help_notes_and_no_empty_default():
     K.add_flags(p, Grid, notes={"seeds": "b: 1 2"}, default_label="cpu")
     text = " ".join(p.format_help().split())
     assert "seeds [cpu: 0; b: 1 2]" in text and "a path" in text and "a path [" not in text and "--set" not in text
+
+
+@dataclass
+class Sensor:
+    size: int = K.param(3, "footprint", unit="cells", ge=1)
+    depth: int | None = K.param(None, "search depth (none: the planner's own)", ge=1)
+
+
+@dataclass
+class World:
+    size: int = K.param(30, "cells per side", unit="cells", ge=1)  # the same name as Sensor's: nested only
+    sensor: Sensor = K.section(Sensor)
+
+
+def test_nested_mappings_keep_sections_apart_and_take_none():
+    w = K.from_nested(World, {"size": 20, "sensor": {"size": 5, "depth": 2}})
+    assert (w.size, w.sensor.size, w.sensor.depth) == (20, 5, 2)
+    assert K.from_nested(World, {"sensor": {"depth": None}}).sensor.depth is None
+    assert K.from_nested(World, {"size": 12.0}).size == 12  # JSON may write an integer as 12.0
+    with pytest.raises(K.ConfigError, match=r"run.json: sensor: unknown key\(s\) sise \(did you mean size\?\)"):
+        K.from_nested(World, {"sensor": {"sise": 5}}, where="run.json")
+    with pytest.raises(K.ConfigError, match="sensor.depth must be an integer"):
+        K.from_nested(World, {"sensor": {"depth": "deep"}})
+    with pytest.raises(K.ConfigError, match="depth must be >= 1, got 0"):
+        K.from_nested(World, {"sensor": {"depth": 0}})

@@ -11,7 +11,8 @@ import pytest
 from aerohrl.config import ConfigError
 from aerohrl.errors import UserError
 from aerohrl.ipp.env import EnvConfig, semantic_config
-from aerohrl.ipp.train_config import PolicyConfig, TrainConfig, from_nested, preset, preset_names
+from aerohrl.config import from_nested
+from aerohrl.ipp.train_config import PolicyConfig, TrainConfig, preset, preset_names
 
 # The presets as TrainConfig instances, written out in code: each ipp/presets/NAME.toml must
 # resolve to exactly its entry.

@@ -18,7 +18,7 @@ from aerohrl.ipp.metrics import paired_differences
 from aerohrl.ipp.policy import load_policy
 from aerohrl.ipp.curve import plot_learning_curve
 from aerohrl.ipp.train import load_run_config, preset, train
-from aerohrl.ipp.train_config import from_nested
+from aerohrl.config import from_nested
 from test_ipp_policy import random_walk  # tests/ helpers (pytest puts tests/ on sys.path)
 
 
