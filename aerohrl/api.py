@@ -37,7 +37,6 @@ if TYPE_CHECKING:  # pragma: no cover - names for the annotations only
     import torch
 
     from aerohrl.algorithms.config import TrainConfig
-    from aerohrl.algorithms.data import Dataset
     from aerohrl.datagen.spec import DatasetSpec
 
 log = logging.getLogger("aerohrl")

@@ -404,7 +404,7 @@ def add_flags(parser: argparse.ArgumentParser | Any, cls: type, *, skip: Sequenc
     (:func:`check_value`) that :func:`validate` applies to a TOML key."""
     ref = defaults if defaults is not None else cls()
     flat = to_flat_dict(ref)
-    for path, f, hint in leaves(cls):
+    for _path, f, hint in leaves(cls):
         if f.name in skip or not f.metadata.get("flag", True):
             continue
         default = flat[f.name]

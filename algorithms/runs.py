@@ -12,7 +12,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from aerohrl.atomic import save_figure
-from aerohrl.errors import UserError
 
 
 def summary(run_dir: str | Path) -> dict:

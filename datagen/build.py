@@ -777,7 +777,7 @@ probing torchcodec, which logs a long traceback on machines without FFmpeg.) Or
 ## Features
 | key | dtype | shape | meaning |
 |---|---|---|---|
-""" + _feature_rows(meta, features) + f"""
+""" + _feature_rows(meta, features) + """
 `meta/aerohrl.json` holds the full spec, vehicle and controller parameters and the
 SHA-256 of every file; `meta/aerohrl_episodes.parquet` holds per-episode goals,
 durations and expert outcomes. `datagen validate <this folder>` checks integrity.

@@ -156,7 +156,7 @@ class DatasetWriter:
             self._frame_bytes = None
             self._ep_row_bytes = 7 * 8 + len(self.task.encode()) + 8
             if self.episode_stats:
-                for k, ft in feats.items():
+                for ft in feats.values():
                     for key in STAT_KEYS:
                         self._ep_row_bytes += (1 if key == "count" else ft["shape"][0]) * 8 + 4
         else:

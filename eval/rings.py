@@ -174,7 +174,7 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
                     replan_every=o0.replan_every, waypoint_tol=o0.waypoint_tol, goal_tol=o0.goal_tol,
                     decline_margin=o0.decline_margin, record=record, **sim_kwargs(data))
         wall = (time.perf_counter() - t0) / len(todo)
-        for j, ((o, d), eps) in enumerate(zip(todo, sets)):
+        for j, ((_o, d), eps) in enumerate(zip(todo, sets)):
             idx = np.arange(bounds[j], bounds[j + 1])
             rj = _slice(r, idx, len(allset))
             results.write_episodes(d, int(ck["step"]), eps, rj)

@@ -378,7 +378,7 @@ class CMAESPlanner(Planner):
             newq = np.full((env.n, h), -1, np.int64)
             newq[:, : self.queue.shape[1]] = self.queue[:, :h] if self.queue.shape[1] else -1
             opts = []
-            for j, n in enumerate(need):
+            for n in need:
                 self.replans[n] += 1
                 opts.append(CMA(mean=np.full(h, 0.5), sigma=cfg.sigma0,
                                 bounds=np.tile([0.0, 1.0], (h, 1)),
@@ -387,7 +387,6 @@ class CMAESPlanner(Planner):
             best_f = np.full(len(need), np.inf)
             best_a = np.zeros((len(need), h), np.int64)
             P = cfg.popsize
-            env_idx = np.repeat(need, P)
             hist = np.zeros((0, len(need)))
             active = np.ones(len(need), bool)  # envs whose search has not settled
             self.evaluations = getattr(self, "evaluations", 0)

@@ -332,10 +332,10 @@ def _sem_tables(lat_id, lam_levels, n_classes):
     lat = _LATS[lat_id]
     lamv = np.asarray(lam_levels, np.float64)
     C = n_classes
-    A, V, P = lat.n_actions, lat.n_vertices, lat.n_prims
+    A, V = lat.n_actions, lat.n_vertices
     g = _pair_geometry(lat, lamv)  # lp: the first primitive's lam at the second one's cells
-    cnt, has1, lam1, off1 = g["cnt"], g["has1"], g["lam1"], g["off1"]
-    p2, p2c, off2, has2, lp = g["p2"], g["p2c"], g["off2"], g["has2"], g["lp"]
+    has1, lam1, off1 = g["has1"], g["lam1"], g["off1"]
+    p2c, off2, has2, lp = g["p2c"], g["off2"], g["has2"], g["lp"]
     lam2 = lam1[p2c]
     Rw = int(max(np.abs(off2[has2]).max(), np.abs(off1[has1]).max()))
     W = 2 * Rw + 1

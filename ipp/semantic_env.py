@@ -24,7 +24,7 @@ import numpy as np
 
 from .env import SearchEnv
 from .scoring import LAM_CAP, crossing_lam, detect_success
-from .sensor import hashed_uniform, logit
+from .sensor import hashed_uniform
 from .semantic import (SemanticWorlds, entropy_cat_bits, info_gain_cat, label_logratio,
                        measure_labels, softmax)
 
@@ -40,7 +40,7 @@ class SemanticEnv(SearchEnv):
     def reset(self, worlds: SemanticWorlds, start: np.ndarray | None = None) -> dict:
         """Start every env on ``worlds``: class log-beliefs from the prior, nothing covered or
         found, agents at the start cells; returns the observation."""
-        cfg, S, p, C = self.cfg, self.S, self.pad, self.n_classes
+        S, p, C = self.S, self.pad, self.n_classes
         N = len(worlds)
         self.n, self.worlds = N, worlds
         sl = (slice(None), slice(p, p + S), slice(p, p + S))

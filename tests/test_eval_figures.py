@@ -7,7 +7,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pytest
 from matplotlib.axes import Axes
 
 from aerohrl.eval import plots

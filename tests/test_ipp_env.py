@@ -134,7 +134,7 @@ def test_observation_layout(lat):
     assert maps[8].max() == 1  # scale-4 window (32 cells) reaches beyond the map
     np.testing.assert_allclose(maps[0], env.belief()[0][11:19, 11:19], rtol=1e-6)
     vec = obs["vec"][0]
-    A, V = lat.n_actions, lat.n_vertices
+    A = lat.n_actions
     assert vec[:2].tolist() == [0.5, 0.5]
     assert vec[2 + A] == 1 and vec[3 + A] == 1 and vec[-1] == 1
     # after a few steps near the edge: every scale equals a direct block-max reference

@@ -15,7 +15,6 @@ from aerohrl.ipp.cli import main
 from aerohrl.ipp.env import EnvConfig, semantic_config
 from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice, semantic_lattice
-from aerohrl.ipp.semantic import softmax
 
 SMALL = 48
 
@@ -43,7 +42,7 @@ def test_fast_features_equal_the_reference(slat, planner):
     env, _ = make_env(_cfg(), slat, 2, range(3))
     assert F.fast_path_applies(env)
     pl = make_planner(planner, env)
-    for t in range(40):
+    for t in range(40):  # noqa: B007  (read after the loop)
         if env.done.all():
             break
         _assert_features_close(F.semantic_fast(env)[0], F.action_features_reference(env))

@@ -130,7 +130,7 @@ def test_describe_policy_names_what_trained_it(tmp_path):
     from aerohrl.ipp.policy import ActorCritic, PolicyConfig, describe_policy, load_policy, save_policy
 
     dims = dict(map_ch=9, map_hw=8, vec_dim=10, n_actions=4)
-    for feats, train, want in [
+    for feats, train_cfg, want in [
             (True, {"bc_iterations": 30, "teacher": "detect", "iterations": 0},
              "Imitation of detect planner (DAgger; its features, GRU)"),
             (True, {"bc_iterations": 3, "teacher": "detect", "iterations": 5},
@@ -143,5 +143,5 @@ def test_describe_policy_names_what_trained_it(tmp_path):
         d = dict(dims, n_feat=N_FEAT if feats else 0)
         m = ActorCritic(**d, cfg=PolicyConfig(hidden=16, features=feats))
         save_policy(m, d, run / "model.pt")
-        (run / "config.json").write_text(json.dumps({"train": train}))
+        (run / "config.json").write_text(json.dumps({"train": train_cfg}))
         assert describe_policy(load_policy(run)) == want

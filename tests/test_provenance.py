@@ -13,9 +13,7 @@ import pytest
 
 from aerohrl.algorithms import cli
 from aerohrl.algorithms.config import make_config
-from aerohrl.algorithms.data import load_dataset
 from aerohrl.algorithms.provenance import git_state
-from aerohrl.algorithms.synthetic import write_synthetic_dataset
 from aerohrl.algorithms.trainer import ProgressLines, resume_run, start_run
 
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)

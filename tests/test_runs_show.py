@@ -3,9 +3,7 @@ the results of `aerohrl eval` appear in the text after an evaluation."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
-import pytest
 
 from aerohrl.cli import main as aerohrl_main
 

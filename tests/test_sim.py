@@ -264,7 +264,7 @@ def test_process_split_matches_one_process():
         workers = [c._proc for c in par._chunks[1:]]
         assert len(workers) == 2 and all(p.is_alive() for p in workers)
         np.testing.assert_array_equal(par.reset(start), x1)
-        for k in range(7):  # odd and even step counts: the shared double buffer alternates
+        for _k in range(7):  # odd and even step counts: the shared double buffer alternates
             np.testing.assert_array_equal(par.step(a), ref.step(a))
         om = np.full((n, 4), HB.hover_rotor_speed * 1.05)
         np.testing.assert_array_equal(par.step_rotor_speeds(om), ref.step_rotor_speeds(om))

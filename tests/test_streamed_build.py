@@ -99,7 +99,7 @@ def test_streamed_statistics_are_bit_identical_to_the_sorted_column(n):
     for a in (rng.standard_normal(n).astype(np.float32) * 1e3 + 7, rng.integers(0, 400, n), rng.random(n) < 0.3):
         ref = LS.global_stats(a)
         c = np.sort(a.astype(LS.stats_dtype(a.dtype)))
-        got = LS.sorted_stats(lambda i0, i1: c[i0:i1], n)
+        got = LS.sorted_stats(lambda i0, i1, c=c: c[i0:i1], n)
         for k in ref:
             if k != "count":
                 assert got[k].tobytes() == np.float64(ref[k][0]).tobytes(), (k, got[k], ref[k])

@@ -7,7 +7,6 @@ import subprocess
 import sys
 import time
 import warnings
-from pathlib import Path
 
 import pytest
 import torch
@@ -16,7 +15,7 @@ from aerohrl import runs
 from aerohrl.algorithms import cli
 from aerohrl.algorithms.config import ALGORITHMS, make_config
 from aerohrl.algorithms.data import load_dataset
-from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
+from aerohrl.algorithms.synthetic import straight_columns
 from aerohrl.algorithms.run import Run, load_checkpoint, read_metrics
 from aerohrl.algorithms.trainer import TrainingDiverged, resume_run, start_run
 from aerohrl.errors import UserError
@@ -112,7 +111,7 @@ def _cli(args, cwd=None):
 
 
 def test_cli_bad_input(dataset_dir, tmp_path):
-    for args, msg in [
+    for args, _msg in [
         (["--algo", "ppo", "--dataset", str(dataset_dir)], "invalid choice: 'ppo'"),
         (["--algo", "gcsl", "--dataset", str(dataset_dir), "--preset", "huge"], "invalid choice: 'huge'"),
         (["--algo", "gcsl", "--dataset", str(tmp_path / "nothing")], "no dataset at"),
