@@ -47,8 +47,14 @@ PathLike = str | Path
 # ----------------------------------------------------------------------------- datasets
 
 
-def build_dataset(spec: "DatasetSpec | PathLike | None" = None, *, out: PathLike = "datasets", progress: bool = False,
-                  force: bool = False, **overrides: Any) -> Path:
+def build_dataset(
+    spec: "DatasetSpec | PathLike | None" = None,
+    *,
+    out: PathLike = "datasets",
+    progress: bool = False,
+    force: bool = False,
+    **overrides: Any,
+) -> Path:
     """Build the expert dataset of ``spec`` (or verify it, when that version exists) and return its folder.
 
     Args:
@@ -148,8 +154,15 @@ def _lerobot_dataset(root: Path, manifest: dict) -> Any:
 # ----------------------------------------------------------------------------- training
 
 
-def train(config: "TrainConfig | Mapping[str, Any] | None" = None, *, out: PathLike = "runs", name: str | None = None,
-          resume: "PathLike | Run | None" = None, progress: bool = False, **overrides: Any) -> Run:
+def train(
+    config: "TrainConfig | Mapping[str, Any] | None" = None,
+    *,
+    out: PathLike = "runs",
+    name: str | None = None,
+    resume: "PathLike | Run | None" = None,
+    progress: bool = False,
+    **overrides: Any,
+) -> Run:
     """Train a goal-conditioned policy to the end of its steps and return the run.
 
     Args:
@@ -223,10 +236,13 @@ class Policy:
 
         is_torch = isinstance(state, torch.Tensor)
         s = torch.as_tensor(np.asarray(state, np.float32) if not is_torch else state, dtype=torch.float32, device=self.device)
-        g = torch.as_tensor(np.asarray(goal, np.float32) if not isinstance(goal, torch.Tensor) else goal,
-                            dtype=torch.float32, device=self.device)
+        g = torch.as_tensor(
+            np.asarray(goal, np.float32) if not isinstance(goal, torch.Tensor) else goal, dtype=torch.float32, device=self.device
+        )
         if s.shape[-1] != 18 or g.shape[-1] != 15:
-            raise UserError(f"act(state, goal) takes states (..., 18) and goals (..., 15), got {tuple(s.shape)} and {tuple(g.shape)}")
+            raise UserError(
+                f"act(state, goal) takes states (..., 18) and goals (..., 15), got {tuple(s.shape)} and {tuple(g.shape)}"
+            )
         one = s.ndim == 1
         a = self.algo.act(s.reshape(-1, 18), g.reshape(-1, 15))
         a = a[0] if one else a.reshape(*s.shape[:-1], 4)
@@ -303,8 +319,9 @@ def evaluate(run: "Run | PathLike", task: str = "reach-desired", **opts: Any) ->
     return evaluate_run(Path(run), EvalOptions(task=task, **opts))
 
 
-def make_env(num_envs: int | None = None, *, dataset: PathLike | None = None, normalize_actions: bool = False,
-             **kwargs: Any) -> Any:
+def make_env(
+    num_envs: int | None = None, *, dataset: PathLike | None = None, normalize_actions: bool = False, **kwargs: Any
+) -> Any:
     """The reach task as a Gymnasium goal env (``aerohrl/QuadrotorReach-v0``).
 
     Args:

@@ -46,7 +46,9 @@ def temp_path(path: Path) -> Path:
 
 def write_error(path: str | os.PathLike[str], e: OSError) -> UserError:
     """The one-line error for a failed write of ``path``."""
-    hint = "; free some space and run it again (files written before are intact)" if e.errno in (errno.ENOSPC, errno.EDQUOT) else ""
+    hint = (
+        "; free some space and run it again (files written before are intact)" if e.errno in (errno.ENOSPC, errno.EDQUOT) else ""
+    )
     return UserError(f"cannot write {path}: {e.strerror or e}{hint}")
 
 
@@ -210,8 +212,13 @@ def verify(path: str | os.PathLike[str]) -> bool:
     return True
 
 
-def torch_load(path: str | os.PathLike[str], *, map_location: Any = "cpu", weights_only: bool = False,
-               warn: Callable[[str], Any] | None = None) -> Any:
+def torch_load(
+    path: str | os.PathLike[str],
+    *,
+    map_location: Any = "cpu",
+    weights_only: bool = False,
+    warn: Callable[[str], Any] | None = None,
+) -> Any:
     """Verify ``path`` against its sidecar, then ``torch.load`` it. A file without a
     sidecar (written before checksums) loads after ``warn(message)`` when given.
     CheckpointDamaged when the hash differs or torch cannot read the file."""
@@ -223,7 +230,9 @@ def torch_load(path: str | os.PathLike[str], *, map_location: Any = "cpu", weigh
     try:
         return torch.load(path, map_location=map_location, weights_only=weights_only)
     except Exception as e:  # torch raises many types on a truncated or foreign file
-        raise CheckpointDamaged(f"checkpoint {path} is damaged: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+        raise CheckpointDamaged(
+            f"checkpoint {path} is damaged: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+        ) from None
 
 
 def remove(path: str | os.PathLike[str]) -> None:
@@ -273,6 +282,22 @@ def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
     return removed
 
 
-__all__ = ["atomic_path", "write_bytes", "write_text", "write_json", "save_figure", "torch_save", "torch_load", "verify",
-           "sha256_file", "checksum_path", "recorded_sha256", "remove", "remove_stale_temporaries", "temp_owner", "new_folder",
-           "CheckpointDamaged", "write_error"]
+__all__ = [
+    "atomic_path",
+    "write_bytes",
+    "write_text",
+    "write_json",
+    "save_figure",
+    "torch_save",
+    "torch_load",
+    "verify",
+    "sha256_file",
+    "checksum_path",
+    "recorded_sha256",
+    "remove",
+    "remove_stale_temporaries",
+    "temp_owner",
+    "new_folder",
+    "CheckpointDamaged",
+    "write_error",
+]

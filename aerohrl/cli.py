@@ -86,8 +86,10 @@ def main(argv: list[str] | None = None) -> int:
         extra = EXTRAS.get((e.name or "").split(".")[0])
         if extra is None:
             raise
-        print(f"aerohrl {argv[0]}: error: this needs {e.name}, which is not installed: pip install 'aerohrl[{extra}]'",
-              file=sys.stderr)
+        print(
+            f"aerohrl {argv[0]}: error: this needs {e.name}, which is not installed: pip install 'aerohrl[{extra}]'",
+            file=sys.stderr,
+        )
         return 2
 
 

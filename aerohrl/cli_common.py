@@ -34,8 +34,15 @@ COMMON = ("out", "quiet", "threads", "seed", "device")
 DEVICE_HELP = "torch device: cpu | cuda | cuda:N"
 
 
-def add_common(p: argparse.ArgumentParser, *, out: dict | None = None, quiet: bool = False, threads: dict | None = None,
-               seed: dict | None = None, device: dict | None = None) -> argparse.ArgumentParser:
+def add_common(
+    p: argparse.ArgumentParser,
+    *,
+    out: dict | None = None,
+    quiet: bool = False,
+    threads: dict | None = None,
+    seed: dict | None = None,
+    device: dict | None = None,
+) -> argparse.ArgumentParser:
     """Add the common flags to ``p``: each given dict holds the command's argparse keywords
     for that flag (``default``, ``help``, ``type``, ``required``...), on top of these defaults:
 
@@ -50,12 +57,16 @@ def add_common(p: argparse.ArgumentParser, *, out: dict | None = None, quiet: bo
         short = ("-o",) if kw.pop("short", True) else ()
         p.add_argument(*short, "--out", dest="out", **kw)
     if quiet:
-        p.add_argument("--quiet", dest="quiet", action="store_true", default=False,
-                       help="no progress bars (drawn on terminals only anyway)")
+        p.add_argument(
+            "--quiet", dest="quiet", action="store_true", default=False, help="no progress bars (drawn on terminals only anyway)"
+        )
     if threads is not None:
         kw = {"type": T.positive_int, "default": None, "metavar": "N", **threads}
-        kw.setdefault("help", "torch and OpenMP threads of this process" +
-                      (f" [{kw['default']}]" if kw["default"] is not None else " [their own default: all cores]"))
+        kw.setdefault(
+            "help",
+            "torch and OpenMP threads of this process"
+            + (f" [{kw['default']}]" if kw["default"] is not None else " [their own default: all cores]"),
+        )
         p.add_argument("--threads", dest="threads", **kw)
     if seed is not None:
         kw = {"type": T.nonneg_int, "default": 0, "metavar": "N", **seed}

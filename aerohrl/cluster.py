@@ -17,6 +17,7 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
     ``auto``; unreachable -> UserError), or a local Ray of ``num_cpus`` cores, no
     dashboard, a 500 MB object store."""
     import ray  # [train]; missing: run_cli's one line "this needs ray ... pip install 'aerohrl[train]'"
+
     if ray.is_initialized():
         return ray
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
@@ -42,8 +43,14 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
         except (ConnectionError, RuntimeError, ValueError) as e:
             raise UserError(f"cannot join the Ray cluster at {address}: {str(e).splitlines()[0]}") from None
     else:
-        ray.init(num_cpus=num_cpus, num_gpus=num_gpus, include_dashboard=False, object_store_memory=500 * 2**20,
-                 logging_level="ERROR", log_to_driver=True)
+        ray.init(
+            num_cpus=num_cpus,
+            num_gpus=num_gpus,
+            include_dashboard=False,
+            object_store_memory=500 * 2**20,
+            logging_level="ERROR",
+            log_to_driver=True,
+        )
     return ray
 
 

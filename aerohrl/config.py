@@ -51,16 +51,33 @@ class ConfigError(UserError):
     """A config value or key that is not allowed: one line naming the field."""
 
 
-def param(default: Any, help: str, *, unit: str = "", choices: Sequence[Any] | None = None,
-          ge: float | None = None, gt: float | None = None, le: float | None = None, lt: float | None = None,
-          flag: bool = True) -> Any:
+def param(
+    default: Any,
+    help: str,
+    *,
+    unit: str = "",
+    choices: Sequence[Any] | None = None,
+    ge: float | None = None,
+    gt: float | None = None,
+    le: float | None = None,
+    lt: float | None = None,
+    flag: bool = True,
+) -> Any:
     """A dataclass field with its one-line meaning (``help``), its ``unit``, and what it may
     hold: one of ``choices``, or a number within ``ge``/``gt``/``le``/``lt`` (for a tuple,
     every element). ``flag=False`` keeps it off the command line (a run's identity, say).
     Numbers must be finite unless a bound says otherwise (``le=math.inf``). A dict default
     (a free-form table, e.g. a sweep's overrides) is copied for each instance and has no flag."""
-    meta = {"help": help, "unit": unit, "choices": tuple(choices) if choices is not None else None,
-            "ge": ge, "gt": gt, "le": le, "lt": lt, "flag": flag}
+    meta = {
+        "help": help,
+        "unit": unit,
+        "choices": tuple(choices) if choices is not None else None,
+        "ge": ge,
+        "gt": gt,
+        "le": le,
+        "lt": lt,
+        "flag": flag,
+    }
     if isinstance(default, (list, set)):
         raise TypeError("a mutable default: use a tuple")
     if isinstance(default, dict):
@@ -157,11 +174,17 @@ def check_value(name: str, value: Any, f: dataclasses.Field) -> None:
         unbounded = m.get("le") == math.inf or m.get("lt") == math.inf
         if isinstance(v, float) and (math.isnan(v) or (math.isinf(v) and not unbounded)):
             raise ConfigError(f"{name} must be a finite number, got {v}")
-        for key, ok, word in (("ge", lambda a, b: a >= b, ">="), ("gt", lambda a, b: a > b, ">"),
-                              ("le", lambda a, b: a <= b, "<="), ("lt", lambda a, b: a < b, "<")):
+        for key, ok, word in (
+            ("ge", lambda a, b: a >= b, ">="),
+            ("gt", lambda a, b: a > b, ">"),
+            ("le", lambda a, b: a <= b, "<="),
+            ("lt", lambda a, b: a < b, "<"),
+        ):
             bound = m.get(key)
             if bound is not None and not ok(v, bound):
-                raise ConfigError(f"{name} must be {word} {bound:g}, got {v:g}" + (f" ({value!r})" if isinstance(value, tuple) else ""))
+                raise ConfigError(
+                    f"{name} must be {word} {bound:g}, got {v:g}" + (f" ({value!r})" if isinstance(value, tuple) else "")
+                )
 
 
 def validate(cfg: Any) -> None:
@@ -253,8 +276,9 @@ def unknown_keys(given: Sequence[str], known: Sequence[str], where: str, hint: s
     raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} ({tip})")
 
 
-def from_mapping(cls: type, values: Mapping[str, Any], *, where: str = "config", base: Any = None,
-                 check: bool = True, hint: str = "") -> Any:
+def from_mapping(
+    cls: type, values: Mapping[str, Any], *, where: str = "config", base: Any = None, check: bool = True, hint: str = ""
+) -> Any:
     """A ``cls`` from ``values`` over ``base`` (default: ``cls()``): flat keys (a nested
     section's settings by their own names) or sub-tables named like the sections. Unknown
     keys and values of the wrong type are :class:`ConfigError`; with ``check`` the result is
@@ -282,8 +306,7 @@ def from_mapping(cls: type, values: Mapping[str, Any], *, where: str = "config",
     return cfg
 
 
-def from_nested(cls: type, values: Mapping[str, Any], *, where: str = "config", base: Any = None,
-                check: bool = True) -> Any:
+def from_nested(cls: type, values: Mapping[str, Any], *, where: str = "config", base: Any = None, check: bool = True) -> Any:
     """A ``cls`` from the nested mapping ``values`` (:func:`dataclasses.asdict` output, or TOML
     with one table per section) over ``base`` (default ``cls()``): for configs whose sections
     reuse setting names, which :func:`from_mapping`'s flat keys cannot tell apart. Missing keys
@@ -394,8 +417,15 @@ def describe(f: dataclasses.Field, default: Any, *, default_label: str = "", not
     return f"{h}{unit} [{label}{d}{extra}]".replace("%", "%%")
 
 
-def add_flags(parser: argparse.ArgumentParser | Any, cls: type, *, skip: Sequence[str] = (), defaults: Any = None,
-              default_label: str = "", notes: Mapping[str, str] | None = None) -> None:
+def add_flags(
+    parser: argparse.ArgumentParser | Any,
+    cls: type,
+    *,
+    skip: Sequence[str] = (),
+    defaults: Any = None,
+    default_label: str = "",
+    notes: Mapping[str, str] | None = None,
+) -> None:
     """One flag per setting of ``cls`` (but ``skip`` and fields declared ``flag=False``), all
     defaulting to None so that :func:`given_flags` tells the flags given from the others.
     The help shows the default of ``defaults`` (an instance; default: ``cls()``), labelled
@@ -417,11 +447,18 @@ def add_flags(parser: argparse.ArgumentParser | Any, cls: type, *, skip: Sequenc
         elif kind is tuple:
             elem = _elem(hint, _default(f))
             typ = _flag_type(f, elem) if elem in (int, float) else str
-            parser.add_argument(flag_name(f.name), type=typ, nargs="*", default=None, metavar="N" if typ is not str else "X",
-                                help=help_)
+            parser.add_argument(
+                flag_name(f.name), type=typ, nargs="*", default=None, metavar="N" if typ is not str else "X", help=help_
+            )
         elif kind in (int, float):
-            parser.add_argument(flag_name(f.name), type=_flag_type(f, kind), default=None,
-                                choices=choices, metavar="N" if choices is None else None, help=help_)
+            parser.add_argument(
+                flag_name(f.name),
+                type=_flag_type(f, kind),
+                default=None,
+                choices=choices,
+                metavar="N" if choices is None else None,
+                help=help_,
+            )
         else:
             parser.add_argument(flag_name(f.name), default=None, choices=choices, help=help_)
 
@@ -456,6 +493,23 @@ def given_flags(args: argparse.Namespace, cls: type, *, skip: Sequence[str] = ()
     return out
 
 
-__all__ = ["ConfigError", "param", "section", "leaves", "validate", "check_value", "unknown_keys", "from_mapping",
-           "from_nested", "to_flat_dict", "load_toml", "load_preset", "preset_names", "to_toml", "flag_name", "describe", "add_flags",
-           "given_flags"]
+__all__ = [
+    "ConfigError",
+    "param",
+    "section",
+    "leaves",
+    "validate",
+    "check_value",
+    "unknown_keys",
+    "from_mapping",
+    "from_nested",
+    "to_flat_dict",
+    "load_toml",
+    "load_preset",
+    "preset_names",
+    "to_toml",
+    "flag_name",
+    "describe",
+    "add_flags",
+    "given_flags",
+]

@@ -28,9 +28,18 @@ class UserError(ValueError):
 _prog = "aerohrl"  # the running command, for warnings (set by run_cli)
 
 # top-level modules of the optional extras (pyproject.toml) -> the extra that installs them
-EXTRAS = {"torch": "train", "torchrl": "train", "tensordict": "train", "cmaes": "train", "ray": "train", "tensorboard": "train",
-          "lerobot": "lerobot",
-          "datasets": "lerobot", "minari": "exchange", "ogbench": "exchange"}
+EXTRAS = {
+    "torch": "train",
+    "torchrl": "train",
+    "tensordict": "train",
+    "cmaes": "train",
+    "ray": "train",
+    "tensorboard": "train",
+    "lerobot": "lerobot",
+    "datasets": "lerobot",
+    "minari": "exchange",
+    "ogbench": "exchange",
+}
 
 
 def warn(message: str) -> None:

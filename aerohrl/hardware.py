@@ -50,8 +50,10 @@ def cpu_model() -> str:
 def describe_cpu() -> str:
     """One line for a bench's header: model, cores, widest vector extension, bf16 support."""
     flags = cpu_flags()
-    vec = next((name for flag, name in (("avx512f", "AVX512"), ("avx2", "AVX2"), ("sve", "SVE"), ("asimd", "NEON"))
-                if flag in flags), "no wide vectors")
+    vec = next(
+        (name for flag, name in (("avx512f", "AVX512"), ("avx2", "AVX2"), ("sve", "SVE"), ("asimd", "NEON")) if flag in flags),
+        "no wide vectors",
+    )
     bf16 = [f for f in _BF16_FLAGS if f in flags]
     native = f"native bf16 ({', '.join(bf16)})" if bf16 else "no native bf16"
     return f"{cpu_model()}, {os.cpu_count()} cores, {vec}, {native}"

@@ -24,8 +24,10 @@ def _print_eval_results(run_dir) -> None:
         if e.get("damaged"):
             print(f"eval:      {e['name']}: summary.json unreadable (run `aerohrl eval` again)")
         else:
-            print(f"eval:      {e['name']}: success {e['success']:.1f} ± {e['std']:.1f} %, near {e['near']:.1f} % "
-                  f"({e['checkpoints']} checkpoints x {e['episodes']} episodes, steps {e['steps'][0]:,}..{e['steps'][1]:,}; aerohrl eval)")
+            print(
+                f"eval:      {e['name']}: success {e['success']:.1f} ± {e['std']:.1f} %, near {e['near']:.1f} % "
+                f"({e['checkpoints']} checkpoints x {e['episodes']} episodes, steps {e['steps'][0]:,}..{e['steps'][1]:,}; aerohrl eval)"
+            )
 
 
 def cmd_show_ipp(a: argparse.Namespace) -> int:
@@ -39,11 +41,15 @@ def cmd_show_ipp(a: argparse.Namespace) -> int:
     done = rows[-1]["iteration"] if rows else 0
     print(f"run:       {a.run}  (informative path planning, aerohrl ipp train)")
     print(f"world:     {cfg.env.kind}; seed {cfg.seed}; {cfg.n_envs} environments per iteration")
-    print(f"progress:  iteration {done:,} / {total:,} ({100 * done / max(total, 1):.1f}%)"
-          + (f"; {rows[-1].get('time_s', 0) / 60:.1f} min" if rows else ""))
+    print(
+        f"progress:  iteration {done:,} / {total:,} ({100 * done / max(total, 1):.1f}%)"
+        + (f"; {rows[-1].get('time_s', 0) / 60:.1f} min" if rows else "")
+    )
     if rows:
         last = rows[-1]
-        print("last:      " + ", ".join(f"{k} {v:.4g}" for k, v in last.items() if isinstance(v, (int, float)) and k != "iteration"))
+        print(
+            "last:      " + ", ".join(f"{k} {v:.4g}" for k, v in last.items() if isinstance(v, (int, float)) and k != "iteration")
+        )
     kept = [n for n in ("model.pt", "best.pt", "checkpoint.pt") if (Path(a.run) / n).exists()]
     print(f"files:     {', '.join(kept) or 'no weights yet'}")
     if not a.no_plot and rows:
@@ -64,9 +70,11 @@ def cmd_show(a: argparse.Namespace) -> int:
     print(f"algorithm: {cfg.get('algo')} (preset {cfg.get('preset')}, seed {cfg.get('seed')}, device {cfg.get('device')})")
     print(f"dataset:   {ds.get('path')}  version {ds.get('version')}  ({ds.get('episodes')} episodes, {ds.get('frames')} frames)")
     total = cfg.get("steps", 0)
-    print(f"progress:  checkpoint at step {s['checkpoint_step']:,} / {total:,} ({100 * s['checkpoint_step'] / max(total, 1):.1f}%); "
-          f"logged up to step {s['logged_step']:,}; {len(s['checkpoints'])} checkpoints kept; "
-          f"{s['training_s'] / 60:.1f} min of gradient steps")
+    print(
+        f"progress:  checkpoint at step {s['checkpoint_step']:,} / {total:,} ({100 * s['checkpoint_step'] / max(total, 1):.1f}%); "
+        f"logged up to step {s['logged_step']:,}; {len(s['checkpoints'])} checkpoints kept; "
+        f"{s['training_s'] / 60:.1f} min of gradient steps"
+    )
     for name, why in s["damaged"].items():
         print(f"DAMAGED:   {name}: {why} (`train --resume` falls back to the newest intact checkpoint)")
     if s["set_aside"]:

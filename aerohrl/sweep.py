@@ -220,8 +220,13 @@ def points(sp: SweepSpec) -> list[Point]:
     """Every grid point of ``sp``: datasets x grid combinations x algorithms x seeds."""
     keys = sorted(sp.grid)
     combos = list(itertools.product(*(sp.grid[k] for k in keys))) or [()]
-    return [Point(a, s, d, tuple(zip(keys, (tuple(v) if isinstance(v, list) else v for v in combo))))
-            for d in sp.datasets for combo in combos for a in sp.algos for s in sp.seeds]
+    return [
+        Point(a, s, d, tuple(zip(keys, (tuple(v) if isinstance(v, list) else v for v in combo))))
+        for d in sp.datasets
+        for combo in combos
+        for a in sp.algos
+        for s in sp.seeds
+    ]
 
 
 def _config(sp: SweepSpec, p: Point):
@@ -252,8 +257,13 @@ def config_differences(run_dir: str | Path, cfg: TrainConfig) -> str:
         return ""
     new = C.to_dict(cfg)
     # amp "auto" asked is met by whichever precision the run resolved it to
-    keys = [k for k in new if k not in ("steps", "checkpoint_every", "device", "dataset") and old.get(k) != new[k]
-            and not (k == "amp" and new[k] == "auto")]
+    keys = [
+        k
+        for k in new
+        if k not in ("steps", "checkpoint_every", "device", "dataset")
+        and old.get(k) != new[k]
+        and not (k == "amp" and new[k] == "auto")
+    ]
     return f" (kept its own config: {', '.join(f'{k} {old.get(k)} -> {new[k]}' for k in keys)})" if keys else ""
 
 
@@ -305,8 +315,21 @@ def eval_task(run_dir: str, tasks: list[str], episodes: int, checkpoints: int, t
             continue
         err = io.StringIO()
         with redirect_stdout(io.StringIO()), redirect_stderr(err):
-            code = eval_main(["--task", t, "--run", str(rd), "--episodes", str(episodes), "--checkpoints", str(checkpoints),
-                              "--threads", str(threads), "--quiet"])
+            code = eval_main(
+                [
+                    "--task",
+                    t,
+                    "--run",
+                    str(rd),
+                    "--episodes",
+                    str(episodes),
+                    "--checkpoints",
+                    str(checkpoints),
+                    "--threads",
+                    str(threads),
+                    "--quiet",
+                ]
+            )
         if code != 0:
             raise RuntimeError(f"aerohrl eval --task {t} --run {rd} failed: {err.getvalue().strip().splitlines()[-1:]}")
         done.append(t)
@@ -323,8 +346,9 @@ def _check_saved(out: Path, sp: SweepSpec, write: bool = True) -> None:
     if saved.exists():
         old = saved.read_text()
         if old != sp.to_toml():
-            raise UserError(f"{out} holds another sweep (its grid is {saved}); rerun with --config {saved}, or choose "
-                            "another --out")
+            raise UserError(
+                f"{out} holds another sweep (its grid is {saved}); rerun with --config {saved}, or choose another --out"
+            )
     elif write:
         out.mkdir(parents=True, exist_ok=True)
         atomic.write_text(saved, sp.to_toml())
@@ -354,9 +378,18 @@ def write_tables(out: Path, names: list[str]) -> str:
     return md
 
 
-def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus: int | None = None,
-              cpus_per_run: int = 1, gpus_per_run: float | None = None, max_retries: int = 3, evaluate: bool = True,
-              log: Callable[[str], Any] = print) -> dict:
+def run_sweep(
+    sp: SweepSpec,
+    out: Path,
+    *,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    cpus_per_run: int = 1,
+    gpus_per_run: float | None = None,
+    max_retries: int = 3,
+    evaluate: bool = True,
+    log: Callable[[str], Any] = print,
+) -> dict:
     """Train every grid point of ``sp`` on Ray into ``out/runs``, evaluate each as soon as it
     is trained (unless ``evaluate=False``) and write ``sweep-report.json`` and the tables;
     returns the report (``{"runs": ..., "errors": ...}``, as ``train_on_ray``)."""
@@ -382,8 +415,12 @@ def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus:
             raise UserError(f"each run asks for {cpus_per_run} CPUs (--cpus-per-run), the Ray cluster has {have.get('CPU', 0):g}")
         _check_saved(out, sp)
         (out / "runs").mkdir(exist_ok=True)
-        log(f"sweep: {len(pts)} runs on Ray ({have.get('CPU', 0):g} CPUs, {have.get('GPU', 0):g} GPUs; {cpus_per_run} CPU"
-            + (f" + {gpus:g} GPU" if gpus else "") + " per run) -> " + str(out))
+        log(
+            f"sweep: {len(pts)} runs on Ray ({have.get('CPU', 0):g} CPUs, {have.get('GPU', 0):g} GPUs; {cpus_per_run} CPU"
+            + (f" + {gpus:g} GPU" if gpus else "")
+            + " per run) -> "
+            + str(out)
+        )
         evaluate_r = ray.remote(num_cpus=cpus_per_run, num_gpus=gpus, max_retries=max_retries)(eval_task)
         evals = {}
 
@@ -391,8 +428,15 @@ def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus:
             if evaluate:
                 evals[evaluate_r.remote(r["run"], sp.tasks, sp.episodes, sp.checkpoints, cpus_per_run)] = name
 
-        report = train_on_ray(ray, [(p.name(), str((out / "runs" / p.name()).resolve()), _cfg_dict(sp, p)) for p in pts],
-                              cpus_per_run=cpus_per_run, gpus=gpus, max_retries=max_retries, log=log, on_trained=then_evaluate)
+        report = train_on_ray(
+            ray,
+            [(p.name(), str((out / "runs" / p.name()).resolve()), _cfg_dict(sp, p)) for p in pts],
+            cpus_per_run=cpus_per_run,
+            gpus=gpus,
+            max_retries=max_retries,
+            log=log,
+            on_trained=then_evaluate,
+        )
         for ref, name in evals.items():
             try:
                 ray.get(ref)
@@ -404,16 +448,25 @@ def run_sweep(sp: SweepSpec, out: Path, *, address: str | None = None, num_cpus:
             ray.shutdown()
     atomic.write_json(out / "sweep-report.json", report)
     if report["errors"]:
-        raise UserError(f"{len(report['errors'])} of {len(pts)} runs failed ({out / 'sweep-report.json'}); rerun the same "
-                        "command to retry them")
+        raise UserError(
+            f"{len(report['errors'])} of {len(pts)} runs failed ({out / 'sweep-report.json'}); rerun the same "
+            "command to retry them"
+        )
     if evaluate:
         report["tables"] = write_tables(out, [p.name() for p in pts])
     return report
 
 
-def train_on_ray(ray: Any, items: list[tuple[str, str, dict]], *, cpus_per_run: int = 1, gpus: float = 0,
-                 max_retries: int = 3, log: Callable[[str], Any] = print,
-                 on_trained: Callable[[str, dict], Any] | None = None) -> dict:
+def train_on_ray(
+    ray: Any,
+    items: list[tuple[str, str, dict]],
+    *,
+    cpus_per_run: int = 1,
+    gpus: float = 0,
+    max_retries: int = 3,
+    log: Callable[[str], Any] = print,
+    on_trained: Callable[[str, dict], Any] | None = None,
+) -> dict:
     """Train every ``(label, run folder, config dict)`` as one Ray task (``train_task``)
     declaring ``cpus_per_run`` CPUs and ``gpus`` GPUs, retried ``max_retries`` times when
     its worker dies; ``on_trained(label, result)`` as each one ends. The longest-first
@@ -439,8 +492,13 @@ def train_on_ray(ray: Any, items: list[tuple[str, str, dict]], *, cpus_per_run: 
     return report
 
 
-def train_runs(items: list[tuple[str, str, dict]], *, address: str | None = None, num_cpus: int | None = None,
-               log: Callable[[str], Any] = print) -> dict[str, dict]:
+def train_runs(
+    items: list[tuple[str, str, dict]],
+    *,
+    address: str | None = None,
+    num_cpus: int | None = None,
+    log: Callable[[str], Any] = print,
+) -> dict[str, dict]:
     """``train_on_ray`` on a local Ray of ``num_cpus`` cores (started and stopped here) or
     the cluster at ``address``, one CPU per run: what ``make results`` trains through
     (experiments/reproduce.py). The result of each run by label; UserError when any failed."""
@@ -452,8 +510,10 @@ def train_runs(items: list[tuple[str, str, dict]], *, address: str | None = None
             ray.shutdown()
     if report["errors"]:
         label, msg = next(iter(report["errors"].items()))
-        raise UserError(f"{len(report['errors'])} of {len(items)} training runs failed (first: {label}: {msg}); rerun the "
-                        "same command to resume them")
+        raise UserError(
+            f"{len(report['errors'])} of {len(items)} training runs failed (first: {label}: {msg}); rerun the "
+            "same command to resume them"
+        )
     return report["runs"]
 
 
@@ -474,24 +534,58 @@ def _one_line(e: BaseException) -> str:
 
 def parser() -> ArgumentParser:
     """The ``aerohrl sweep`` argument parser."""
-    ap = ArgumentParser(prog=PROG, description="Train a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, "
-                        "evaluate them and write seed-aggregated tables.")
-    ap.add_argument("--config", type=Path, default=None, help="sweep grid, TOML or .yaml (keys: algos, seeds, datasets, "
-                    "preset, [set], [grid], [eval] tasks/episodes/checkpoints); flags add to it; saved as OUT/sweep.toml")
-    add_common(ap, out={"required": True, "help": "sweep folder: sweep.toml, runs/, tables.md"},
-               device={"default": None, "help": "torch device of each run: cpu | cuda (asks Ray for GPUs) [cpu]"})
-    ap.add_argument("--algos", nargs="+", default=None, metavar="ALGO", help="train algorithms: gcsl td3bc td3awbc cql (required here or in --config)")
+    ap = ArgumentParser(
+        prog=PROG,
+        description="Train a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, "
+        "evaluate them and write seed-aggregated tables.",
+    )
+    ap.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="sweep grid, TOML or .yaml (keys: algos, seeds, datasets, "
+        "preset, [set], [grid], [eval] tasks/episodes/checkpoints); flags add to it; saved as OUT/sweep.toml",
+    )
+    add_common(
+        ap,
+        out={"required": True, "help": "sweep folder: sweep.toml, runs/, tables.md"},
+        device={"default": None, "help": "torch device of each run: cpu | cuda (asks Ray for GPUs) [cpu]"},
+    )
+    ap.add_argument(
+        "--algos",
+        nargs="+",
+        default=None,
+        metavar="ALGO",
+        help="train algorithms: gcsl td3bc td3awbc cql (required here or in --config)",
+    )
     ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=None, metavar="SEED", help="[0]")
-    ap.add_argument("--datasets", nargs="+", type=Path, default=None, metavar="DATASET",
-                    help="dataset folders (datasets/<name>/<version>; required here or in --config)")
+    ap.add_argument(
+        "--datasets",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="DATASET",
+        help="dataset folders (datasets/<name>/<version>; required here or in --config)",
+    )
     ap.add_argument("--preset", default=None, help="train preset of every run [cpu]")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="a train flag for every run (--set steps=2000 --set hidden=[256,256]); repeatable")
-    ap.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2",
-                    help="a train flag swept over values (--grid batch_size=256,512); repeatable: the product")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a train flag for every run (--set steps=2000 --set hidden=[256,256]); repeatable",
+    )
+    ap.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2",
+        help="a train flag swept over values (--grid batch_size=256,512); repeatable: the product",
+    )
     ap.add_argument("--address", default=None, help="join the Ray cluster at HOST:PORT (or auto) instead of a local one")
-    ap.add_argument("--num-cpus", type=T.positive_int, default=None,
-                    help="local Ray: the core budget [all cores, os.cpu_count()]")
+    ap.add_argument(
+        "--num-cpus", type=T.positive_int, default=None, help="local Ray: the core budget [all cores, os.cpu_count()]"
+    )
     ap.add_argument("--cpus-per-run", type=T.positive_int, default=1, help="Ray num_cpus (and torch threads) of a run [1]")
     ap.add_argument("--gpus-per-run", type=T.positive_float, default=None, help="Ray num_gpus of a run with --device cuda [1]")
     ap.add_argument("--max-retries", type=T.nonneg_int, default=3, help="retries of a run whose worker died [3]")
@@ -510,9 +604,17 @@ def main(argv: list[str] | None = None) -> int:
         sp = load_spec(a.config, a)
         if not a.address and a.num_cpus is None:
             a.num_cpus = os.cpu_count() or 1
-        rep = run_sweep(sp, a.out, address=a.address, num_cpus=a.num_cpus, cpus_per_run=a.cpus_per_run,
-                        gpus_per_run=a.gpus_per_run, max_retries=a.max_retries, evaluate=not a.no_eval,
-                        log=lambda m: print(m, file=sys.stderr, flush=True))
+        rep = run_sweep(
+            sp,
+            a.out,
+            address=a.address,
+            num_cpus=a.num_cpus,
+            cpus_per_run=a.cpus_per_run,
+            gpus_per_run=a.gpus_per_run,
+            max_retries=a.max_retries,
+            evaluate=not a.no_eval,
+            log=lambda m: print(m, file=sys.stderr, flush=True),
+        )
         if "tables" in rep:
             print(rep["tables"], end="")
             print(f"tables: {a.out / 'tables.md'}", file=sys.stderr)

@@ -28,7 +28,16 @@ from aerohrl.errors import ArgumentParser, UserError, run_cli, warn
 
 PROG = "train"
 # what may change when a run is resumed (everything else defines the run)
-RESUMABLE = {"steps", "device", "log_every", "checkpoint_every", "keep_checkpoints", "eval_every", "eval_episodes", "eval_horizon"}
+RESUMABLE = {
+    "steps",
+    "device",
+    "log_every",
+    "checkpoint_every",
+    "keep_checkpoints",
+    "eval_every",
+    "eval_episodes",
+    "eval_horizon",
+}
 COMMON_FIELDS = ("seed", "device")  # TrainConfig settings that are common flags (aerohrl.cli_common)
 
 
@@ -40,30 +49,55 @@ def parser() -> ArgumentParser:
     # errors.ArgumentParser and a --help that imports nothing heavy; draccus is only
     # installed by the [lerobot] extra.
     ap = ArgumentParser(prog=PROG, description="Offline goal-conditioned training on an expert dataset (thesis §3.4.2, Alg. 2).")
-    ap.add_argument("--preset", default=None, choices=C.presets(),
-                    help="hyper-parameter preset (a TOML file of algorithms/presets/) [cpu]")
-    ap.add_argument("--config", type=Path, default=None, metavar="FILE",
-                    help=f"a TOML train config (every run saves its own as RUN/{C.TOML_NAME}); flags override its values")
+    ap.add_argument(
+        "--preset", default=None, choices=C.presets(), help="hyper-parameter preset (a TOML file of algorithms/presets/) [cpu]"
+    )
+    ap.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help=f"a TOML train config (every run saves its own as RUN/{C.TOML_NAME}); flags override its values",
+    )
     ap.add_argument("--resume", type=Path, default=None, metavar="RUN", help="continue RUN from its last checkpoint")
-    add_common(ap, out={"default": Path("runs"), "help": "folder of runs: the run goes to OUT/NAME [runs]"},
-               quiet=True,
-               threads={"help": "torch threads [torch's default: all cores]"},
-               seed={"default": None, "help": "random seed (>= 0) [cpu: 0]"},
-               device={"default": None, "help": "torch device: cpu | cuda | cuda:N [cpu: cpu]"})
+    add_common(
+        ap,
+        out={"default": Path("runs"), "help": "folder of runs: the run goes to OUT/NAME [runs]"},
+        quiet=True,
+        threads={"help": "torch threads [torch's default: all cores]"},
+        seed={"default": None, "help": "random seed (>= 0) [cpu: 0]"},
+        device={"default": None, "help": "torch device: cpu | cuda | cuda:N [cpu: cpu]"},
+    )
     ap.add_argument("--name", default=None, help="run folder name, must be new [ALGO-PRESET-sSEED-YYYYMMDD-HHMMSS-XXXXXX]")
-    ap.add_argument("--logger", default=None, metavar="NAME",
-                    help="where scalars go besides metrics.jsonl: tensorboard (RUN/tb) | wandb (offline, RUN/wandb; needs "
-                         "`pip install wandb`) | none [tensorboard; on --resume: the run's]")
-    ap.add_argument("--progress-every", type=T.nonneg_float, default=60.0, metavar="SECONDS",
-                    help="without a progress bar (no terminal, --quiet): a progress line every SECONDS (0: none) [60]")
-    ap.add_argument("--progress-steps", type=T.nonneg_int, default=0, metavar="N",
-                    help="... and every N steps (0: only by time) [0]")
+    ap.add_argument(
+        "--logger",
+        default=None,
+        metavar="NAME",
+        help="where scalars go besides metrics.jsonl: tensorboard (RUN/tb) | wandb (offline, RUN/wandb; needs "
+        "`pip install wandb`) | none [tensorboard; on --resume: the run's]",
+    )
+    ap.add_argument(
+        "--progress-every",
+        type=T.nonneg_float,
+        default=60.0,
+        metavar="SECONDS",
+        help="without a progress bar (no terminal, --quiet): a progress line every SECONDS (0: none) [60]",
+    )
+    ap.add_argument(
+        "--progress-steps", type=T.nonneg_int, default=0, metavar="N", help="... and every N steps (0: only by time) [0]"
+    )
     per_algo: dict[str, list[str]] = {}
     for algo, values in C.per_algo_values("cpu").items():
         for k, v in values.items():
             per_algo.setdefault(k, []).append(f"{algo}: {v}")
-    K.add_flags(ap, C.TrainConfig, skip=COMMON_FIELDS, defaults=C.preset_base("cpu"), default_label="cpu",
-                notes={k: "; ".join(v) for k, v in per_algo.items()})
+    K.add_flags(
+        ap,
+        C.TrainConfig,
+        skip=COMMON_FIELDS,
+        defaults=C.preset_base("cpu"),
+        default_label="cpu",
+        notes={k: "; ".join(v) for k, v in per_algo.items()},
+    )
     return ap
 
 
@@ -79,8 +113,13 @@ def config_from_args(a: argparse.Namespace) -> C.TrainConfig:
     values: dict = {}
     if a.config is not None:
         values = K.load_toml(a.config)
-        K.from_mapping(C.TrainConfig, values, where=str(a.config), check=False,  # keys and types, naming the file
-                       hint="the keys are train's flags with _ for - (train --help)")
+        K.from_mapping(
+            C.TrainConfig,
+            values,
+            where=str(a.config),
+            check=False,  # keys and types, naming the file
+            hint="the keys are train's flags with _ for - (train --help)",
+        )
     preset = a.preset or values.pop("preset", None) or "cpu"
     values.pop("preset", None)
     values.update(_overrides(a))  # explicit flags win
@@ -106,13 +145,17 @@ def run(a: argparse.Namespace) -> int:
             raise UserError("--config starts a new run; --resume continues one with its own config")
         fixed = sorted(set(ov) - RESUMABLE - {"dataset"})
         if fixed:
-            raise UserError(f"--resume cannot change {', '.join('--' + k.replace('_', '-') for k in fixed)} (they define the run)")
+            raise UserError(
+                f"--resume cannot change {', '.join('--' + k.replace('_', '-') for k in fixed)} (they define the run)"
+            )
         tr = resume_run(a.resume, progress=bar, overrides=ov, logger=a.logger, **kw)
         for aside, why in tr.set_aside:
             warn(f"{why}; set aside as {aside.name}")
         fallback = " (the newest intact checkpoint)" if tr.set_aside else ""
-        print(f"resuming {a.resume} at step {tr.step}" + (f" from {tr.resumed_from}{fallback}" if tr.resumed_from else ""),
-              file=sys.stderr)
+        print(
+            f"resuming {a.resume} at step {tr.step}" + (f" from {tr.resumed_from}{fallback}" if tr.resumed_from else ""),
+            file=sys.stderr,
+        )
     else:
         cfg = config_from_args(a)
         resolve_device(cfg.device)  # before anything is created

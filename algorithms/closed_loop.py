@@ -33,7 +33,11 @@ def make_reach_desired_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[A
     pick = rng.choice(len(goals), size=min(cfg.eval_episodes, len(goals)), replace=False)
     goals = goals[np.sort(pick)]
     spec = data.info.get("spec") or {}
-    kw = {"vehicle": spec.get("vehicle", "hummingbird"), "fps": int(spec.get("fps", 100)), "substeps": int(spec.get("substeps", 5))}
+    kw = {
+        "vehicle": spec.get("vehicle", "hummingbird"),
+        "fps": int(spec.get("fps", 100)),
+        "substeps": int(spec.get("substeps", 5)),
+    }
 
     def evaluate(algo, step):
         r = rollout_reach(algo, goals, horizon=cfg.eval_horizon, **kw)

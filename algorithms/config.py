@@ -31,8 +31,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from aerohrl.config import (ConfigError, from_mapping, load_preset, param, preset_names, section, to_flat_dict,
-                            unknown_keys, validate)
+from aerohrl.config import (
+    ConfigError,
+    from_mapping,
+    load_preset,
+    param,
+    preset_names,
+    section,
+    to_flat_dict,
+    unknown_keys,
+    validate,
+)
 from aerohrl.config import to_toml as _flat_toml
 from aerohrl.hardware import AMP_MODES  # auto | none | bf16
 
@@ -55,13 +64,13 @@ class TD3BCConfig:
     # sweep (docs/results/ "algorithms sweeps"); the thesis preset keeps the paper's 2.5
     # constant with TD3's delay 2.
     alpha: float = param(0.001, "TD3-BC alpha: weight of the Q-term, lambda = alpha / mean|Q|", ge=0)
-    policy_noise: float = param(0.2, "TD3 target policy smoothing noise std", unit="normalised action units, [-1, 1]",
-                                ge=0)
+    policy_noise: float = param(0.2, "TD3 target policy smoothing noise std", unit="normalised action units, [-1, 1]", ge=0)
     noise_clip: float = param(0.5, "TD3 target policy noise clip", unit="normalised action units", ge=0)
     policy_delay: int = param(1, "TD3: actor/target update every N critic updates", ge=1)
     # linear: the Q-term shapes the start of the run and fades; the BC term stays
-    alpha_schedule: str = param("linear", "TD3-BC/AWBC alpha over the run: constant | linear (to 0 at the last step)",
-                                choices=ALPHA_SCHEDULES)
+    alpha_schedule: str = param(
+        "linear", "TD3-BC/AWBC alpha over the run: constant | linear (to 0 at the last step)", choices=ALPHA_SCHEDULES
+    )
 
 
 @dataclass
@@ -75,16 +84,16 @@ class TD3AWBCConfig:
     awr_max_weight: float = param(100.0, "TD3-AWBC: weights clipped at this", gt=0)
     # With Q in [0, 1] the raw advantages are tiny and exp(A) ~ 1 (the weighting does
     # nothing) unless A is divided by its batch standard deviation first
-    awr_normalize: str = param("std", "TD3-AWBC: std (advantage / its batch std, then the temperature) | none (the thesis)",
-                               choices=AWR_NORMALIZE)
+    awr_normalize: str = param(
+        "std", "TD3-AWBC: std (advantage / its batch std, then the temperature) | none (the thesis)", choices=AWR_NORMALIZE
+    )
 
 
 @dataclass
 class CQLConfig:
     """CQL's conservative penalty (Kumar et al. 2020)."""
 
-    cql_min_q_weight: float = param(5.0, "CQL: weight of the conservative penalty (the Lagrange variant's initial scale)",
-                                    ge=0)
+    cql_min_q_weight: float = param(5.0, "CQL: weight of the conservative penalty (the Lagrange variant's initial scale)", ge=0)
     cql_num_random: int = param(4, "CQL: random actions per state in the logsumexp", ge=1)
     # "CQL(H) with Lagrange": the penalty weight is tuned so that the gap stays near this
     cql_lagrange_thresh: float = param(0.0, "CQL: Lagrange variant, target gap logsumexp Q - Q_data (0: off)", ge=0)
@@ -97,43 +106,62 @@ class TrainConfig:
     # what to train on
     algo: str = param("gcsl", "algorithm", choices=ALGORITHMS)
     preset: str = param("cpu", "the preset the run started from", flag=False)
-    dataset: str = param("", "dataset folder (datasets/<name>/<version>); required unless --resume or a --config file "
-                             "names it")
+    dataset: str = param("", "dataset folder (datasets/<name>/<version>); required unless --resume or a --config file names it")
     seed: int = param(0, "random seed", ge=0)
     device: str = param("cpu", "torch device: cpu | cuda | cuda:N")
     # optimisation
     steps: int = param(30_000, "gradient steps", ge=1)
     batch_size: int = param(512, "transitions per batch", ge=1)
-    hidden: tuple[int, ...] = param((512, 512, 512), "hidden layer sizes of the actor (and of the critics unless "
-                                    "--critic-hidden)", unit="units per layer", ge=1)
-    critic_hidden: tuple[int, ...] = param((128, 128), "hidden layer sizes of the critics (none given: as --hidden)",
-                                           unit="units per layer", ge=1)
+    hidden: tuple[int, ...] = param(
+        (512, 512, 512),
+        "hidden layer sizes of the actor (and of the critics unless --critic-hidden)",
+        unit="units per layer",
+        ge=1,
+    )
+    critic_hidden: tuple[int, ...] = param(
+        (128, 128), "hidden layer sizes of the critics (none given: as --hidden)", unit="units per layer", ge=1
+    )
     lr_actor: float = param(1e-3, "actor learning rate (Adam)", gt=0)
     lr_critic: float = param(3e-4, "critic learning rate (Adam)", gt=0)
-    lr_schedule: str = param("cosine", "learning rate over the run: constant | cosine (to 5% of the base rate at the last "
-                                       "step)", choices=LR_SCHEDULES)
+    lr_schedule: str = param(
+        "cosine", "learning rate over the run: constant | cosine (to 5% of the base rate at the last step)", choices=LR_SCHEDULES
+    )
     # Weights, EMA and act() stay float32 under any mode; a run records the precision "auto"
     # chose, so that its resume trains the same way
-    amp: str = param("auto", "mixed precision: auto (bf16 where the device runs it natively, else float32) | none "
-                             "(float32) | bf16 (autocast)", choices=AMP_MODES)
+    amp: str = param(
+        "auto",
+        "mixed precision: auto (bf16 where the device runs it natively, else float32) | none (float32) | bf16 (autocast)",
+        choices=AMP_MODES,
+    )
     ema_decay: float = param(0.999, "act with an exponential moving average of the policy weights (0: off)", ge=0, lt=1)
     # goal-conditioned RL (thesis Alg. 2)
     relabel_prob: float = param(0.05, "delta: probability of relabelling a goal with a later achieved goal", ge=0, le=1)
-    relabel_offset: str = param("geometric", "how far ahead a relabelled goal lies: uniform (over the rest of the "
-                                             "episode) | geometric", choices=RELABEL_OFFSETS)
+    relabel_offset: str = param(
+        "geometric",
+        "how far ahead a relabelled goal lies: uniform (over the rest of the episode) | geometric",
+        choices=RELABEL_OFFSETS,
+    )
     relabel_window: int = param(0, "cap on the relabelling offset (0: to the episode's end)", unit="steps", ge=0)
     relabel_mean_offset: float = param(30.0, "geometric relabelling: mean offset", unit="steps", ge=1)
     # OGBench's value_p_randomgoal: a goal the data does not reach is a negative for the
     # critics; the actor keeps its own goals. 0: critics and actor share the batch (the thesis)
-    critic_random_goal_prob: float = param(0.0, "critics only: probability that a goal is a random frame's achieved "
-                                                "goal (OGBench value_p_randomgoal)", ge=0, lt=1)
+    critic_random_goal_prob: float = param(
+        0.0, "critics only: probability that a goal is a random frame's achieved goal (OGBench value_p_randomgoal)", ge=0, lt=1
+    )
     gamma: float = param(0.99, "discount factor per step", gt=0, le=1)
     # On a dataset flown with action noise (DART) the critics learn from the flown action
     # (consistent transitions); without an action.expert column both targets are the action
-    bc_target: str = param("expert", "what GCSL and the BC terms imitate on a noisy (DART) dataset: expert (the clean "
-                                     "command, column action.expert) | executed (the flown action)", choices=BC_TARGETS)
-    augment: str = param("none", "none | mirror: train on the 4 mirror images of every transition (exact symmetries of "
-                                 "the vehicle)", choices=AUGMENTATIONS)
+    bc_target: str = param(
+        "expert",
+        "what GCSL and the BC terms imitate on a noisy (DART) dataset: expert (the clean "
+        "command, column action.expert) | executed (the flown action)",
+        choices=BC_TARGETS,
+    )
+    augment: str = param(
+        "none",
+        "none | mirror: train on the 4 mirror images of every transition (exact symmetries of the vehicle)",
+        choices=AUGMENTATIONS,
+    )
     mc_lower_bound: bool = param(True, "critic targets max(clipped TD target, discounted return observed in the data)")
     tau: float = param(0.005, "soft target update rate: phi' <- (1 - tau) phi' + tau phi", gt=0, le=1)
     num_critics: int = param(5, "size of the goal-conditioned critic ensemble", ge=2)
@@ -189,8 +217,14 @@ def make_config(preset: str = "cpu", **overrides: Any) -> TrainConfig:
     cfg = from_mapping(TrainConfig, values, where=where, check=False)
     algo = overrides.get("algo", cfg.algo)
     cfg = from_mapping(TrainConfig, per_algo.get(algo, {}), where=f"{where} [algo.{algo}]", base=cfg, check=False)
-    cfg = from_mapping(TrainConfig, overrides, where="config", base=cfg, check=False,
-                       hint="the settings are train's flags with _ for - (train --help)")
+    cfg = from_mapping(
+        TrainConfig,
+        overrides,
+        where="config",
+        base=cfg,
+        check=False,
+        hint="the settings are train's flags with _ for - (train --help)",
+    )
     cfg = dataclasses.replace(cfg, preset=preset)
     check(cfg)
     return cfg
@@ -217,9 +251,16 @@ def to_dict(cfg: TrainConfig) -> dict:
 
 # what runs saved before a setting existed trained with (from_dict fills them in)
 _BEFORE_RELABEL_OFFSET = {"relabel_offset": "uniform", "relabel_window": 0}
-_BEFORE_OPTIONS = {"ema_decay": 0.0, "mc_lower_bound": False, "amp": "none", "augment": "none",
-                   "critic_random_goal_prob": 0.0, "alpha_schedule": "constant", "awr_normalize": "none",
-                   "cql_lagrange_thresh": 0.0}
+_BEFORE_OPTIONS = {
+    "ema_decay": 0.0,
+    "mc_lower_bound": False,
+    "amp": "none",
+    "augment": "none",
+    "critic_random_goal_prob": 0.0,
+    "alpha_schedule": "constant",
+    "awr_normalize": "none",
+    "cql_lagrange_thresh": 0.0,
+}
 
 
 def from_dict(d: dict) -> TrainConfig:
@@ -256,9 +297,27 @@ def relabel_future(cfg: TrainConfig) -> dict:
     return {"strategy": cfg.relabel_offset, "window": cfg.relabel_window, "mean": cfg.relabel_mean_offset}
 
 
-__all__ = ["TrainConfig", "TD3BCConfig", "TD3AWBCConfig", "CQLConfig", "ALGORITHMS", "PRESET_DIR", "presets",
-           "preset_base", "per_algo_values", "make_config", "update", "check", "to_dict", "from_dict", "lr_factor",
-           "critic_sizes", "relabel_future", "TOML_NAME", "to_toml"]
+__all__ = [
+    "TrainConfig",
+    "TD3BCConfig",
+    "TD3AWBCConfig",
+    "CQLConfig",
+    "ALGORITHMS",
+    "PRESET_DIR",
+    "presets",
+    "preset_base",
+    "per_algo_values",
+    "make_config",
+    "update",
+    "check",
+    "to_dict",
+    "from_dict",
+    "lr_factor",
+    "critic_sizes",
+    "relabel_future",
+    "TOML_NAME",
+    "to_toml",
+]
 
 
 # ----------------------------------------------------------------------------- run.toml
@@ -269,5 +328,8 @@ TOML_NAME = "run.toml"  # beside config.json in every run folder; `train --confi
 def to_toml(cfg: TrainConfig) -> str:
     """The config as a flat TOML file (every setting, preset included), read back by
     ``train --config`` (:func:`aerohrl.config.load_toml` and :func:`aerohrl.config.from_mapping`)."""
-    return _flat_toml(cfg, header="aerohrl train config (written by `train`); train it again with "
-                                  "`train --config run.toml`, flags override its values")
+    return _flat_toml(
+        cfg,
+        header="aerohrl train config (written by `train`); train it again with "
+        "`train --config run.toml`, flags override its values",
+    )

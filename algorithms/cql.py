@@ -47,8 +47,9 @@ class _TanhLoc(nn.Module):
         return torch.tanh(loc)
 
 
-def lagrange_terms(loss_cql: torch.Tensor, log_alpha_prime: torch.Tensor,
-                   thresh: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def lagrange_terms(
+    loss_cql: torch.Tensor, log_alpha_prime: torch.Tensor, thresh: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """CQL's Lagrange form (Kumar et al. 2020, CQL(H) with an automatically tuned
     penalty weight; their code's ``with_lagrange``): the critics minimise ``α' (P1 + P2 - 2τ)`` with α' held fixed, and α'
     maximises ``α' (P̄ - τ)`` with the penalties held fixed, where ``P_i = min_q_weight ·
@@ -73,23 +74,37 @@ class CQL(Algorithm):
         params = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
         spec = Bounded(-torch.ones(ACT_DIM), torch.ones(ACT_DIM), (ACT_DIM,))
         self.actor = ProbabilisticActor(
-            params, in_keys=["loc", "scale"], spec=spec, distribution_class=TanhNormal,
-            distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=False,
+            params,
+            in_keys=["loc", "scale"],
+            spec=spec,
+            distribution_class=TanhNormal,
+            distribution_kwargs={"low": -1.0, "high": 1.0},
+            return_log_prob=False,
         )
         # the deterministic policy: tanh of the location (shares the actor's weights)
         self.det_actor = TensorDictSequential(
             params, TensorDictModule(torch.tanh, in_keys=["loc"], out_keys=["action"]), selected_out_keys=["action"]
         )
         self.cql_loss = CQLLoss(
-            self.actor, [make_critic(critic_sizes(cfg)) for _ in range(2)], loss_function="l2",
-            action_spec=spec, min_q_weight=cfg.cql.cql_min_q_weight, num_random=cfg.cql.cql_num_random,
-            deterministic_backup=False, with_lagrange=cfg.cql.cql_lagrange_thresh > 0,
+            self.actor,
+            [make_critic(critic_sizes(cfg)) for _ in range(2)],
+            loss_function="l2",
+            action_spec=spec,
+            min_q_weight=cfg.cql.cql_min_q_weight,
+            num_random=cfg.cql.cql_num_random,
+            deterministic_backup=False,
+            with_lagrange=cfg.cql.cql_lagrange_thresh > 0,
             lagrange_thresh=cfg.cql.cql_lagrange_thresh,
         )
         use_clipped_td0(self.cql_loss, cfg.gamma, self.cql_loss.tensor_keys.value)
         self.critic_loss = make_critic_loss(
-            self.det_actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma,
-            delay_actor=False, policy_noise=0.0, noise_clip=0.0,
+            self.det_actor,
+            critic_sizes(cfg),
+            num_critics=cfg.num_critics,
+            gamma=cfg.gamma,
+            delay_actor=False,
+            policy_noise=0.0,
+            noise_clip=0.0,
         )
         self.cql_updater = EnsembleSoftUpdate(self.cql_loss, tau=cfg.tau)
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
@@ -97,8 +112,9 @@ class CQL(Algorithm):
         self.cql_critic_opt = torch.optim.Adam(self.cql_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         self.alpha_opt = torch.optim.Adam([self.cql_loss.log_alpha], lr=cfg.lr_actor)
         # the Lagrange variant's multiplier (its own optimiser: gradient ascent on the gap)
-        self.alpha_prime_opt = (torch.optim.Adam([self.cql_loss.log_alpha_prime], lr=cfg.lr_critic)
-                                if cfg.cql.cql_lagrange_thresh > 0 else None)
+        self.alpha_prime_opt = (
+            torch.optim.Adam([self.cql_loss.log_alpha_prime], lr=cfg.lr_critic) if cfg.cql.cql_lagrange_thresh > 0 else None
+        )
         self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         # tanh(loc) as a module sharing the actor's weights; kept out of the module tree
         # (its weights are the actor's, already in the state dict)
@@ -126,7 +142,8 @@ class CQL(Algorithm):
         opts = [self.actor_opt, self.cql_critic_opt, self.alpha_opt]
         if self.alpha_prime_opt is not None:  # Lagrange form: α' scales the penalty, and ascends on it
             penalty, loss_alpha_prime, alpha_prime, gap = lagrange_terms(
-                out["loss_cql"], self.cql_loss.log_alpha_prime, self.cfg.cql.cql_lagrange_thresh)
+                out["loss_cql"], self.cql_loss.log_alpha_prime, self.cfg.cql.cql_lagrange_thresh
+            )
             penalty = penalty + loss_alpha_prime  # disjoint gradients: critics | log α'
             lagrange = {"loss_alpha_prime": loss_alpha_prime.detach(), "alpha_prime": alpha_prime, "cql_gap": gap}
             opts.append(self.alpha_prime_opt)

@@ -144,9 +144,13 @@ def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
         raise UserError("dataset columns have different lengths")
     expert = "action.expert" in cols
     if expert and np.asarray(cols["action.expert"]).shape != np.asarray(cols["action"]).shape:
-        raise UserError(f"dataset column 'action.expert' has shape {np.asarray(cols['action.expert']).shape}, "
-                        f"expected that of 'action' {np.asarray(cols['action']).shape}")
-    for k in ("observation.state", "action", "observation.desired_goal", "next.observation.state") + (("action.expert",) if expert else ()):
+        raise UserError(
+            f"dataset column 'action.expert' has shape {np.asarray(cols['action.expert']).shape}, "
+            f"expected that of 'action' {np.asarray(cols['action']).shape}"
+        )
+    for k in ("observation.state", "action", "observation.desired_goal", "next.observation.state") + (
+        ("action.expert",) if expert else ()
+    ):
         if not np.isfinite(cols[k]).all():
             raise UserError(f"dataset column {k!r} holds NaN or inf")
     if info["checksum"] is None:
@@ -178,8 +182,9 @@ def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
     )
 
 
-def make_buffer(data: Dataset, batch_size: int, generator: torch.Generator,
-                device: str | torch.device = "cpu") -> TensorDictReplayBuffer:
+def make_buffer(
+    data: Dataset, batch_size: int, generator: torch.Generator, device: str | torch.device = "cpu"
+) -> TensorDictReplayBuffer:
     """A torchrl ``TensorDictReplayBuffer`` over the whole dataset, sampling uniformly
     with replacement (thesis Alg. 2, line 3). Its ``TensorStorage`` wraps the dataset's
     own tensors (no copy: one copy of a multi-GB dataset in memory, not two)."""
@@ -206,9 +211,20 @@ class GoalBatchSampler:
     plus ``state``/``goal``/``next_state`` in physical units and the ``relabelled`` mask.
     No Python loop over the batch; every random draw comes from ``generator``."""
 
-    def __init__(self, data: Dataset, normalizer, batch_size: int, delta: float, generator: torch.Generator, device="cpu",
-                 future: dict | None = None, mc_gamma: float | None = None, augment: str = "none",
-                 critic_random_goal_prob: float = 0.0, bc_target: str = "expert"):
+    def __init__(
+        self,
+        data: Dataset,
+        normalizer,
+        batch_size: int,
+        delta: float,
+        generator: torch.Generator,
+        device="cpu",
+        future: dict | None = None,
+        mc_gamma: float | None = None,
+        augment: str = "none",
+        critic_random_goal_prob: float = 0.0,
+        bc_target: str = "expert",
+    ):
         from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
         self._relabel, self._reward_done = relabel_goals, reward_done
@@ -246,8 +262,14 @@ class GoalBatchSampler:
         index = b.get("index")
         state, next_state = b.get("state"), b.get("next_state")
         goal, relabelled, k = self._relabel(
-            b.get("goal"), index, b.get("episode_end"), self.achieved_goals, self.delta, self.generator,
-            return_index=True, **self.future
+            b.get("goal"),
+            index,
+            b.get("episode_end"),
+            self.achieved_goals,
+            self.delta,
+            self.generator,
+            return_index=True,
+            **self.future,
         )
         reward, done = self._reward_done(next_state, goal)
         extra = {}
@@ -292,7 +314,8 @@ class GoalBatchSampler:
         if self.device.type != "cpu":
             dev = self.device
             state, next_state, goal, reward, done, action = (
-                t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, action))
+                t.to(dev, non_blocking=True) for t in (state, next_state, goal, reward, done, action)
+            )
             extra = {key: t.to(dev, non_blocking=True) for key, t in extra.items()}
             more = {key: t.to(dev, non_blocking=True) for key, t in more.items()}
         norm = self.normalizer
@@ -323,8 +346,9 @@ class GoalBatchSampler:
         )
 
 
-def fit_normalizer(data: Dataset, delta: float, seed: int = 0, future: dict | None = None,
-                   bc_target: str = "expert") -> Normalizer:
+def fit_normalizer(
+    data: Dataset, delta: float, seed: int = 0, future: dict | None = None, bc_target: str = "expert"
+) -> Normalizer:
     """Input statistics over every frame with its desired goal and with a relabelled
     (strictly later achieved, drawn as in training: ``future``) goal, action bounds over
     every frame's BC target (what the policy's [-1, 1] output must span; flown noisy

@@ -37,8 +37,13 @@ class GCSL(Algorithm):
             warnings.filterwarnings("ignore", message=".*target_actor_network_params.*")
             self.bc_loss = BCLoss(self.actor, loss_function="l2")
         self.critic_loss = make_critic_loss(
-            self.actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma,
-            delay_actor=False, policy_noise=0.0, noise_clip=0.0,
+            self.actor,
+            critic_sizes(cfg),
+            num_critics=cfg.num_critics,
+            gamma=cfg.gamma,
+            delay_actor=False,
+            policy_noise=0.0,
+            noise_clip=0.0,
         )
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr_actor)

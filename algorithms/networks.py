@@ -106,8 +106,13 @@ class ClippedTD0Estimator(TD0Estimator):
     before a goal; the bound gives every step of an expert trajectory its value at once,
     and on expert data it is close to the value itself. Off in the ``thesis`` preset."""
 
-    def value_estimate(self, tensordict: TensorDict, target_params: TensorDict | None = None,
-                       next_value: torch.Tensor | None = None, **kwargs: Any) -> torch.Tensor:
+    def value_estimate(
+        self,
+        tensordict: TensorDict,
+        target_params: TensorDict | None = None,
+        next_value: torch.Tensor | None = None,
+        **kwargs: Any,
+    ) -> torch.Tensor:
         """The TD(0) target ``r + gamma (1 - done) V'`` clipped to [0, 1], raised to the
         Monte-Carlo lower bound ``mc_lower_bound`` where the batch has one."""
         v = super().value_estimate(tensordict, target_params=target_params, next_value=next_value, **kwargs).clamp(0.0, 1.0)
@@ -199,8 +204,9 @@ class EnsembleSoftUpdate(SoftUpdate):
         self.initialized = True
 
 
-def ensemble_values(loss: LossModule, observation: torch.Tensor, action: torch.Tensor,
-                    params: TensorDict | None = None) -> torch.Tensor:
+def ensemble_values(
+    loss: LossModule, observation: torch.Tensor, action: torch.Tensor, params: TensorDict | None = None
+) -> torch.Tensor:
     """(num_critics, B) values of every critic of a torchrl loss's vmapped ensemble."""
     params = loss.qvalue_network_params if params is None else params
     n = params.batch_size[0]

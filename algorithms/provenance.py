@@ -66,8 +66,14 @@ def device_info(device: str = "cpu") -> dict:
     when ``device`` is CUDA: what a run records for its timings."""
     import torch
 
-    info = {"device": str(device), "cpu": cpu_model(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
-            "omp_num_threads": os.environ.get("OMP_NUM_THREADS"), "gpu": None}
+    info = {
+        "device": str(device),
+        "cpu": cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+        "gpu": None,
+    }
     if str(device).startswith("cuda") and torch.cuda.is_available():
         dev = torch.device(device)
         info["gpu"] = torch.cuda.get_device_name(dev.index if dev.index is not None else torch.cuda.current_device())
@@ -77,5 +83,9 @@ def device_info(device: str = "cpu") -> dict:
 
 def provenance(device: str = "cpu") -> dict:
     """Everything above, with the host and the time it was taken."""
-    return {"git": git_state(), "versions": package_versions(), "machine": {**device_info(device), "host": socket.gethostname(),
-            "platform": platform.platform()}, "time": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    return {
+        "git": git_state(),
+        "versions": package_versions(),
+        "machine": {**device_info(device), "host": socket.gethostname(), "platform": platform.platform()},
+        "time": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }

@@ -28,8 +28,15 @@ from aerohrl import task
 FUTURE_STRATEGIES = ("uniform", "geometric")
 
 
-def sample_future_index(index: torch.Tensor, episode_end: torch.Tensor, generator: torch.Generator | None = None, *,
-                        strategy: str = "uniform", window: int = 0, mean: float = 30.0) -> torch.Tensor:
+def sample_future_index(
+    index: torch.Tensor,
+    episode_end: torch.Tensor,
+    generator: torch.Generator | None = None,
+    *,
+    strategy: str = "uniform",
+    window: int = 0,
+    mean: float = 30.0,
+) -> torch.Tensor:
     """A strictly later step ``k in (j, end]`` of the same episode for each ``j``
     (``k = j`` where ``j`` is the last step of its episode). The offset ``k - j >= 1`` is
 
@@ -95,8 +102,9 @@ def first_hit_index(next_state: torch.Tensor, goal: torch.Tensor, episode_end: t
     return torch.where((t >= j) & (t <= episode_end), t, torch.full_like(t, -1))
 
 
-def mc_lower_bound(index: torch.Tensor, k: torch.Tensor, relabelled: torch.Tensor, first_hit: torch.Tensor,
-                   gamma: float) -> torch.Tensor:
+def mc_lower_bound(
+    index: torch.Tensor, k: torch.Tensor, relabelled: torch.Tensor, first_hit: torch.Tensor, gamma: float
+) -> torch.Tensor:
     """A lower bound on the discounted return of the data's own continuation (MCAC,
     Wilcox et al. 2022), per transition ``j`` with sparse reward and termination at the
     first success: ``gamma^(k - j)`` for a goal relabelled with the achieved goal of step

@@ -65,12 +65,12 @@ LOCK_NAME = ".lock"
 class Layout:
     """Where a kind of run keeps its checkpoints and config, and what its checkpoints hold."""
 
-    checkpoint: str        # relative path; ``{step}`` is filled in (a fixed name: one checkpoint)
-    glob: str              # what matches every checkpoint of the run
-    format: str            # the checkpoint's "format" entry
-    toml: str | None       # the TOML twin of config.json, if this stack writes one
-    weights_only: bool     # checkpoints hold tensors and plain containers only
-    section: str           # the key of config.json holding the training config
+    checkpoint: str  # relative path; ``{step}`` is filled in (a fixed name: one checkpoint)
+    glob: str  # what matches every checkpoint of the run
+    format: str  # the checkpoint's "format" entry
+    toml: str | None  # the TOML twin of config.json, if this stack writes one
+    weights_only: bool  # checkpoints hold tensors and plain containers only
+    section: str  # the key of config.json holding the training config
 
 
 LAYOUTS = {
@@ -109,16 +109,18 @@ def _warn_unverified(folder: Path) -> None:
         warn(f"the checkpoints in {folder} have no .sha256 files (written before checkpoints had checksums); loaded unverified")
 
 
-def load_checkpoint(path: str | Path, map_location: Any = "cpu", *, format: str = CHECKPOINT_FORMAT,
-                    weights_only: bool = False) -> dict:
+def load_checkpoint(
+    path: str | Path, map_location: Any = "cpu", *, format: str = CHECKPOINT_FORMAT, weights_only: bool = False
+) -> dict:
     """A checkpoint file, its SHA-256 verified; CheckpointDamaged (one line naming the file)
     when it differs, is unreadable or is not a ``format`` checkpoint. One written before
     checkpoints had checksums loads with a warning."""
     path = Path(path)
     if not path.exists():
         raise UserError(f"no checkpoint at {path}")
-    ck = atomic.torch_load(path, map_location=map_location, weights_only=weights_only,
-                           warn=lambda _: _warn_unverified(path.parent))
+    ck = atomic.torch_load(
+        path, map_location=map_location, weights_only=weights_only, warn=lambda _: _warn_unverified(path.parent)
+    )
     if not isinstance(ck, dict) or ck.get("format") != format:
         raise CheckpointDamaged(f"{path} is not an aerohrl checkpoint")
     return ck
@@ -230,8 +232,11 @@ def set_rng_state(st: Mapping[str, Any], generators: Mapping[str, "torch.Generat
         gen.set_state(st[name])
     if "numpy" in st:
         n = st["numpy"]
-        np.random.set_state(n if not isinstance(n, dict) else
-                            (n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"]))
+        np.random.set_state(
+            n
+            if not isinstance(n, dict)
+            else (n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached"])
+        )
     if "python" in st:
         random.setstate(_python_state(st["python"]))
     if "cuda" in st and torch.cuda.is_available():
@@ -244,8 +249,13 @@ def _np_state_tensors() -> dict:
 
     state: Any = np.random.get_state()  # the legacy tuple
     name, keys, pos, has_gauss, cached = state
-    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
-            "has_gauss": int(has_gauss), "cached": float(cached)}
+    return {
+        "name": name,
+        "keys": torch.from_numpy(keys.astype(np.int64)),
+        "pos": int(pos),
+        "has_gauss": int(has_gauss),
+        "cached": float(cached),
+    }
 
 
 def _python_state(st: Any) -> tuple:
@@ -318,8 +328,9 @@ class MetricsLog:
 
             os.environ.setdefault("WANDB_MODE", "offline")
             os.environ.setdefault("WANDB_SILENT", "true")
-            self.wandb = WandbLogger(exp_name=run_dir.name, offline=True, save_dir=str(run_dir), project="aerohrl",
-                                     id=run_dir.name, resume="allow")
+            self.wandb = WandbLogger(
+                exp_name=run_dir.name, offline=True, save_dir=str(run_dir), project="aerohrl", id=run_dir.name, resume="allow"
+            )
 
     def write(self, record: dict) -> None:
         """Append ``record`` to ``metrics.jsonl`` (flushed) and its numeric values to
@@ -365,8 +376,14 @@ def dataset_identity(data: "Dataset") -> dict:
     from any folder), the version (to find it again when it moved) and its checksum."""
     i = data.info
     path = str(Path(i["path"]).resolve()) if i.get("path") else None
-    return {"path": path, "version": i.get("version"), "checksum": i.get("checksum"),
-            "shapes": i.get("shapes"), "frames": i.get("frames"), "episodes": i.get("episodes")}
+    return {
+        "path": path,
+        "version": i.get("version"),
+        "checksum": i.get("checksum"),
+        "shapes": i.get("shapes"),
+        "frames": i.get("frames"),
+        "episodes": i.get("episodes"),
+    }
 
 
 def locate_dataset(identity: dict, run_dir: str | Path, override: str | Path | None = None) -> Path:
@@ -386,8 +403,10 @@ def locate_dataset(identity: dict, run_dir: str | Path, override: str | Path | N
         if found:
             warn(f"the run's dataset {recorded} is gone; using {found[0]} (same version {version}; its checksum is checked)")
             return found[0]
-    raise UserError(f"the run's dataset {recorded or '(none recorded)'} (version {version}) is missing and no "
-                    f"datasets/*/{version} was found; pass --dataset PATH")
+    raise UserError(
+        f"the run's dataset {recorded or '(none recorded)'} (version {version}) is missing and no "
+        f"datasets/*/{version} was found; pass --dataset PATH"
+    )
 
 
 def check_same_dataset(expected: dict, data: "Dataset") -> None:
@@ -452,8 +471,9 @@ class Run:
         if not atomic.new_folder(path):
             if (path / CONFIG_NAME).exists():
                 raise UserError(f"run {path} exists; use --resume {path} to continue it")
-            raise UserError(f"run folder {path} is taken (another run is starting there, or it is a leftover); "
-                            "choose another --name")
+            raise UserError(
+                f"run folder {path} is taken (another run is starting there, or it is a leftover); choose another --name"
+            )
         return cls(path, kind)
 
     @classmethod
@@ -613,9 +633,11 @@ class Run:
             raise UserError(f"{self.path}: no {self.layout.glob} to resume from")
         if self.layout.glob == self.layout.checkpoint:  # one checkpoint, no older one to fall back to
             raise CheckpointDamaged(damaged[0][1])
-        raise CheckpointDamaged(f"no intact checkpoint to resume from: {damaged[0][1]}"
-                                + (f" (and the {len(damaged) - 1} older ones)" if len(damaged) > 1 else "")
-                                + f"; delete {self.path / CKPT_DIR} to start the run over")
+        raise CheckpointDamaged(
+            f"no intact checkpoint to resume from: {damaged[0][1]}"
+            + (f" (and the {len(damaged) - 1} older ones)" if len(damaged) > 1 else "")
+            + f"; delete {self.path / CKPT_DIR} to start the run over"
+        )
 
     def set_aside(self) -> list[str]:
         """The names of the checkpoints an earlier resume set aside as damaged."""
@@ -636,6 +658,26 @@ class Run:
         return MetricsLog(self.path, keep_until, logger=logger, key=key)
 
 
-__all__ = ["Run", "RunLock", "MetricsLog", "Layout", "LAYOUTS", "CHECKPOINT_FORMAT", "CKPT_DIR", "LOGGERS", "check_logger",
-           "new_run_dir", "read_json", "read_metrics", "checkpoint_step", "load_checkpoint", "checkpoint_problem",
-           "rng_state", "set_rng_state", "seed_everything", "dataset_identity", "locate_dataset", "check_same_dataset"]
+__all__ = [
+    "Run",
+    "RunLock",
+    "MetricsLog",
+    "Layout",
+    "LAYOUTS",
+    "CHECKPOINT_FORMAT",
+    "CKPT_DIR",
+    "LOGGERS",
+    "check_logger",
+    "new_run_dir",
+    "read_json",
+    "read_metrics",
+    "checkpoint_step",
+    "load_checkpoint",
+    "checkpoint_problem",
+    "rng_state",
+    "set_rng_state",
+    "seed_everything",
+    "dataset_identity",
+    "locate_dataset",
+    "check_same_dataset",
+]

@@ -135,9 +135,17 @@ def eval_results(run_dir: str | Path) -> list[dict]:
         try:
             d = json.loads(f.read_text())
             steps = [int(c["step"]) for c in d.get("checkpoints", [])]
-            out.append({"name": f.parent.name, "success": 100 * float(d["success_mean"]), "std": 100 * float(d["success_std"]),
-                        "near": 100 * float(d["near_success_mean"]), "checkpoints": len(steps), "episodes": int(d["episodes"]),
-                        "steps": (min(steps), max(steps)) if steps else (0, 0)})
+            out.append(
+                {
+                    "name": f.parent.name,
+                    "success": 100 * float(d["success_mean"]),
+                    "std": 100 * float(d["success_std"]),
+                    "near": 100 * float(d["near_success_mean"]),
+                    "checkpoints": len(steps),
+                    "episodes": int(d["episodes"]),
+                    "steps": (min(steps), max(steps)) if steps else (0, 0),
+                }
+            )
         except (OSError, ValueError, KeyError, TypeError):
             out.append({"name": f.parent.name, "damaged": True})
     return out

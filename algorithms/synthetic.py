@@ -17,8 +17,17 @@ def straight_columns(n_eps: int = 4, length: int = 30, seed: int = 0) -> dict:
     length when ``length`` is a list)."""
     rng = np.random.default_rng(seed)
     lengths = length if isinstance(length, (list, tuple)) else [length] * n_eps
-    cols = {k: [] for k in ("observation.state", "action", "observation.desired_goal", "next.observation.state",
-                            "episode_index", "frame_index")}
+    cols = {
+        k: []
+        for k in (
+            "observation.state",
+            "action",
+            "observation.desired_goal",
+            "next.observation.state",
+            "episode_index",
+            "frame_index",
+        )
+    }
     dt = 0.01
     for e, L in enumerate(lengths):
         v = rng.uniform(-1.5, 1.5, 3)
@@ -49,8 +58,7 @@ def straight_columns(n_eps: int = 4, length: int = 30, seed: int = 0) -> dict:
     return out
 
 
-def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version: str = "synthetic-1",
-                            fps: int = 100) -> Path:
+def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version: str = "synthetic-1", fps: int = 100) -> Path:
     """Write ``cols`` (default: :func:`straight_columns`) as a dataset folder the way
     ``datagen build`` does (LeRobot v3.0 files + meta/aerohrl.json with checksums)."""
     from pathlib import Path
@@ -60,9 +68,23 @@ def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version:
     from aerohrl.datagen.manifest import write_manifest
 
     cols = straight_columns() if cols is None else cols
-    frame_keys = ("observation.state", "action", "observation.desired_goal", "next.observation.state",
-                  "next.reward", "next.done", "next.success")
+    frame_keys = (
+        "observation.state",
+        "action",
+        "observation.desired_goal",
+        "next.observation.state",
+        "next.reward",
+        "next.done",
+        "next.success",
+    )
     write_dataset(root, {k: cols[k] for k in frame_keys}, cols["episode_index"], fps=fps)
-    write_manifest(root, {"format": FORMAT, "name": "synthetic", "version": version,
-                          "spec": {"name": "synthetic", "vehicle": "hummingbird", "fps": fps, "substeps": 5}})
+    write_manifest(
+        root,
+        {
+            "format": FORMAT,
+            "name": "synthetic",
+            "version": version,
+            "spec": {"name": "synthetic", "vehicle": "hummingbird", "fps": fps, "substeps": 5},
+        },
+    )
     return Path(root)

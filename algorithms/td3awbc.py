@@ -50,13 +50,19 @@ class TD3AWBCLoss(TD3BCLoss):
         a = tensordict.get(self.tensor_keys.action)
         n, batch = self.num_qvalue_nets, tensordict.batch_size
         params = self._cached_detach_qvalue_network_params
-        q_pi = self._vmap_qvalue_network00(
-            td.select(*self.qvalue_network.in_keys, strict=False).expand(n, *batch), params
-        ).get(self.tensor_keys.state_action_value).squeeze(-1)  # (n, B), grad to pi only
+        q_pi = (
+            self._vmap_qvalue_network00(td.select(*self.qvalue_network.in_keys, strict=False).expand(n, *batch), params)
+            .get(self.tensor_keys.state_action_value)
+            .squeeze(-1)
+        )  # (n, B), grad to pi only
         with torch.no_grad():
-            q_data = self._vmap_qvalue_network00(
-                tensordict.select(*self.qvalue_network.in_keys, strict=False).expand(n, *batch), params
-            ).get(self.tensor_keys.state_action_value).squeeze(-1)
+            q_data = (
+                self._vmap_qvalue_network00(
+                    tensordict.select(*self.qvalue_network.in_keys, strict=False).expand(n, *batch), params
+                )
+                .get(self.tensor_keys.state_action_value)
+                .squeeze(-1)
+            )
             adv = q_data.mean(0) - q_pi.detach().mean(0)
             if self.awr_normalize == "std":
                 adv = adv / (adv.std() + 1e-6)
@@ -67,8 +73,14 @@ class TD3AWBCLoss(TD3BCLoss):
         awr_loss = (w * sq).mean()
         lmbd = self.alpha / q_pi[0].abs().mean().detach()
         loss = -lmbd * q_pi[0].mean() + bc_loss + awr_loss
-        meta = {"bc_loss": bc_loss.detach(), "awr_loss": awr_loss.detach(), "lmbd": lmbd, "awr_weight": w.mean(),
-                "awr_weight_std": w.std(), "awr_clipped": (raw >= self.awr_max_weight).float().mean()}
+        meta = {
+            "bc_loss": bc_loss.detach(),
+            "awr_loss": awr_loss.detach(),
+            "lmbd": lmbd,
+            "awr_weight": w.mean(),
+            "awr_weight_std": w.std(),
+            "awr_clipped": (raw >= self.awr_max_weight).float().mean(),
+        }
         return loss, meta
 
 
@@ -77,8 +89,15 @@ class TD3AWBC(TD3BC):
 
     def _make_loss(self, cfg, actor):
         loss = make_critic_loss(
-            actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma, delay_actor=True,
-            policy_noise=cfg.td3bc.policy_noise, noise_clip=cfg.td3bc.noise_clip, alpha=cfg.td3bc.alpha, loss_cls=TD3AWBCLoss,
+            actor,
+            critic_sizes(cfg),
+            num_critics=cfg.num_critics,
+            gamma=cfg.gamma,
+            delay_actor=True,
+            policy_noise=cfg.td3bc.policy_noise,
+            noise_clip=cfg.td3bc.noise_clip,
+            alpha=cfg.td3bc.alpha,
+            loss_cls=TD3AWBCLoss,
         )
         loss.awr_temperature = cfg.td3awbc.awr_temperature
         loss.awr_max_weight = cfg.td3awbc.awr_max_weight
@@ -86,8 +105,13 @@ class TD3AWBC(TD3BC):
         return loss
 
     def _actor_extras(self, meta):
-        return {"lambda": meta["lmbd"].detach(), "awr_loss": meta["awr_loss"], "awr_weight": meta["awr_weight"],
-                "awr_weight_std": meta["awr_weight_std"], "awr_clipped": meta["awr_clipped"]}
+        return {
+            "lambda": meta["lmbd"].detach(),
+            "awr_loss": meta["awr_loss"],
+            "awr_weight": meta["awr_weight"],
+            "awr_weight_std": meta["awr_weight_std"],
+            "awr_clipped": meta["awr_clipped"],
+        }
 
 
 __all__ = ["TD3AWBC", "TD3AWBCLoss", "TD3AWBCConfig"]

@@ -36,8 +36,14 @@ class TD3BC(Algorithm):
 
     def _make_loss(self, cfg, actor):
         return make_critic_loss(
-            actor, critic_sizes(cfg), num_critics=cfg.num_critics, gamma=cfg.gamma, delay_actor=True,
-            policy_noise=cfg.td3bc.policy_noise, noise_clip=cfg.td3bc.noise_clip, alpha=cfg.td3bc.alpha,
+            actor,
+            critic_sizes(cfg),
+            num_critics=cfg.num_critics,
+            gamma=cfg.gamma,
+            delay_actor=True,
+            policy_noise=cfg.td3bc.policy_noise,
+            noise_clip=cfg.td3bc.noise_clip,
+            alpha=cfg.td3bc.alpha,
         )
 
     def __init__(self, cfg, normalizer):

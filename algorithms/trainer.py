@@ -25,8 +25,16 @@ from aerohrl.algorithms import config as C
 from aerohrl.algorithms.base import Algorithm, build_algorithm
 from aerohrl.algorithms.data import Dataset, GoalBatchSampler, fit_normalizer, load_dataset
 from aerohrl.algorithms.networks import Normalizer
-from aerohrl.algorithms.run import (Run, RunLock, check_logger, check_same_dataset, dataset_identity, rng_state,
-                                    seed_everything, set_rng_state)
+from aerohrl.algorithms.run import (
+    Run,
+    RunLock,
+    check_logger,
+    check_same_dataset,
+    dataset_identity,
+    rng_state,
+    seed_everything,
+    set_rng_state,
+)
 from aerohrl.errors import UserError
 from aerohrl.hardware import resolve_amp
 
@@ -57,9 +65,19 @@ Evaluator = Callable[[Algorithm, int], dict]
 class Trainer:
     """Owns a run: the algorithm, the batch sampler, the checkpoints and the logs."""
 
-    def __init__(self, run_dir: str | Path | Run, cfg: C.TrainConfig, data: Dataset, *, progress: bool = True,
-                 evaluators: dict[str, Evaluator] | None = None, lock: RunLock | None = None,
-                 logger: str = "tensorboard", progress_every_s: float = 0.0, progress_every_steps: int = 0):
+    def __init__(
+        self,
+        run_dir: str | Path | Run,
+        cfg: C.TrainConfig,
+        data: Dataset,
+        *,
+        progress: bool = True,
+        evaluators: dict[str, Evaluator] | None = None,
+        lock: RunLock | None = None,
+        logger: str = "tensorboard",
+        progress_every_s: float = 0.0,
+        progress_every_steps: int = 0,
+    ):
         self.run = run_dir if isinstance(run_dir, Run) else Run(run_dir)
         self.run_dir = self.run.path
         self.cfg = cfg
@@ -86,10 +104,19 @@ class Trainer:
             self._resume()
         else:
             self._fresh()
-        self.sampler = GoalBatchSampler(data, self.algo.normalizer, cfg.batch_size, cfg.relabel_prob, self.generator, device=self.device,
-                                        future=C.relabel_future(cfg), mc_gamma=cfg.gamma if cfg.mc_lower_bound else None,
-                                        augment=cfg.augment, critic_random_goal_prob=cfg.critic_random_goal_prob,
-                                        bc_target=cfg.bc_target)
+        self.sampler = GoalBatchSampler(
+            data,
+            self.algo.normalizer,
+            cfg.batch_size,
+            cfg.relabel_prob,
+            self.generator,
+            device=self.device,
+            future=C.relabel_future(cfg),
+            mc_gamma=cfg.gamma if cfg.mc_lower_bound else None,
+            augment=cfg.augment,
+            critic_random_goal_prob=cfg.critic_random_goal_prob,
+            bc_target=cfg.bc_target,
+        )
         if ckpts:
             set_rng_state(self._pending_rng, {"sampler": self.generator})
 
@@ -102,10 +129,16 @@ class Trainer:
         self.dataset = dataset_identity(self.data)
         from aerohrl.algorithms.provenance import provenance
 
-        self.run.write_config({"config": C.to_dict(cfg), "dataset": self.dataset,
-                               "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                               "logger": self.logger, "provenance": provenance(cfg.device)},
-                              toml=C.to_toml(cfg))  # the same config, for `train --config RUN/run.toml`
+        self.run.write_config(
+            {
+                "config": C.to_dict(cfg),
+                "dataset": self.dataset,
+                "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "logger": self.logger,
+                "provenance": provenance(cfg.device),
+            },
+            toml=C.to_toml(cfg),
+        )  # the same config, for `train --config RUN/run.toml`
         self.resumed_from = None
 
     def _resume(self):
@@ -134,18 +167,22 @@ class Trainer:
         """Save weights, optimisers, RNG states and metric sums as
         ``RUN/checkpoints/step-N.pt`` (atomic, with a SHA-256 sidecar), keep the newest
         ``keep_checkpoints``; returns the path."""
-        return self.run.save_checkpoint({
-            "step": self.step,
-            "algo": self.cfg.algo,
-            "config": C.to_dict(self.cfg),
-            "dataset": self.dataset,
-            "model": self.algo.state_dict(),
-            "optimizers": {k: o.state_dict() for k, o in self.algo.optimizers().items()},
-            "extra": self.algo.extra_state(),
-            "rng": rng_state({"sampler": self.generator}),
-            "metrics_acc": {**self._acc, "seconds": self._acc["seconds"] + time.perf_counter() - self._t0},
-            "time": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        }, self.step, keep=self.cfg.keep_checkpoints)
+        return self.run.save_checkpoint(
+            {
+                "step": self.step,
+                "algo": self.cfg.algo,
+                "config": C.to_dict(self.cfg),
+                "dataset": self.dataset,
+                "model": self.algo.state_dict(),
+                "optimizers": {k: o.state_dict() for k, o in self.algo.optimizers().items()},
+                "extra": self.algo.extra_state(),
+                "rng": rng_state({"sampler": self.generator}),
+                "metrics_acc": {**self._acc, "seconds": self._acc["seconds"] + time.perf_counter() - self._t0},
+                "time": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            },
+            self.step,
+            keep=self.cfg.keep_checkpoints,
+        )
 
     # --- the loop -----------------------------------------------------------------
     def _default_evaluators(self) -> dict[str, Evaluator]:
@@ -169,8 +206,11 @@ class Trainer:
         rate); marked partial when a resume lost the sums of its first steps."""
         acc = self._acc
         acc["seconds"] += time.perf_counter() - self._t0
-        rec = {"step": self.step, **{k: v / acc["count"] for k, v in acc["sums"].items()},
-               "steps_per_s": acc["count"] / max(acc["seconds"], 1e-9)}
+        rec = {
+            "step": self.step,
+            **{k: v / acc["count"] for k, v in acc["sums"].items()},
+            "steps_per_s": acc["count"] / max(acc["seconds"], 1e-9),
+        }
         if not self._acc_restored:
             rec["partial"] = True  # averages acc["count"] steps, fewer than an uninterrupted run's line
             self._acc_restored = True
@@ -193,9 +233,14 @@ class Trainer:
             raise
         if self.evaluators is None:
             self.evaluators = self._default_evaluators()
-        bar = tqdm(total=cfg.steps, initial=self.step, disable=not self.progress, desc=f"{cfg.algo}", unit="step", dynamic_ncols=True)
-        lines = (ProgressLines(f"train {cfg.algo} {self.run_dir.name}", self.step, cfg.steps, *self.progress_every)
-                 if not self.progress and any(self.progress_every) else None)
+        bar = tqdm(
+            total=cfg.steps, initial=self.step, disable=not self.progress, desc=f"{cfg.algo}", unit="step", dynamic_ncols=True
+        )
+        lines = (
+            ProgressLines(f"train {cfg.algo} {self.run_dir.name}", self.step, cfg.steps, *self.progress_every)
+            if not self.progress and any(self.progress_every)
+            else None
+        )
         self._t0 = time.perf_counter()
         try:
             self.algo.train()
@@ -255,8 +300,15 @@ class Trainer:
 # ----------------------------------------------------------------------------- entry points
 
 
-def start_run(cfg: C.TrainConfig, run_dir: str | Path, *, data: Dataset | None = None, progress: bool = True,
-              evaluators: dict[str, Evaluator] | None = None, **trainer_kw: Any) -> Trainer:
+def start_run(
+    cfg: C.TrainConfig,
+    run_dir: str | Path,
+    *,
+    data: Dataset | None = None,
+    progress: bool = True,
+    evaluators: dict[str, Evaluator] | None = None,
+    **trainer_kw: Any,
+) -> Trainer:
     """A new run in ``run_dir`` (config.json written, no step taken yet). Everything that
     can be refused (config values, the device, the dataset) is checked before the folder
     is created, exclusively; a failure after that removes it again."""
@@ -286,9 +338,16 @@ def start_run(cfg: C.TrainConfig, run_dir: str | Path, *, data: Dataset | None =
         raise
 
 
-def resume_run(run_dir: str | Path | Run, *, data: Dataset | None = None, progress: bool = True,
-               evaluators: dict[str, Evaluator] | None = None, overrides: dict | None = None, logger: str | None = None,
-               **trainer_kw: Any) -> Trainer:
+def resume_run(
+    run_dir: str | Path | Run,
+    *,
+    data: Dataset | None = None,
+    progress: bool = True,
+    evaluators: dict[str, Evaluator] | None = None,
+    overrides: dict | None = None,
+    logger: str | None = None,
+    **trainer_kw: Any,
+) -> Trainer:
     """Continue ``run_dir`` from its newest intact checkpoint (or from scratch when it has none)."""
     run = Run.open(run_dir, kind="train")
     meta, cfg = run.meta, run.config
@@ -349,8 +408,11 @@ class ProgressLines:
         rate = (step - self.last_step) / max(now - self.last_t, 1e-9)
         eta = (self.total - step) / rate if rate > 0 else float("inf")
         losses = "  ".join(f"{k} {v / self.count:.4g}" for k, v in self.sums.items()) if self.count else ""
-        text = (f"{self.name}: step {step:,}/{self.total:,} ({100 * step / max(self.total, 1):.1f}%)  {rate:.1f} steps/s"
-                + (f"  {losses}" if losses else "") + f"  ETA {_duration(eta)}")
+        text = (
+            f"{self.name}: step {step:,}/{self.total:,} ({100 * step / max(self.total, 1):.1f}%)  {rate:.1f} steps/s"
+            + (f"  {losses}" if losses else "")
+            + f"  ETA {_duration(eta)}"
+        )
         print(text, file=self.out, flush=True)
         self._reset(step)
         return text

@@ -68,10 +68,13 @@ def main() -> int:
     for name, module, args in COMMANDS:
         argv = [sys.executable, "-m", module, *args, "--help"]
         best = min(time_once(argv) for _ in range(a.repeat))
-        probe = subprocess.run([sys.executable, "-c", PROBE.format(prog=name, args=[*args, "--help"], module=module,
-                                                                   heavy=HEAVY)],
-                               capture_output=True, text=True, check=False)
-        heavy = next((ln[len("HEAVY="):] for ln in probe.stderr.splitlines() if ln.startswith("HEAVY=")), "?")
+        probe = subprocess.run(
+            [sys.executable, "-c", PROBE.format(prog=name, args=[*args, "--help"], module=module, heavy=HEAVY)],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        heavy = next((ln[len("HEAVY=") :] for ln in probe.stderr.splitlines() if ln.startswith("HEAVY=")), "?")
         worst = max(worst, best)
         print(f"{name:<28} {best:>10.3f}  {heavy or '-'}")
     print(f"slowest: {worst:.3f} s (target < 1 s)")

@@ -90,8 +90,11 @@ def main():
             ru = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu0 = ru.ru_utime + ru.ru_stime
             t0 = time.perf_counter()
-            p = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", str(n), "--out", d, "--quiet",
-                                *a.recipe], capture_output=True, text=True)
+            p = subprocess.run(
+                [sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", str(n), "--out", d, "--quiet", *a.recipe],
+                capture_output=True,
+                text=True,
+            )
             wall = time.perf_counter() - t0
             if p.returncode != 0:
                 sys.exit(f"build failed: {p.stderr.strip()}")
@@ -109,15 +112,31 @@ def main():
 def sharded(a):
     from aerohrl.hardware import describe_cpu
 
-    print(f"cpu: {describe_cpu()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}   "
-          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}   load average at start: {os.getloadavg()[0]:.2f}")
+    print(
+        f"cpu: {describe_cpu()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}   "
+        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}   load average at start: {os.getloadavg()[0]:.2f}"
+    )
     print(f"{'goals':>7} {'workers':>7} {'wall s':>8} {'ms/goal':>8} {'speed-up':>8} {'peak RSS GB (tree)':>19}  frames")
     for n in sorted(a.goals):
         base = None
         for w in a.workers:
             with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_TMP")) as d:
-                wall, rss, out, _ = run_build([sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", str(n), "--out", d,
-                                               "--quiet", "--workers", str(w), *a.recipe])
+                wall, rss, out, _ = run_build(
+                    [
+                        sys.executable,
+                        "-m",
+                        "aerohrl.datagen.cli",
+                        "build",
+                        "--goals",
+                        str(n),
+                        "--out",
+                        d,
+                        "--quiet",
+                        "--workers",
+                        str(w),
+                        *a.recipe,
+                    ]
+                )
             base = base or wall
             frames = out.split(" frames")[0].rsplit(" ", 1)[-1]
             print(f"{n:>7} {w:>7} {wall:>8.1f} {1000 * wall / n:>8.2f} {base / wall:>8.2f} {rss:>19.2f}  {frames}", flush=True)

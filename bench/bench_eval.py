@@ -62,19 +62,27 @@ def main(argv=None) -> int:
 
     print(f"cpu: {describe_cpu()}")
     n = a.episodes
-    goals = data.desired_goals().numpy().astype(np.float64)[:n] if a.dataset else \
-        goal_vectors(sample_goals(np.random.default_rng(0), n))
+    goals = (
+        data.desired_goals().numpy().astype(np.float64)[:n]
+        if a.dataset
+        else goal_vectors(sample_goals(np.random.default_rng(0), n))
+    )
     n = len(goals)
-    eps = EpisodeSet("reach-desired", hover_states(n), goals, np.full(n, a.horizon), -np.ones(n, int), np.zeros(n, int),
-                     np.zeros(n, int))
-    rollout(algo, EpisodeSet("reach-desired", hover_states(n), goals, np.full(n, 5), eps.source_episode, eps.start_frame,
-                             eps.steps_ahead))  # warm-up
+    eps = EpisodeSet(
+        "reach-desired", hover_states(n), goals, np.full(n, a.horizon), -np.ones(n, int), np.zeros(n, int), np.zeros(n, int)
+    )
+    rollout(
+        algo,
+        EpisodeSet("reach-desired", hover_states(n), goals, np.full(n, 5), eps.source_episode, eps.start_frame, eps.steps_ahead),
+    )  # warm-up
     t0 = time.perf_counter()
     r = rollout(algo, eps)
     dt = time.perf_counter() - t0
     flown = int(r["steps"].max())
-    print(f"reach-desired: {n} episodes x {a.horizon} steps ({flown} flown, success {100 * r['success'].mean():.1f}%): "
-          f"{dt:.2f} s  [{what}; {a.threads} torch thread(s)]")
+    print(
+        f"reach-desired: {n} episodes x {a.horizon} steps ({flown} flown, success {100 * r['success'].mean():.1f}%): "
+        f"{dt:.2f} s  [{what}; {a.threads} torch thread(s)]"
+    )
     if a.planner:
         cand = candidates_from_dataset(data, a.candidates)
         G = ood_goals(n, 0)

@@ -53,21 +53,21 @@ def _rl_planner(env, run=None):
 
     from aerohrl.ipp.features import N_FEAT
     from aerohrl.ipp.policy import ActorCritic, PolicyConfig, RLPlanner, load_policy
+
     torch.set_num_threads(1)
     obs = env.observe()
     if run is not None:
         model = load_policy(run)
         if getattr(model, "env_kind", "targets") != env.cfg.kind:
-            raise SystemExit(f"{run}: policy trained on {model.env_kind} worlds, "
-                             f"not {env.cfg.kind}")
+            raise SystemExit(f"{run}: policy trained on {model.env_kind} worlds, not {env.cfg.kind}")
         return RLPlanner(env, model)
-    model = ActorCritic(obs["maps"].shape[1], obs["maps"].shape[2], obs["vec"].shape[1],
-                        env.lat.n_actions, PolicyConfig(), n_feat=N_FEAT).eval()
+    model = ActorCritic(
+        obs["maps"].shape[1], obs["maps"].shape[2], obs["vec"].shape[1], env.lat.n_actions, PolicyConfig(), n_feat=N_FEAT
+    ).eval()
     return RLPlanner(env, model)
 
 
-def planning_ms(lat, name: str, n: int, decisions: int, cfg=None, run=None,
-                warmup: int = 0) -> float:
+def planning_ms(lat, name: str, n: int, decisions: int, cfg=None, run=None, warmup: int = 0) -> float:
     """ms per (environment, decision) over ``decisions`` batched decisions, after
     ``warmup`` untimed ones (one-time table builds, the start at hover)."""
     cfg = cfg or EnvConfig()
@@ -96,8 +96,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=None, help="target-search planning batch")
     ap.add_argument("--run", help="trained policy (run directory or .pt) for the rl rows")
     ap.add_argument("--sem-batch", type=int, default=None, help="semantic planning batch")
-    ap.add_argument("--sem-decisions", type=int, default=None,
-                    help="semantic: timed decisions (after 2 untimed ones)")
+    ap.add_argument("--sem-decisions", type=int, default=None, help="semantic: timed decisions (after 2 untimed ones)")
     ap.add_argument("--sem-run", help="trained semantic policy for the semantic rl row")
     ap.add_argument("--sem-only", action="store_true", help="only the semantic table")
     ap.add_argument("--planners", help="comma-separated subset of the planners to time")
@@ -113,8 +112,7 @@ def main() -> None:
     slat, scfg = semantic_lattice(), semantic_config()
     n, dec = (2, 3) if a.quick else (4, 5)
     n, dec = a.sem_batch or n, a.sem_decisions or dec
-    print(f"\nsemantic 256 x 256: planning ms per decision ({n} envs batched, {dec} decisions "
-          "after 2 untimed)")
+    print(f"\nsemantic 256 x 256: planning ms per decision ({n} envs batched, {dec} decisions after 2 untimed)")
     print("| planner | ms/decision |\n|---|---|")
     for name in names:
         ms = planning_ms(slat, name, n, dec, scfg, run=a.sem_run, warmup=2)
@@ -126,7 +124,7 @@ def target_tables(a, names) -> None:
     print(f"lattice: {lat.n_vertices} vertices, {lat.n_prims} primitives, {lat.n_actions} slots")
     print("\nenv steps/s (random valid primitives; step = sense + update + rewards + obs)")
     print("| batch | steps/s | obs ms/batch |\n|---|---|---|")
-    for n in ((1, 16, 64) if a.quick else (1, 16, 64, 256)):
+    for n in (1, 16, 64) if a.quick else (1, 16, 64, 256):
         sps, obs_ms = env_steps_per_s(lat, n, 20 if a.quick else 40)
         print(f"| {n} | {sps:,.0f} | {obs_ms:.2f} |")
     n, dec = (10, 5) if a.quick else (20, 10)

@@ -67,14 +67,18 @@ def main() -> int:
     from aerohrl.hardware import describe_cpu
 
     print(f"cpu: {describe_cpu()}")
-    print(f"bisection: [{ref.T_LO}, {ref.T_HI}] s, tol {ref.TOL} s, a_max {ref.A_MAX} m/s^2, "
-          f"n_samples {ref.N_SAMPLES}, OSQP eps {ref.OSQP_SETTINGS['eps_abs']}, max_iter {ref.OSQP_SETTINGS['max_iter']}")
+    print(
+        f"bisection: [{ref.T_LO}, {ref.T_HI}] s, tol {ref.TOL} s, a_max {ref.A_MAX} m/s^2, "
+        f"n_samples {ref.N_SAMPLES}, OSQP eps {ref.OSQP_SETTINGS['eps_abs']}, max_iter {ref.OSQP_SETTINGS['max_iter']}"
+    )
     for n in (250, 10_000):
         x0, xf = states(n)
         ref.min_time(x0[:8], xf[:8])  # warm-up
         dt, (T, _, f) = best_of(args.repeat, lambda: ref.min_time(x0, xf))
-        print(f"closed-form min-time, batched N={n:>6}: {dt / n * 1e6:8.2f} us/reference "
-              f"({dt * 1e3:.1f} ms total; feasible {f.mean():.3f}, mean T {T[f].mean():.3f} s)")
+        print(
+            f"closed-form min-time, batched N={n:>6}: {dt / n * 1e6:8.2f} us/reference "
+            f"({dt * 1e3:.1f} ms total; feasible {f.mean():.3f}, mean T {T[f].mean():.3f} s)"
+        )
 
     n = args.qp_refs
     x0, xf = states(n)
@@ -84,12 +88,16 @@ def main() -> int:
             t = time.perf_counter()
             T, _, f = ref.min_time(x0, xf, solver="qp", degree=degree)
             dt = time.perf_counter() - t
-        print(f"QP min-time, degree {degree}, N={n}: {dt / n * 1e6:9.1f} us/reference "
-              f"({cnt.n / n:.1f} QP solves/reference, {cnt.seconds / cnt.n * 1e6:.1f} us/solve incl. infeasible ones)")
+        print(
+            f"QP min-time, degree {degree}, N={n}: {dt / n * 1e6:9.1f} us/reference "
+            f"({cnt.n / n:.1f} QP solves/reference, {cnt.seconds / cnt.n * 1e6:.1f} us/solve incl. infeasible ones)"
+        )
         T_cf = ref.min_time(x0, xf)[0] if degree == 5 else None
         dt, (_, ok) = best_of(args.repeat, lambda: ref.min_jerk_qp(x0, xf, T, degree=degree))
-        print(f"  single QP solve at the found T (cold start, solved): {dt / (3 * n) * 1e6:8.1f} us/solve "
-              f"(feasible {ok.mean():.2f})")
+        print(
+            f"  single QP solve at the found T (cold start, solved): {dt / (3 * n) * 1e6:8.1f} us/solve "
+            f"(feasible {ok.mean():.2f})"
+        )
         if T_cf is not None:
             d = T_cf - T
             print(f"  degree-5 QP vs closed form: equal T for {np.mean(d == 0):.3f}, max |dT| {np.abs(d).max():.4f} s")

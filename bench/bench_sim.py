@@ -48,15 +48,15 @@ def main() -> int:
     ap.add_argument("--batches", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
     ap.add_argument("--seconds", type=float, default=1.0, help="time budget per batch size")
     ap.add_argument("--threads", type=int, default=1, help="thread split of the batch (default 1)")
-    ap.add_argument("--processes", type=int, default=1,
-                    help="process split of the batch (this process + workers over shared memory)")
+    ap.add_argument(
+        "--processes", type=int, default=1, help="process split of the batch (this process + workers over shared memory)"
+    )
     ap.add_argument("--preset", default="hummingbird")
     args = ap.parse_args()
     load = os.getloadavg()
     from aerohrl.hardware import describe_cpu
 
-    print(f"# {describe_cpu()}, numpy {np.__version__}, "
-          f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    print(f"# {describe_cpu()}, numpy {np.__version__}, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     print(f"# preset {args.preset}, dt 0.01 s, 5 RK4 substeps, CTBR rate loop at 500 Hz")
     print(f"{'batch':>7} {'split':>7} {'ms/step':>9} {'veh-steps/s (best)':>19} {'(median)':>12}")
     for n in args.batches:

@@ -78,15 +78,20 @@ def main(argv=None) -> int:
     from aerohrl.hardware import describe_cpu, resolve_amp
 
     print(f"cpu: {describe_cpu()}; torch capability {torch.backends.cpu.get_cpu_capability()}")
-    print(f"torch {torch.__version__}, device {device}{gpu}, {a.threads} threads, amp {a.amp or 'preset'}, dataset "
-          f"{data.info['version']} ({len(data)} frames), preset {a.preset}")
+    print(
+        f"torch {torch.__version__}, device {device}{gpu}, {a.threads} threads, amp {a.amp or 'preset'}, dataset "
+        f"{data.info['version']} ({len(data)} frames), preset {a.preset}"
+    )
     print(f"resident after loading the dataset: {_peak_gb():.2f} GB (peak so far)")
-    print(f"{'algo':8s} {'steps/s':>8s} {'loop ms':>8s} {'update ms':>9s} {'overhd ms':>9s} {'sample ms':>9s} {'non-network':>11s}"
-          + (f" {'compiled ms':>11s} {'compile s':>9s}" if a.compile else ""))
+    print(
+        f"{'algo':8s} {'steps/s':>8s} {'loop ms':>8s} {'update ms':>9s} {'overhd ms':>9s} {'sample ms':>9s} {'non-network':>11s}"
+        + (f" {'compiled ms':>11s} {'compile s':>9s}" if a.compile else "")
+    )
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     for algo in a.algos:
-        cfg = make_config(a.preset, algo=algo, steps=10**9, eval_every=0, log_every=200, checkpoint_every=10**9, amp=a.amp,
-                          device=str(device))
+        cfg = make_config(
+            a.preset, algo=algo, steps=10**9, eval_every=0, log_every=200, checkpoint_every=10**9, amp=a.amp, device=str(device)
+        )
         cfg = dataclasses.replace(cfg, amp=resolve_amp(cfg.amp, device)[0])
         amp = torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.amp == "bf16")
         with tempfile.TemporaryDirectory() as tmp:
@@ -119,10 +124,14 @@ def main(argv=None) -> int:
             alg2 = build_algorithm(cfg, norm).to(device)
             compiled, warm = _time_updates(torch.compile(alg2.update), batches, amp, sync)
             extra = f" {1e3 * compiled:11.2f} {warm:9.1f}"
-        print(f"{algo:8s} {1 / loop:8.1f} {1e3 * loop:8.2f} {1e3 * update:9.2f} {1e3 * overhead:9.2f} {1e3 * sample:9.2f} "
-              f"{100 * share:10.1f}%" + extra)
+        print(
+            f"{algo:8s} {1 / loop:8.1f} {1e3 * loop:8.2f} {1e3 * update:9.2f} {1e3 * overhead:9.2f} {1e3 * sample:9.2f} "
+            f"{100 * share:10.1f}%" + extra
+        )
         sys.stdout.flush()
-    print(f"peak resident memory of the whole bench: {_peak_gb():.2f} GB (dataset once, one run at a time, {a.steps} held batches)")
+    print(
+        f"peak resident memory of the whole bench: {_peak_gb():.2f} GB (dataset once, one run at a time, {a.steps} held batches)"
+    )
     return 0
 
 
@@ -167,11 +176,17 @@ def flops(a, device) -> int:
             b = s.sample()
             with profile(activities=[ProfilerActivity.CPU], with_flops=True) as prof:
                 alg.update(b)
-        total = sum(e.flops or 0 for e in prof.events() if e.name.startswith("aten::")
-                    and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::")))
+        total = sum(
+            e.flops or 0
+            for e in prof.events()
+            if e.name.startswith("aten::") and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::"))
+        )
         # top-level aten operators (not those called inside another): about one kernel launch each on a GPU
-        ops = sum(1 for e in prof.events() if e.name.startswith("aten::")
-                  and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::")))
+        ops = sum(
+            1
+            for e in prof.events()
+            if e.name.startswith("aten::") and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::"))
+        )
         print(f"{algo:8s} {total / 1e9:10.2f} {ops:13d}")
     return 0
 

@@ -90,7 +90,9 @@ class BuildResult:
 
 
 def plan_references(
-    spec: DatasetSpec, rng: np.random.Generator, n: int | None = None,
+    spec: DatasetSpec,
+    rng: np.random.Generator,
+    n: int | None = None,
     sample_starts: Callable[[int], tuple[np.ndarray, np.ndarray | None]] | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Sample rho_D and solve each goal's minimum-time reference; resample infeasible goals.
@@ -146,9 +148,17 @@ class Rollout:
     expert_actions: np.ndarray | None = None  # (kmax, N, 4): the clean command, with action noise
 
 
-def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool = True,
-                   start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None,
-                   record_rotors: bool = False, noise_rng: np.random.Generator | None = None) -> Rollout:
+def rollout_expert(
+    spec: DatasetSpec,
+    goals: dict,
+    T: np.ndarray,
+    coeffs: np.ndarray,
+    progress: bool = True,
+    start_state: np.ndarray | None = None,
+    rotor_speeds: np.ndarray | None = None,
+    record_rotors: bool = False,
+    noise_rng: np.random.Generator | None = None,
+) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
 
     Episode i records steps k = 0 .. ceil(T_i * fps) - 1: state s_k, action a_k and
@@ -168,8 +178,12 @@ def rollout_expert(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.nda
     kmax = int(length.max())
     sim = BatchedQuadrotor(params, n, dt=dt, substeps=spec.substeps)
     ctrl = GeometricController(params)
-    out = Rollout(np.empty((kmax + 1, n, task.STATE_DIM)), np.empty((kmax, n, task.ACTION_DIM)), length,
-                  np.empty((kmax + 1, n, 4)) if record_rotors else None)
+    out = Rollout(
+        np.empty((kmax + 1, n, task.STATE_DIM)),
+        np.empty((kmax, n, task.ACTION_DIM)),
+        length,
+        np.empty((kmax + 1, n, 4)) if record_rotors else None,
+    )
     states, actions = out.states, out.actions
     noise = None
     if spec.noisy:
@@ -231,8 +245,18 @@ class _Frames:
     success: np.ndarray  # (F,) the goal-reached test at the next state
 
 
-def _fly_block(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, start_state, rotor_speeds,
-               record_rotors: bool, part: int, block: int, progress: bool = False) -> dict:
+def _fly_block(
+    spec: DatasetSpec,
+    goals: dict,
+    T: np.ndarray,
+    coeffs: np.ndarray,
+    start_state,
+    rotor_speeds,
+    record_rotors: bool,
+    part: int,
+    block: int,
+    progress: bool = False,
+) -> dict:
     """One block's flights (:func:`rollout_expert`), returned as its recorded frames,
     episode-major: what a worker process or Ray task sends back. A function of its
     arguments alone (noise stream ``[spec.seed, 11, part, block]``), so the bytes do not
@@ -261,10 +285,19 @@ def block_bounds(n: int, block: int | None = None) -> np.ndarray:
     return np.linspace(0, n, -(-n // block) + 1).round().astype(np.int64)
 
 
-def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-               start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None,
-               record_rotors: bool = False,
-               runner: BlockRunner | None = None) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
+def fly_blocks(
+    spec: DatasetSpec,
+    goals: dict,
+    T: np.ndarray,
+    coeffs: np.ndarray,
+    progress: bool,
+    *,
+    part: int,
+    start_state: np.ndarray | None = None,
+    rotor_speeds: np.ndarray | None = None,
+    record_rotors: bool = False,
+    runner: BlockRunner | None = None,
+) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
     ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
     episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of
@@ -277,23 +310,42 @@ def fly_blocks(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray
 
     def args(b):
         sl = slice(int(bounds[b]), int(bounds[b + 1]))
-        return (spec, {key: v[sl] for key, v in goals.items()}, T[sl], coeffs[sl],
-                None if start_state is None else start_state[sl], None if rotor_speeds is None else rotor_speeds[sl],
-                record_rotors, part, b)
+        return (
+            spec,
+            {key: v[sl] for key, v in goals.items()},
+            T[sl],
+            coeffs[sl],
+            None if start_state is None else start_state[sl],
+            None if rotor_speeds is None else rotor_speeds[sl],
+            record_rotors,
+            part,
+            b,
+        )
 
     if runner is None or nb < 2:
         results = (_fly_block(*args(b), progress=progress) for b in range(nb))
     else:
         results = runner.map(_fly_block, (args(b) for b in range(nb)))
-    for b, r in enumerate(tqdm(results, total=nb, desc="expert blocks", unit="block", disable=None if progress and nb >= 3 else True,
-                               leave=False)):
+    for b, r in enumerate(
+        tqdm(results, total=nb, desc="expert blocks", unit="block", disable=None if progress and nb >= 3 else True, leave=False)
+    ):
         yield int(bounds[b]), int(bounds[b + 1]), r
         del r
 
 
-def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progress: bool, *, part: int,
-        start_state: np.ndarray | None = None, rotor_speeds: np.ndarray | None = None, record_rotors: bool = False,
-        runner: BlockRunner | None = None) -> _Frames:
+def fly(
+    spec: DatasetSpec,
+    goals: dict,
+    T: np.ndarray,
+    coeffs: np.ndarray,
+    progress: bool,
+    *,
+    part: int,
+    start_state: np.ndarray | None = None,
+    rotor_speeds: np.ndarray | None = None,
+    record_rotors: bool = False,
+    runner: BlockRunner | None = None,
+) -> _Frames:
     """All frames of :func:`fly_blocks` in arrays allocated once (their size is known from
     T): what :func:`generate` keeps in memory. ``datagen build`` streams the blocks to
     disk instead (:func:`stream_dataset`)."""
@@ -303,11 +355,28 @@ def fly(spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray, progr
     first = np.concatenate([[0], np.cumsum(length)[:-1]])
     ep = np.repeat(np.arange(n), length)
     k = np.arange(F) - np.repeat(first, length)
-    fr = _Frames(ep, k, np.empty((F, task.STATE_DIM)), np.empty((F, task.ACTION_DIM)), np.empty((F, task.STATE_DIM)),
-                 np.empty((F, task.ACTION_DIM)) if spec.noisy else None, np.empty((F, 4)) if record_rotors else None,
-                 np.empty(F, bool))
-    for lo, hi, r in fly_blocks(spec, goals, T, coeffs, progress, part=part, start_state=start_state,
-                                rotor_speeds=rotor_speeds, record_rotors=record_rotors, runner=runner):
+    fr = _Frames(
+        ep,
+        k,
+        np.empty((F, task.STATE_DIM)),
+        np.empty((F, task.ACTION_DIM)),
+        np.empty((F, task.STATE_DIM)),
+        np.empty((F, task.ACTION_DIM)) if spec.noisy else None,
+        np.empty((F, 4)) if record_rotors else None,
+        np.empty(F, bool),
+    )
+    for lo, hi, r in fly_blocks(
+        spec,
+        goals,
+        T,
+        coeffs,
+        progress,
+        part=part,
+        start_state=start_state,
+        rotor_speeds=rotor_speeds,
+        record_rotors=record_rotors,
+        runner=runner,
+    ):
         f0, f1 = first[lo], first[hi - 1] + length[hi - 1]
         fr.state[f0:f1] = r["state"]
         fr.action[f0:f1] = r["action"]
@@ -349,7 +418,7 @@ class BlockRunner:
         from collections import deque
 
         window = deque()
-        submit = ((lambda a: self._ray_fn.remote(*a)) if self._ray_fn is not None else (lambda a: self._pool.submit(fn, *a)))
+        submit = (lambda a: self._ray_fn.remote(*a)) if self._ray_fn is not None else (lambda a: self._pool.submit(fn, *a))
         get = (lambda f: self._ray.get(f)) if self._ray_fn is not None else (lambda f: f.result())
         for a in arg_iter:
             window.append(submit(a))
@@ -365,9 +434,9 @@ class BlockRunner:
             self._pool = None
 
 
-def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.ndarray, ep: np.ndarray, k: np.ndarray,
-                       state: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int,
-                                                   np.ndarray | None]:
+def plan_continuations(
+    spec: DatasetSpec, rng: np.random.Generator, coeffs: np.ndarray, ep: np.ndarray, k: np.ndarray, state: np.ndarray
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Starts and references of the continuation episodes (``spec.continuations``).
 
     A start is a recorded frame of a rest-start flight, drawn uniformly (``ep``, ``k``,
@@ -379,6 +448,7 @@ def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.n
     rho_D sample, relative to the start as every goal is. Returns (goals, T, coeffs,
     resampled, frames): ``frames`` indexes the source frames.
     """
+
     def sample_starts(m):
         f = rng.integers(0, len(ep), size=m)
         t = k[f] * spec.dt
@@ -389,9 +459,9 @@ def plan_continuations(spec: DatasetSpec, rng: np.random.Generator, coeffs: np.n
     return plan_references(spec, rng, spec.continuations, sample_starts)
 
 
-def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray,
-                   coeffs: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray | None,
-                                                np.ndarray]:
+def episode_starts(
+    spec: DatasetSpec, goals: dict, T: np.ndarray, coeffs: np.ndarray
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
     """The goal episodes of the recipe: each goal flown ``rollouts_per_goal`` times
     (goal-major), from rest or from perturbed starts. Returns (goals, T, coeffs,
     start_state or None, goal_index). A perturbed start whose reference to its goal is
@@ -411,15 +481,25 @@ def episode_starts(spec: DatasetSpec, goals: dict, T: np.ndarray,
     todo = np.arange(m)
     T, coeffs = T.copy(), coeffs.copy()
     for _ in range(20):
-        T2, c2, ok = reference.min_time(x0[todo], xf[todo], a_max=spec.a_max, t_lo=0.0, t_hi=spec.t_max,
-                                        tol=spec.bisection_tol, solver=spec.solver, degree=spec.degree)
+        T2, c2, ok = reference.min_time(
+            x0[todo],
+            xf[todo],
+            a_max=spec.a_max,
+            t_lo=0.0,
+            t_hi=spec.t_max,
+            tol=spec.bisection_tol,
+            solver=spec.solver,
+            degree=spec.degree,
+        )
         T[todo[ok]], coeffs[todo[ok]] = T2[ok], c2[ok]
         todo = todo[~ok]
         if todo.size == 0:
             return goals, T, coeffs, start, goal_index
         start[todo], x0[todo] = recipes.sample_start_states(rng, todo.size, spec.start_vel, spec.start_tilt, spec.start_rate)
-    raise UserError(f"{todo.size} goals have no feasible reference from 20 perturbed starts within t_max={spec.t_max} s; "
-                    "lower --start-vel or raise --t-max")
+    raise UserError(
+        f"{todo.size} goals have no feasible reference from 20 perturbed starts within t_max={spec.t_max} s; "
+        "lower --start-vel or raise --t-max"
+    )
 
 
 def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | None" = None) -> ExpertData:
@@ -452,8 +532,10 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
         source_frame = np.concatenate([source_frame, k[f]])
         goal_index = np.concatenate([goal_index, np.full(len(T2), -1, np.int64)])
         ep, k = np.concatenate([ep, fr2.ep + n]), np.concatenate([k, fr2.k])
-        state, action, next_state, success = (np.concatenate(x) for x in ((state, fr2.state), (action, fr2.action),
-                                                                          (next_state, fr2.next_state), (success, fr2.success)))
+        state, action, next_state, success = (
+            np.concatenate(x)
+            for x in ((state, fr2.state), (action, fr2.action), (next_state, fr2.next_state), (success, fr2.success))
+        )
         if expert_action is not None:
             expert_action = np.concatenate([expert_action, fr2.expert_action])
     del fr
@@ -461,13 +543,26 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
 
     rate = float(np.bincount(ep, weights=success, minlength=len(T)).astype(bool).mean())
     if rate < MIN_EXPERT_SUCCESS:
-        raise UserError(f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
-                        f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges")
+        raise UserError(
+            f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
+            f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges"
+        )
     goal_vec = goals_mod.goal_vectors(goals)
     data = ExpertData(
-        goals=goals, goal_vec=goal_vec, T=T, length=length, episode_index=ep.astype(np.int64), frame_index=k.astype(np.int64),
-        state=state, action=action, next_state=next_state, success=success, resampled=resampled,
-        source_episode=source_episode, source_frame=source_frame, action_expert=expert_action,
+        goals=goals,
+        goal_vec=goal_vec,
+        T=T,
+        length=length,
+        episode_index=ep.astype(np.int64),
+        frame_index=k.astype(np.int64),
+        state=state,
+        action=action,
+        next_state=next_state,
+        success=success,
+        resampled=resampled,
+        source_episode=source_episode,
+        source_frame=source_frame,
+        action_expert=expert_action,
         goal_index=goal_index if spec.rollouts_per_goal > 1 else None,
     )
     data.timings = {"references_s": t1 - t0, "rollout_s": t2 - t1, "frames_s": time.perf_counter() - t2}
@@ -522,25 +617,42 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
         del r
     rate = float(success.mean())
     if rate < MIN_EXPERT_SUCCESS:
-        raise UserError(f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
-                        f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges")
-    return EpisodeSummary(goals, goal_vec, T, length, success, first, final, resampled,
-                          np.full(n, -1, np.int64), np.full(n, -1, np.int64),
-                          goal_index if spec.rollouts_per_goal > 1 else None)
+        raise UserError(
+            f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
+            f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges"
+        )
+    return EpisodeSummary(
+        goals,
+        goal_vec,
+        T,
+        length,
+        success,
+        first,
+        final,
+        resampled,
+        np.full(n, -1, np.int64),
+        np.full(n, -1, np.int64),
+        goal_index if spec.rollouts_per_goal > 1 else None,
+    )
 
 
 def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
     """The LeRobot per-frame features (float32 / bool), docs/spec.md "Expert data"."""
     last = np.r_[data.episode_index[1:] != data.episode_index[:-1], True]
-    return _columns(data.state, data.action, data.goal_vec[data.episode_index], data.next_state, data.success, last,
-                    data.action_expert)
+    return _columns(
+        data.state, data.action, data.goal_vec[data.episode_index], data.next_state, data.success, last, data.action_expert
+    )
 
 
 def _pop_columns(r: dict, goal_rows: np.ndarray, last: np.ndarray) -> dict[str, np.ndarray]:
     """:func:`_columns` of one block's frames (:func:`_fly_block`), each float64 array
     dropped from ``r`` as soon as its float32 copy exists (the block's peak memory)."""
-    out = {"observation.state": r.pop("state").astype(np.float32), "action": r.pop("action").astype(np.float32),
-           "observation.desired_goal": goal_rows, "next.observation.state": r.pop("next_state").astype(np.float32)}
+    out = {
+        "observation.state": r.pop("state").astype(np.float32),
+        "action": r.pop("action").astype(np.float32),
+        "observation.desired_goal": goal_rows,
+        "next.observation.state": r.pop("next_state").astype(np.float32),
+    }
     success = r.pop("success")
     out.update({"next.reward": success.astype(np.float32), "next.done": last, "next.success": success})
     if "expert_action" in r:
@@ -601,9 +713,19 @@ def summarize(data: ExpertData) -> EpisodeSummary:
     first = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
     np.minimum.at(first, data.episode_index[succ], data.frame_index[succ])
     first[first == np.iinfo(np.int64).max] = -1  # never reached
-    return EpisodeSummary(data.goals, data.goal_vec, data.T, data.length, data.episode_success, first,
-                          data.next_state[np.cumsum(data.length) - 1], data.resampled, data.source_episode,
-                          data.source_frame, data.goal_index)
+    return EpisodeSummary(
+        data.goals,
+        data.goal_vec,
+        data.T,
+        data.length,
+        data.episode_success,
+        first,
+        data.next_state[np.cumsum(data.length) - 1],
+        data.resampled,
+        data.source_episode,
+        data.source_frame,
+        data.goal_index,
+    )
 
 
 def episode_table(data: "EpisodeSummary | ExpertData") -> pa.Table:
@@ -631,7 +753,9 @@ def episode_table(data: "EpisodeSummary | ExpertData") -> pa.Table:
         "final_vel_error_mps": pa.array(dv),
         "final_rot_error_rad": pa.array(dr),
     }
-    if data.source_episode is not None and (data.source_episode >= 0).any():  # continuation episodes only (default datasets keep their bytes)
+    if (
+        data.source_episode is not None and (data.source_episode >= 0).any()
+    ):  # continuation episodes only (default datasets keep their bytes)
         cols["start_source_episode"] = pa.array(data.source_episode)
         cols["start_source_frame"] = pa.array(data.source_frame)
     if data.goal_index is not None:  # rollouts_per_goal > 1: several flights of one goal
@@ -657,15 +781,24 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
         "spec_sha256": spec_hash(spec),
         "seed": spec.seed,
         "goal_ranges": {"pos_abs": list(spec.pos_range), "vel": list(spec.vel_range), "acc": list(spec.acc_range), "yaw": 0.0},
-        "start_state": ("origin, zero velocity, hover attitude (R = I), zero body rates" if spec.start_states == "rest"
-                        else "perturbed at the origin (recipe.start_states)"),
-        **({"continuations": {
-            "episodes": int(spec.continuations),
-            "first_episode": int(spec.goals),
-            "start_state": "a recorded state of a rest-start episode (uniform over their frames), moved to the origin; "
-                           "the reference continues that episode's reference from there; goal from rho_D "
-                           "(start_source_episode / start_source_frame in meta/aerohrl_episodes.parquet)",
-        }} if spec.continuations else {}),
+        "start_state": (
+            "origin, zero velocity, hover attitude (R = I), zero body rates"
+            if spec.start_states == "rest"
+            else "perturbed at the origin (recipe.start_states)"
+        ),
+        **(
+            {
+                "continuations": {
+                    "episodes": int(spec.continuations),
+                    "first_episode": int(spec.goals),
+                    "start_state": "a recorded state of a rest-start episode (uniform over their frames), moved to the origin; "
+                    "the reference continues that episode's reference from there; goal from rho_D "
+                    "(start_source_episode / start_source_frame in meta/aerohrl_episodes.parquet)",
+                }
+            }
+            if spec.continuations
+            else {}
+        ),
         **({"recipe": recipe_summary(spec)} if recipe_summary(spec) else {}),
         "vehicle": params.to_dict(),
         "controller": {"name": "Lee/Mellinger geometric controller, CTBR output", "gains": ctrl.gains.to_dict()},
@@ -683,9 +816,14 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
             "next.reward": "1.0 when the next state meets the goal-reached test for the desired goal, else 0.0",
             "next.success": "the goal-reached test at the next state (bool)",
             "next.done": "last recorded step of the episode (reference end T)",
-            **({"action": "CTBR as flown: the expert's command plus the action noise, clipped to the expert's action box",
-                "action.expert": "the clean expert CTBR command at the flown state (what to imitate; DART)"}
-               if spec.noisy else {}),
+            **(
+                {
+                    "action": "CTBR as flown: the expert's command plus the action noise, clipped to the expert's action box",
+                    "action.expert": "the clean expert CTBR command at the flown state (what to imitate; DART)",
+                }
+                if spec.noisy
+                else {}
+            ),
         },
         "environment": {"python": platform.python_version(), "numpy": np.__version__, "pyarrow": pa.__version__},
     }
@@ -695,14 +833,23 @@ def recipe_summary(spec: DatasetSpec) -> dict:
     """The non-default expert-data recipe of a spec, in words and numbers ({} = the thesis's)."""
     r = {}
     if spec.expert == "replan":
-        r["expert"] = (f"replan: shrinking-horizon minimum-jerk re-plan from the flown state every {spec.replan_every} steps, "
-                       f"none in the last {spec.replan_endgame} s")
+        r["expert"] = (
+            f"replan: shrinking-horizon minimum-jerk re-plan from the flown state every {spec.replan_every} steps, "
+            f"none in the last {spec.replan_endgame} s"
+        )
     if spec.noisy:
-        r["action_noise"] = {"sigma": list(spec.action_noise), "tau_s": spec.noise_tau,
-                             "kind": "Ornstein-Uhlenbeck added to the flown command (DART); action = flown, action.expert = clean"}
+        r["action_noise"] = {
+            "sigma": list(spec.action_noise),
+            "tau_s": spec.noise_tau,
+            "kind": "Ornstein-Uhlenbeck added to the flown command (DART); action = flown, action.expert = clean",
+        }
     if spec.start_states == "perturbed":
-        r["start_states"] = {"vel_mps": spec.start_vel, "tilt_rad": spec.start_tilt, "rate_radps": spec.start_rate,
-                             "kind": "origin; v_i, rotation-vector r_i and w_i uniform in +-these bounds"}
+        r["start_states"] = {
+            "vel_mps": spec.start_vel,
+            "tilt_rad": spec.start_tilt,
+            "rate_radps": spec.start_rate,
+            "kind": "origin; v_i, rotation-vector r_i and w_i uniform in +-these bounds",
+        }
     if spec.rollouts_per_goal > 1:
         r["rollouts_per_goal"] = spec.rollouts_per_goal
     return r
@@ -720,8 +867,10 @@ def _recipe_note(meta: dict) -> str:
         lines.append(f"- action noise: {n['kind']}; sigma (c, wx, wy, wz) = {n['sigma']}, correlation time {n['tau_s']} s")
     if "start_states" in r:
         s = r["start_states"]
-        lines.append(f"- start states: {s['kind']}: |v_i| <= {s['vel_mps']} m/s, |r_i| <= {s['tilt_rad']} rad, "
-                     f"|w_i| <= {s['rate_radps']} rad/s")
+        lines.append(
+            f"- start states: {s['kind']}: |v_i| <= {s['vel_mps']} m/s, |r_i| <= {s['tilt_rad']} rad, "
+            f"|w_i| <= {s['rate_radps']} rad/s"
+        )
     if "rollouts_per_goal" in r:
         lines.append(f"- {r['rollouts_per_goal']} flights per goal (goal-major; `goal_index` in meta/aerohrl_episodes.parquet)")
     return "\n".join(lines) + "\n"
@@ -744,30 +893,31 @@ def dataset_card(meta: dict, features: dict | None = None) -> str:
     # The card is one of the dataset's files, so its text is part of the version's bytes:
     # it changes only with GENERATOR_VERSION (its module path for read_columns included).
     s = meta["spec"]
-    return f"""---
+    return (
+        f"""---
 license: mit
 task_categories: [robotics]
 tags: [LeRobot, quadrotor, goal-conditioned, offline-rl, aerohrl]
 ---
-# {meta['name']} — {meta['version']}
+# {meta["name"]} — {meta["version"]}
 
 Expert quadrotor trajectories for offline goal-conditioned RL (thesis §3.4.1), generated
-by `aerohrl.datagen` (generator version {meta['generator']['generator_version']}). A
-{meta['vehicle']['name']} vehicle starts at rest in hover at the origin and flies to each of
-{meta['episodes']} desired goals (position, velocity, attitude){_continuation_note(meta)} under a minimum-time,
-minimum-jerk reference (|a_i| <= {s['a_max']} m/s^2, {s['solver']} solver, degree {s['degree']})
+by `aerohrl.datagen` (generator version {meta["generator"]["generator_version"]}). A
+{meta["vehicle"]["name"]} vehicle starts at rest in hover at the origin and flies to each of
+{meta["episodes"]} desired goals (position, velocity, attitude){_continuation_note(meta)} under a minimum-time,
+minimum-jerk reference (|a_i| <= {s["a_max"]} m/s^2, {s["solver"]} solver, degree {s["degree"]})
 tracked by a Lee/Mellinger geometric controller that outputs CTBR actions, recorded at
-{s['fps']} Hz.
+{s["fps"]} Hz.
 
-- episodes: {meta['episodes']}, frames: {meta['frames']}
-- expert success rate (goal-reached test: 0.15 m, 0.35 m/s, 0.15 rad): {100 * meta['expert_success_rate']:.1f}%
-- goals resampled for infeasibility: {meta['resampled_goals']}
-- seed: {meta['seed']}; goal ranges: |p_i| in {s['pos_range']} m (random sign), v_i in {s['vel_range']} m/s, a_i in {s['acc_range']} m/s^2
+- episodes: {meta["episodes"]}, frames: {meta["frames"]}
+- expert success rate (goal-reached test: 0.15 m, 0.35 m/s, 0.15 rad): {100 * meta["expert_success_rate"]:.1f}%
+- goals resampled for infeasibility: {meta["resampled_goals"]}
+- seed: {meta["seed"]}; goal ranges: |p_i| in {s["pos_range"]} m (random sign), v_i in {s["vel_range"]} m/s, a_i in {s["acc_range"]} m/s^2
 {_recipe_note(meta)}
 ## Load
 ```python
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
-ds = LeRobotDataset("{meta['repo_id']}", root="<this folder>", video_backend="pyav")
+ds = LeRobotDataset("{meta["repo_id"]}", root="<this folder>", video_backend="pyav")
 ```
 (`video_backend="pyav"`: the data hold no video, and naming a backend keeps lerobot from
 probing torchcodec, which logs a long traceback on machines without FFmpeg.) Or
@@ -777,23 +927,35 @@ probing torchcodec, which logs a long traceback on machines without FFmpeg.) Or
 ## Features
 | key | dtype | shape | meaning |
 |---|---|---|---|
-""" + _feature_rows(meta, features) + """
+"""
+        + _feature_rows(meta, features)
+        + """
 `meta/aerohrl.json` holds the full spec, vehicle and controller parameters and the
 SHA-256 of every file; `meta/aerohrl_episodes.parquet` holds per-episode goals,
 durations and expert outcomes. `datagen validate <this folder>` checks integrity.
 """
+    )
 
 
 def _continuation_note(meta: dict) -> str:
     c = meta.get("continuations")
     if not c:
         return ""
-    return (f" (the last {c['episodes']} episodes, from {c['first_episode']} on, are continuations: they start from a "
-            "state one of the rest-start flights passes through, moved to the origin)")
+    return (
+        f" (the last {c['episodes']} episodes, from {c['first_episode']} on, are continuations: they start from a "
+        "state one of the rest-start flights passes through, moved to the origin)"
+    )
 
 
-def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True, log: Callable[[str], Any] = print,
-          force: bool = False, workers: int = 1, ray_address: str | None = None) -> BuildResult:
+def build(
+    spec: DatasetSpec,
+    out: str | Path = "datasets",
+    progress: bool = True,
+    log: Callable[[str], Any] = print,
+    force: bool = False,
+    workers: int = 1,
+    ray_address: str | None = None,
+) -> BuildResult:
     """Build ``<out>/<name>/<version>/`` for ``spec``; verify instead if it exists.
 
     ``workers`` > 1 flies the blocks of :data:`ROLLOUT_BLOCK` episodes in that many local
@@ -826,9 +988,11 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
 
     est = estimate(spec, workers=workers)
     mem, disk = available_memory(), available_disk(parent)
-    log(f"estimate: {est.episodes:,} episodes, {est.frames:,} frames, {human(est.disk)} on disk "
+    log(
+        f"estimate: {est.episodes:,} episodes, {est.frames:,} frames, {human(est.disk)} on disk "
         f"(+{human(est.scratch)} scratch while building), "
-        f"{human(est.memory)} of memory at peak ({human(disk)} disk free, {human(mem)} memory available)")
+        f"{human(est.memory)} of memory at peak ({human(disk)} disk free, {human(mem)} memory available)"
+    )
     short = shortfall(est, mem, disk)
     if short and not force:
         raise UserError(f"this build needs about {short}; build fewer goals, or pass --force to try anyway")
@@ -862,8 +1026,15 @@ def build(spec: DatasetSpec, out: str | Path = "datasets", progress: bool = True
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
-    return BuildResult(final, True, len(summary.T), summary.frames, float(summary.episode_success.mean()), summary.resampled,
-                       time.perf_counter() - t0)
+    return BuildResult(
+        final,
+        True,
+        len(summary.T),
+        summary.frames,
+        float(summary.episode_success.mean()),
+        summary.resampled,
+        time.perf_counter() - t0,
+    )
 
 
 def _verified_existing(spec: DatasetSpec, final: Path, t0: float, log) -> BuildResult:
@@ -877,8 +1048,15 @@ def _verified_existing(spec: DatasetSpec, final: Path, t0: float, log) -> BuildR
         raise UserError(f"{final} exists but holds another spec (spec_sha256 {stored}); delete it to rebuild")
     meta = read_manifest(final)
     log(f"{final} exists: verified {len(meta.get('checksums', {}))} files against their checksums; nothing rebuilt")
-    return BuildResult(final, False, meta["episodes"], meta["frames"], meta["expert_success_rate"], meta["resampled_goals"],
-                       time.perf_counter() - t0)
+    return BuildResult(
+        final,
+        False,
+        meta["episodes"],
+        meta["frames"],
+        meta["expert_success_rate"],
+        meta["resampled_goals"],
+        time.perf_counter() - t0,
+    )
 
 
 def _remove_stale_temporaries(parent: Path) -> None:

@@ -30,8 +30,9 @@ SPEC_CHOICES = {"vehicle": ("hummingbird", "crazyflie"), "solver": SOLVERS, "exp
 def _spec_flags(p: argparse.ArgumentParser) -> None:
     """One flag per DatasetSpec field (``--pos-range 1 2`` for tuples), default None = spec file / default."""
     # each setting's meaning and unit as declared (aerohrl.config.param)
-    helps = {f.name: f.metadata["help"] + (f" ({f.metadata['unit']})" if f.metadata.get("unit") else "")
-             for f in fields(DatasetSpec)}
+    helps = {
+        f.name: f.metadata["help"] + (f" ({f.metadata['unit']})" if f.metadata.get("unit") else "") for f in fields(DatasetSpec)
+    }
     # parse-time checks (aerohrl.cli_types); ranges are any finite LOW < HIGH (DatasetSpec.check)
     nonneg = {"seed", "continuations"}
     nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate"}  # 0 switches the part off
@@ -43,8 +44,14 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
         if f.name == "action_noise":
             p.add_argument(flag, type=T.nonneg_float, nargs="+", metavar="SIGMA", default=None, help=f"{helps[f.name]} [0 = off]")
         elif isinstance(default, tuple):
-            p.add_argument(flag, type=T.finite_float, nargs=2, metavar=("LOW", "HIGH"), default=None,
-                           help=f"{helps[f.name]} [{default[0]} {default[1]}]")
+            p.add_argument(
+                flag,
+                type=T.finite_float,
+                nargs=2,
+                metavar=("LOW", "HIGH"),
+                default=None,
+                help=f"{helps[f.name]} [{default[0]} {default[1]}]",
+            )
         elif isinstance(default, str):
             p.add_argument(flag, default=None, choices=SPEC_CHOICES.get(f.name), help=f"{helps[f.name]} [{default}]")
         elif f.name in nonneg_float:
@@ -60,16 +67,31 @@ def parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
 
     b = sub.add_parser("build", help="generate a dataset (or verify the existing version)")
-    b.add_argument("--spec", type=Path, default=None, help="dataset spec TOML (default: built-in defaults = datasets/quadrotor-reach.toml)")
-    add_common(b, out={"default": Path("datasets"), "help": "root folder: the dataset goes to OUT/NAME/VERSION [datasets]"},
-               quiet=True, threads={"help": "OpenMP/BLAS threads of each process that flies episodes [their default]"},
-               seed={"default": None, "help": "random seed of the goals and noise (>= 0) [0]"})
+    b.add_argument(
+        "--spec", type=Path, default=None, help="dataset spec TOML (default: built-in defaults = datasets/quadrotor-reach.toml)"
+    )
+    add_common(
+        b,
+        out={"default": Path("datasets"), "help": "root folder: the dataset goes to OUT/NAME/VERSION [datasets]"},
+        quiet=True,
+        threads={"help": "OpenMP/BLAS threads of each process that flies episodes [their default]"},
+        seed={"default": None, "help": "random seed of the goals and noise (>= 0) [0]"},
+    )
     b.add_argument("--force", action="store_true", help="build even when the estimate exceeds the free memory or disk")
-    b.add_argument("--workers", type=T.positive_int, default=1, metavar="N",
-                   help="fly the blocks of 8,192 episodes in N local processes (or N Ray tasks at a time with "
-                        "--ray-address); byte-identical to 1 [1]")
-    b.add_argument("--ray-address", default=None, metavar="ADDR",
-                   help="fly the blocks as Ray tasks on the cluster at ADDR (host:port, or auto)")
+    b.add_argument(
+        "--workers",
+        type=T.positive_int,
+        default=1,
+        metavar="N",
+        help="fly the blocks of 8,192 episodes in N local processes (or N Ray tasks at a time with "
+        "--ray-address); byte-identical to 1 [1]",
+    )
+    b.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDR",
+        help="fly the blocks as Ray tasks on the cluster at ADDR (host:port, or auto)",
+    )
     _spec_flags(b)
 
     i = sub.add_parser("info", help="summary, spec, checksums and expert success of a dataset")
@@ -87,17 +109,25 @@ def parser() -> argparse.ArgumentParser:
     x = sub.add_parser("export", help="convert a dataset: minari (Minari dataset), ogbench (OGBench .npz), mcap (one episode)")
     x.add_argument("path", type=Path)
     x.add_argument("--format", required=True, choices=("minari", "ogbench", "mcap"), help="target format")
-    add_common(x, out={
-                   "help": "minari: datasets root [$MINARI_DATASETS_PATH or ~/.minari/datasets]; ogbench: the .npz file "
-                        "[<name>-<version>.npz]; mcap: the .mcap file (required)"})
+    add_common(
+        x,
+        out={
+            "help": "minari: datasets root [$MINARI_DATASETS_PATH or ~/.minari/datasets]; ogbench: the .npz file "
+            "[<name>-<version>.npz]; mcap: the .mcap file (required)"
+        },
+    )
     x.add_argument("--dataset-id", default=None, help="minari: dataset id [aerohrl/<name>/<version>-v0]")
     x.add_argument("--episode", type=T.nonneg_int, default=None, help="mcap: the episode to export")
 
     ps = sub.add_parser("push", help="upload a dataset to the Hugging Face Hub keeping its card, licence and metadata")
     ps.add_argument("path", type=Path)
     ps.add_argument("--repo-id", required=True, help="Hub dataset repo, OWNER/NAME")
-    ps.add_argument("--staging", type=Path, default=None, help="stage the upload in this (new or empty) folder and keep it "
-                    "[a temporary folder]")
+    ps.add_argument(
+        "--staging",
+        type=Path,
+        default=None,
+        help="stage the upload in this (new or empty) folder and keep it [a temporary folder]",
+    )
     ps.add_argument("--dry-run", action="store_true", help="stage only (with --staging: inspect what would be uploaded)")
     ps.add_argument("--private", action="store_true", help="create the repo private")
 
@@ -116,16 +146,22 @@ def cmd_build(a: argparse.Namespace) -> int:
 
     overrides = {f.name: getattr(a, f.name) for f in fields(DatasetSpec)}
     spec = load_spec(a.spec, **overrides)
-    res = build(spec, a.out, progress=progress(a.quiet), force=a.force, workers=a.workers,
-                ray_address=a.ray_address)
+    res = build(spec, a.out, progress=progress(a.quiet), force=a.force, workers=a.workers, ray_address=a.ray_address)
     if res.created:
-        print(f"built {res.path}: {res.episodes} episodes, {res.frames} frames, "
-              f"{res.resampled} goals resampled, in {res.seconds:.1f} s")
-    print(f"expert success rate: {100 * res.expert_success:.1f}% ({round(res.expert_success * res.episodes)}/{res.episodes} "
-          "episodes reach the goal: 0.15 m, 0.35 m/s, 0.15 rad)")
+        print(
+            f"built {res.path}: {res.episodes} episodes, {res.frames} frames, "
+            f"{res.resampled} goals resampled, in {res.seconds:.1f} s"
+        )
+    print(
+        f"expert success rate: {100 * res.expert_success:.1f}% ({round(res.expert_success * res.episodes)}/{res.episodes} "
+        "episodes reach the goal: 0.15 m, 0.35 m/s, 0.15 rad)"
+    )
     if res.expert_success < 0.98:
-        why = ("expected under action noise: the dataset labels every flown state with the clean expert command"
-               if spec.noisy else "the expert's gains are tuned for the hummingbird preset and the default goal ranges")
+        why = (
+            "expected under action noise: the dataset labels every flown state with the clean expert command"
+            if spec.noisy
+            else "the expert's gains are tuned for the hummingbird preset and the default goal ranges"
+        )
         print(f"{PROG}: warning: expert success below 98% on this spec ({why})", file=sys.stderr)
     print(res.path)
     return 0
@@ -149,13 +185,19 @@ def cmd_info(a: argparse.Namespace) -> int:
         f"generator    aerohrl.datagen v{meta['generator']['generator_version']} (aerohrl {meta['generator']['aerohrl_version']})",
         f"episodes     {meta['episodes']}   frames {meta['frames']}   fps {s['fps']}   size {sizes / 1e6:.2f} MB",
         f"goals        seed {meta['seed']}; |p_i| {s['pos_range']} m, v_i {s['vel_range']} m/s, a_i {s['acc_range']} m/s^2; resampled {meta['resampled_goals']}",
-        *([f"continuations {meta['continuations']['episodes']} (episodes {meta['continuations']['first_episode']}.."
-            f"{meta['episodes'] - 1}: from states of the rest-start flights, moved to the origin)"]
-          if meta.get("continuations") else []),
+        *(
+            [
+                f"continuations {meta['continuations']['episodes']} (episodes {meta['continuations']['first_episode']}.."
+                f"{meta['episodes'] - 1}: from states of the rest-start flights, moved to the origin)"
+            ]
+            if meta.get("continuations")
+            else []
+        ),
         f"reference    degree {s['degree']}, {s['solver']}, a_max {s['a_max']} m/s^2; T min/mean/max {d['min']:.2f}/{d['mean']:.2f}/{d['max']:.2f} s",
         f"vehicle      {meta['vehicle']['name']} (mass {meta['vehicle']['mass']} kg), {s['substeps']} RK4 substeps per step",
         f"expert       {100 * meta['expert_success_rate']:.1f}% success (goal-reached test 0.15 m, 0.35 m/s, 0.15 rad)",
-        f"checksums    {len(meta['checksums'])} files, SHA-256: " + ("all match" if not problems else f"{len(problems)} PROBLEM(S), run `datagen validate`"),
+        f"checksums    {len(meta['checksums'])} files, SHA-256: "
+        + ("all match" if not problems else f"{len(problems)} PROBLEM(S), run `datagen validate`"),
     ]
     print("\n".join(lines))
     return 0
@@ -253,7 +295,9 @@ def cmd_push(a: argparse.Namespace) -> int:
         except UserError:
             raise
         except Exception as e:  # the Hub: no network, no token, no rights
-            raise UserError(f"upload to {a.repo_id} failed: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+            raise UserError(
+                f"upload to {a.repo_id} failed: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
+            ) from None
     print(f"pushed {url}")
     return 0
 
@@ -269,8 +313,15 @@ def cmd_plot(a: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"build": cmd_build, "info": cmd_info, "validate": cmd_validate, "export-mcap": cmd_export_mcap, "export": cmd_export,
-            "push": cmd_push, "plot": cmd_plot}
+COMMANDS = {
+    "build": cmd_build,
+    "info": cmd_info,
+    "validate": cmd_validate,
+    "export-mcap": cmd_export_mcap,
+    "export": cmd_export,
+    "push": cmd_push,
+    "plot": cmd_plot,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

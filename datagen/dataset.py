@@ -68,8 +68,9 @@ class UnsupportedDatasetVersion(DatasetError):
     """A dataset in another LeRobot format version than the one this code reads and writes."""
 
     def __init__(self, root: Path, version: object) -> None:
-        super().__init__(f"{root} is a LeRobot {version} dataset; aerohrl reads LeRobot {CODEBASE_VERSION} "
-                         "(rebuild it with `datagen build`)")
+        super().__init__(
+            f"{root} is a LeRobot {version} dataset; aerohrl reads LeRobot {CODEBASE_VERSION} (rebuild it with `datagen build`)"
+        )
 
 
 class DatasetHandle:
@@ -189,5 +190,13 @@ def open_dataset(path: str | Path, *, verify: bool = True) -> DatasetHandle:
     return ds
 
 
-__all__ = ["open_dataset", "DatasetHandle", "DatasetError", "DatasetMissing", "NotAnAerohrlDataset", "DatasetDamaged",
-           "UnsupportedDatasetVersion", "FORMAT"]
+__all__ = [
+    "open_dataset",
+    "DatasetHandle",
+    "DatasetError",
+    "DatasetMissing",
+    "NotAnAerohrlDataset",
+    "DatasetDamaged",
+    "UnsupportedDatasetVersion",
+    "FORMAT",
+]

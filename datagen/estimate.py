@@ -42,7 +42,9 @@ DISK_BYTES_PER_FRAME = 195
 MEMORY_BYTES_PER_FRAME = 650
 MEMORY_BASE = 200e6
 BLOCK_BYTES_PER_EPISODE_STEP = 26 * 8  # states (18) + actions (4) + expert actions (4), float64
-STREAM_BYTES_PER_FRAME = 550  # a block's recorded frames in flight (float64 gathers, float32 columns, stats temporaries; 350-500 measured)
+STREAM_BYTES_PER_FRAME = (
+    550  # a block's recorded frames in flight (float64 gathers, float32 columns, stats temporaries; 350-500 measured)
+)
 EPISODE_BYTES = 800  # per episode for the whole build (goals, coefficients, per-episode results)
 STATS_BYTES_PER_FRAME = 4  # one float32 feature dimension sorted at a time
 SPILL_DIMS = 18  # the widest feature (observation.state): the statistics spill holds one feature at a time
@@ -77,8 +79,12 @@ def estimate(spec: DatasetSpec, workers: int = 1) -> Estimate:
         memory = MEMORY_BASE + block + frames * MEMORY_BYTES_PER_FRAME
     else:
         in_flight = max(1, int(workers))
-        memory = (MEMORY_BASE + in_flight * (block + block_eps * float(steps.mean()) * STREAM_BYTES_PER_FRAME)
-                  + episodes * EPISODE_BYTES + frames * STATS_BYTES_PER_FRAME)
+        memory = (
+            MEMORY_BASE
+            + in_flight * (block + block_eps * float(steps.mean()) * STREAM_BYTES_PER_FRAME)
+            + episodes * EPISODE_BYTES
+            + frames * STATS_BYTES_PER_FRAME
+        )
     return Estimate(episodes, frames, frames * DISK_BYTES_PER_FRAME, memory, spill)
 
 
@@ -120,8 +126,14 @@ def human(n: float) -> str:
 
 def shortfall(est: Estimate, memory: float, disk: float) -> str | None:
     """Why ``est`` does not fit in ``memory`` and ``disk`` bytes, or None."""
-    short = [f"{human(need)} of {what} ({human(free)} {verb})" for what, need, free, verb in
-             (("memory", est.memory, memory, "available"), ("disk", est.disk + est.scratch, disk, "free")) if need > free]
+    short = [
+        f"{human(need)} of {what} ({human(free)} {verb})"
+        for what, need, free, verb in (
+            ("memory", est.memory, memory, "available"),
+            ("disk", est.disk + est.scratch, disk, "free"),
+        )
+        if need > free
+    ]
     return " and ".join(short) or None
 
 

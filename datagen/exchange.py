@@ -102,20 +102,29 @@ def export_minari(root: str | Path, dataset_id: str | None = None, out: str | Pa
         if target.exists():
             raise UserError(f"Minari dataset {dataset_id} exists at {target}; choose another --dataset-id or delete it")
         spec = gym.spec(ENV_ID)  # registered by `import aerohrl` once gymnasium is imported (aerohrl/__init__.py)
-        env_spec = gym.envs.registration.EnvSpec(id=spec.id, entry_point=spec.entry_point, kwargs=env_kwargs(meta),
-                                                 max_episode_steps=None)
+        env_spec = gym.envs.registration.EnvSpec(
+            id=spec.id, entry_point=spec.entry_point, kwargs=env_kwargs(meta), max_episode_steps=None
+        )
         buffers = _minari_buffers(cols, EpisodeBuffer)
         s = meta.get("spec") or {}
         try:
             ds = minari.create_dataset_from_buffers(
-                dataset_id, buffers, env=env_spec, eval_env=env_spec, algorithm_name="aerohrl.datagen expert (Lee/Mellinger geometric controller, "
-                "minimum-time minimum-jerk references)", author="aerohrl", author_email="aerohrl@users.noreply.github.com",
+                dataset_id,
+                buffers,
+                env=env_spec,
+                eval_env=env_spec,
+                algorithm_name="aerohrl.datagen expert (Lee/Mellinger geometric controller, "
+                "minimum-time minimum-jerk references)",
+                author="aerohrl",
+                author_email="aerohrl@users.noreply.github.com",
                 code_permalink="https://github.com/aerohrl/aerohrl",
                 description=f"aerohrl {meta.get('name')} {meta['version']}: {meta['episodes']} expert quadrotor flights "
-                            f"({meta['frames']} steps, seed {meta.get('seed')}, {s.get('goals')} goals) from hover at the origin "
-                            "to goals [p, v, R]; CTBR actions; reward 1 when the goal-reached test holds "
-                            "(0.15 m, 0.35 m/s, 0.15 rad). Exported from the LeRobot v3.0 dataset by `datagen export`.",
-                data_format="arrow", requirements=[f"aerohrl>={aerohrl.__version__}"])
+                f"({meta['frames']} steps, seed {meta.get('seed')}, {s.get('goals')} goals) from hover at the origin "
+                "to goals [p, v, R]; CTBR actions; reward 1 when the goal-reached test holds "
+                "(0.15 m, 0.35 m/s, 0.15 rad). Exported from the LeRobot v3.0 dataset by `datagen export`.",
+                data_format="arrow",
+                requirements=[f"aerohrl>={aerohrl.__version__}"],
+            )
         except ValueError as e:
             raise UserError(f"Minari refused the dataset: {e}") from None
         return Path(ds.storage.data_path).parent
@@ -136,16 +145,27 @@ def _minari_buffers(cols: dict, EpisodeBuffer) -> list:
     starts, ends = _episode_bounds(np.asarray(cols["episode_index"]))
     out = []
     for i, (a0, b) in enumerate(zip(starts, ends)):
-        states = np.concatenate([s[a0:b], ns[b - 1:b]])  # T + 1
+        states = np.concatenate([s[a0:b], ns[b - 1 : b]])  # T + 1
         T = b - a0
         term = np.zeros(T, bool)
         trunc = np.zeros(T, bool)
         term[-1] = succ[b - 1]
         trunc[-1] = not succ[b - 1]
-        out.append(EpisodeBuffer(
-            id=i, observations={"observation": states, "achieved_goal": task.achieved_goal(states),
-                                "desired_goal": np.repeat(g[a0:a0 + 1], T + 1, axis=0)},
-            actions=a[a0:b], rewards=list(r[a0:b]), terminations=list(term), truncations=list(trunc), infos={}))
+        out.append(
+            EpisodeBuffer(
+                id=i,
+                observations={
+                    "observation": states,
+                    "achieved_goal": task.achieved_goal(states),
+                    "desired_goal": np.repeat(g[a0 : a0 + 1], T + 1, axis=0),
+                },
+                actions=a[a0:b],
+                rewards=list(r[a0:b]),
+                terminations=list(term),
+                truncations=list(trunc),
+                infos={},
+            )
+        )
     return out
 
 
@@ -188,6 +208,7 @@ def export_ogbench(root: str | Path, out: str | Path) -> Path:
 
 
 # ----------------------------------------------------------------------------- the Hub
+
 
 def stage_push(root: str | Path, staging: str | Path, license_file: str | Path | None = None) -> Path:
     """Copy dataset ``root`` to ``staging`` as it will be uploaded and return the folder.

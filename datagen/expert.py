@@ -75,11 +75,14 @@ class ControllerGains:
 
 def _cross(a, b):
     """Row-wise cross product of (N, 3) arrays (np.cross has a large per-call overhead)."""
-    return np.stack([
-        a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-        a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-        a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-    ], axis=1)
+    return np.stack(
+        [
+            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+        ],
+        axis=1,
+    )
 
 
 def _dot(a, b):
@@ -106,8 +109,9 @@ class GeometricController:
         hi = np.concatenate([[self._c_max], self._rate_lim])
         return lo, hi
 
-    def desired(self, state: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray, ref_acc: np.ndarray,
-                yaw: float | np.ndarray = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    def desired(
+        self, state: np.ndarray, ref_pos: np.ndarray, ref_vel: np.ndarray, ref_acc: np.ndarray, yaw: float | np.ndarray = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(a_des, e_v)`` (N, 3) each: desired acceleration incl. gravity, and velocity error."""
         s = np.asarray(state, dtype=np.float64)
         e_p = s[:, 0:3] - ref_pos

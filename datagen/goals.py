@@ -77,14 +77,18 @@ def flat_attitude(acc: np.ndarray, yaw: float | np.ndarray = 0.0) -> np.ndarray:
     f[..., 2] += GRAVITY
     fn = np.linalg.norm(f, axis=-1, keepdims=True)
     if (fn < _SINGULAR).any():
-        raise UserError(f"flat_attitude: {int((fn < _SINGULAR).sum())} acceleration(s) equal -g e3 (free fall); attitude undefined")
+        raise UserError(
+            f"flat_attitude: {int((fn < _SINGULAR).sum())} acceleration(s) equal -g e3 (free fall); attitude undefined"
+        )
     z_b = f / fn
     psi = np.broadcast_to(psi, a.shape[:-1])
     x_c = np.stack([np.cos(psi), np.sin(psi), np.zeros_like(psi)], axis=-1)
     y_b = np.cross(z_b, x_c)
     yn = np.linalg.norm(y_b, axis=-1, keepdims=True)
     if (yn < _SINGULAR).any():
-        raise UserError(f"flat_attitude: {int((yn < _SINGULAR).sum())} thrust direction(s) parallel to the heading; attitude undefined")
+        raise UserError(
+            f"flat_attitude: {int((yn < _SINGULAR).sum())} thrust direction(s) parallel to the heading; attitude undefined"
+        )
     y_b = y_b / yn
     x_b = np.cross(y_b, z_b)
     return np.stack([x_b, y_b, z_b], axis=-1)

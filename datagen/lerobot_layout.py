@@ -139,5 +139,16 @@ def expected_arrow_type(ft: dict) -> pa.DataType | None:
     return None
 
 
-__all__ = ["DatasetLayout", "CODEBASE_VERSION", "DATA_PATH", "EPISODES_PATH", "INFO_PATH", "STATS_PATH", "TASKS_PATH",
-           "INDEX_FEATURES", "arrow_column", "column_to_numpy", "expected_arrow_type"]
+__all__ = [
+    "DatasetLayout",
+    "CODEBASE_VERSION",
+    "DATA_PATH",
+    "EPISODES_PATH",
+    "INFO_PATH",
+    "STATS_PATH",
+    "TASKS_PATH",
+    "INDEX_FEATURES",
+    "arrow_column",
+    "column_to_numpy",
+    "expected_arrow_type",
+]

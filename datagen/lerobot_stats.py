@@ -128,9 +128,8 @@ def sorted_stats(get: Callable[[int, int], np.ndarray], n: int) -> dict:
     sq = 0.0
     for i in range(0, n, step):
         d = get(i, min(i + step, n)).astype(np.float64) - m
-        sq += np.add.reduce(d ** 2)
-    out = {"min": np.float64(get(0, 1)[0]), "max": np.float64(get(n - 1, n)[0]), "mean": m,
-           "std": np.sqrt(np.float64(sq) / n)}
+        sq += np.add.reduce(d**2)
+    out = {"min": np.float64(get(0, 1)[0]), "max": np.float64(get(n - 1, n)[0]), "mean": m, "std": np.sqrt(np.float64(sq) / n)}
     nn = np.asarray(n)
     for key, q in zip(QUANTILE_KEYS, QUANTILES):  # as _interp_quantiles
         pos = q * (nn - 1)
@@ -170,6 +169,13 @@ def index_stats(k: str, lengths: np.ndarray, fps: int) -> dict:
     return {s: [out[s]] for s in STAT_KEYS}
 
 
-
-__all__ = ["QUANTILES", "QUANTILE_KEYS", "STAT_KEYS", "stats_dtype", "global_stats", "episode_stats", "sorted_stats",
-           "index_stats"]
+__all__ = [
+    "QUANTILES",
+    "QUANTILE_KEYS",
+    "STAT_KEYS",
+    "stats_dtype",
+    "global_stats",
+    "episode_stats",
+    "sorted_stats",
+    "index_stats",
+]

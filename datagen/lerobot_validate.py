@@ -10,15 +10,20 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from aerohrl.datagen.lerobot_layout import (DATA_PATH, INDEX_FEATURES, STATS_PATH, TASKS_PATH, DatasetLayout,
-                                            expected_arrow_type)
+from aerohrl.datagen.lerobot_layout import DATA_PATH, INDEX_FEATURES, STATS_PATH, TASKS_PATH, DatasetLayout, expected_arrow_type
 from aerohrl.datagen.lerobot_reader import read_info
 from aerohrl.datagen.lerobot_stats import STAT_KEYS
 from aerohrl.errors import UserError
 
 _EP_INDEX_COLUMNS = (
-    "episode_index", "data/chunk_index", "data/file_index", "dataset_from_index", "dataset_to_index",
-    "meta/episodes/chunk_index", "meta/episodes/file_index", "length",
+    "episode_index",
+    "data/chunk_index",
+    "data/file_index",
+    "dataset_from_index",
+    "dataset_to_index",
+    "meta/episodes/chunk_index",
+    "meta/episodes/file_index",
+    "length",
 )
 
 
@@ -39,8 +44,13 @@ def check_structure(root: str | Path) -> list[str]:
     feats = info["features"]
     for k, ft in feats.items():
         shape = ft.get("shape") if isinstance(ft, dict) else None
-        if not isinstance(ft, dict) or not isinstance(ft.get("dtype"), str) or not isinstance(shape, list) \
-                or not shape or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in shape):
+        if (
+            not isinstance(ft, dict)
+            or not isinstance(ft.get("dtype"), str)
+            or not isinstance(shape, list)
+            or not shape
+            or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in shape)
+        ):
             problems.append(f"info.json: feature {k!r} lacks a dtype string or a shape list of positive integers")
         elif "/" in k:
             problems.append(f"info.json: feature name {k!r} contains '/'")
@@ -203,12 +213,13 @@ def check_structure(root: str | Path) -> list[str]:
             for (c, f), n in rows.items():
                 sel = (eps["data/chunk_index"] == c) & (eps["data/file_index"] == f)
                 if int(eps["length"][sel].sum()) != n:
-                    problems.append(f"{DATA_PATH.format(chunk_index=c, file_index=f)}: {n} rows, the episodes parquet assigns {int(eps['length'][sel].sum())}")
+                    problems.append(
+                        f"{DATA_PATH.format(chunk_index=c, file_index=f)}: {n} rows, the episodes parquet assigns {int(eps['length'][sel].sum())}"
+                    )
             named = set(zip(eps["data/chunk_index"].tolist(), eps["data/file_index"].tolist()))
             for c, f in sorted(named - set(rows)):
                 problems.append(f"episodes parquet refers to missing {DATA_PATH.format(chunk_index=c, file_index=f)}")
     return problems
-
 
 
 __all__ = ["check_structure"]

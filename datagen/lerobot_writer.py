@@ -36,9 +36,17 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from aerohrl import task as _task
-from aerohrl.datagen.lerobot_layout import (CODEBASE_VERSION, DATA_PATH, DEFAULT_CHUNK_SIZE, DEFAULT_DATA_FILE_SIZE_IN_MB,
-                                            DEFAULT_VIDEO_FILE_SIZE_IN_MB, INDEX_FEATURES, DatasetLayout, arrow_column,
-                                            column_to_numpy)
+from aerohrl.datagen.lerobot_layout import (
+    CODEBASE_VERSION,
+    DATA_PATH,
+    DEFAULT_CHUNK_SIZE,
+    DEFAULT_DATA_FILE_SIZE_IN_MB,
+    DEFAULT_VIDEO_FILE_SIZE_IN_MB,
+    INDEX_FEATURES,
+    DatasetLayout,
+    arrow_column,
+    column_to_numpy,
+)
 from aerohrl.datagen.lerobot_stats import QUANTILE_KEYS, STAT_KEYS, episode_stats, index_stats, sorted_stats, stats_dtype
 from aerohrl.errors import UserError
 
@@ -52,6 +60,7 @@ DEFAULT_NAMES = {
     "action": _task.ACTION_NAMES,
     "observation.desired_goal": _task.GOAL_NAMES,
 }
+
 
 def write_dataset(
     root: str | Path,
@@ -77,8 +86,16 @@ def write_dataset(
     Bad inputs raise ``ValueError`` (a caller bug); a non-empty ``root`` raises UserError.
     The same bytes as :class:`DatasetWriter` fed the episodes in any number of pieces.
     """
-    w = DatasetWriter(root, fps=fps, task=task, robot_type=robot_type, names=names, chunks_size=chunks_size,
-                      data_files_size_in_mb=data_files_size_in_mb, episode_stats=episode_stats)
+    w = DatasetWriter(
+        root,
+        fps=fps,
+        task=task,
+        robot_type=robot_type,
+        names=names,
+        chunks_size=chunks_size,
+        data_files_size_in_mb=data_files_size_in_mb,
+        episode_stats=episode_stats,
+    )
     _, _, lengths = _check_episode_index(episode_index)
     w.append(columns, lengths)
     w.close()
@@ -102,9 +119,18 @@ class DatasetWriter:
 
     SPILL_DIR = ".stats-spill"
 
-    def __init__(self, root, *, fps: int = 100, task: str = DEFAULT_TASK, robot_type: str | None = DEFAULT_ROBOT_TYPE,
-                 names: dict[str, list[str]] | None = None, chunks_size: int = DEFAULT_CHUNK_SIZE,
-                 data_files_size_in_mb: int = DEFAULT_DATA_FILE_SIZE_IN_MB, episode_stats: bool = True):
+    def __init__(
+        self,
+        root,
+        *,
+        fps: int = 100,
+        task: str = DEFAULT_TASK,
+        robot_type: str | None = DEFAULT_ROBOT_TYPE,
+        names: dict[str, list[str]] | None = None,
+        chunks_size: int = DEFAULT_CHUNK_SIZE,
+        data_files_size_in_mb: int = DEFAULT_DATA_FILE_SIZE_IN_MB,
+        episode_stats: bool = True,
+    ):
         self.root = Path(root)
         self.layout = DatasetLayout(self.root)
         self.fps = _check_positive_int(fps, "fps")
@@ -264,8 +290,9 @@ class DatasetWriter:
             chunk, fidx = self._data_file
             path = self.layout.data_file(chunk, fidx)
             path.parent.mkdir(parents=True, exist_ok=True)
-            self._writer = pq.ParquetWriter(path, self._schema, compression=COMPRESSION,
-                                            use_dictionary=["episode_index", "task_index"])
+            self._writer = pq.ParquetWriter(
+                path, self._schema, compression=COMPRESSION, use_dictionary=["episode_index", "task_index"]
+            )
             self._paths.append(path)
         self._writer.write_table(table, row_group_size=ROW_GROUP_SIZE)
 
@@ -290,8 +317,9 @@ class DatasetWriter:
         cols = {}
         for k in ("episode_index",):
             cols[k] = pa.array(ep[k])
-        cols["tasks"] = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32)),
-                                                 pa.array([self.task] * n, pa.string()))
+        cols["tasks"] = pa.ListArray.from_arrays(
+            pa.array(np.arange(n + 1, dtype=np.int32)), pa.array([self.task] * n, pa.string())
+        )
         for k in ("length", "data/chunk_index", "data/file_index", "dataset_from_index", "dataset_to_index"):
             cols[k] = pa.array(ep[k])
         for k, v in ep.items():

@@ -122,8 +122,18 @@ TOPICS = {
     "/action": "aerohrl.Action",
     "/step": "aerohrl.Step",
 }
-_COLUMNS = ["observation.state", "next.observation.state", "observation.desired_goal", "action",
-            "next.reward", "next.done", "next.success", "timestamp", "frame_index", "episode_index"]
+_COLUMNS = [
+    "observation.state",
+    "next.observation.state",
+    "observation.desired_goal",
+    "action",
+    "next.reward",
+    "next.done",
+    "next.success",
+    "timestamp",
+    "frame_index",
+    "episode_index",
+]
 
 
 def _episode_rows(root: Path, episode: int) -> tuple[dict[str, np.ndarray], dict]:
@@ -144,8 +154,11 @@ def _episode_rows(root: Path, episode: int) -> tuple[dict[str, np.ndarray], dict
     row = None
     for p in meta_paths:
         try:
-            t = pq.read_table(p, columns=["episode_index", "data/chunk_index", "data/file_index", "length"],
-                              filters=[("episode_index", "=", episode)])
+            t = pq.read_table(
+                p,
+                columns=["episode_index", "data/chunk_index", "data/file_index", "length"],
+                filters=[("episode_index", "=", episode)],
+            )
         except (OSError, pa.ArrowException, ValueError) as e:
             raise UserError(f"cannot read {p}: {e}") from None
         if t.num_rows:
@@ -219,8 +232,10 @@ def export_mcap(root: str | Path, episode: int, out_path: str | Path) -> dict[st
                 name: w.register_schema(name=name, encoding="jsonschema", data=json.dumps(s, sort_keys=True).encode())
                 for name, s in SCHEMAS.items()
             }
-            channels = {topic: w.register_channel(topic=topic, message_encoding="json", schema_id=schema_ids[s])
-                        for topic, s in TOPICS.items()}
+            channels = {
+                topic: w.register_channel(topic=topic, message_encoding="json", schema_id=schema_ids[s])
+                for topic, s in TOPICS.items()
+            }
 
             def emit(topic: str, ns: int, msg: dict) -> None:
                 data = json.dumps(msg, separators=(",", ":")).encode()
@@ -231,24 +246,82 @@ def export_mcap(root: str | Path, episode: int, out_path: str | Path) -> dict[st
                 ns = int(t_ns[i])
                 ts = _stamp(ns)
                 s, g = states[i], goal[i]
-                emit("/tf", ns, {"timestamp": ts, "parent_frame_id": WORLD_FRAME, "child_frame_id": VEHICLE_FRAME,
-                                 "translation": _v3(s[task.POS]), "rotation": _q(q_vehicle[i])})
-                emit("/tf", ns, {"timestamp": ts, "parent_frame_id": WORLD_FRAME, "child_frame_id": GOAL_FRAME,
-                                 "translation": _v3(g[task.POS]), "rotation": _q(q_goal[i])})
-                emit("/vehicle/pose", ns, {"timestamp": ts, "frame_id": WORLD_FRAME,
-                                           "pose": {"position": _v3(s[task.POS]), "orientation": _q(q_vehicle[i])}})
-                emit("/vehicle/velocity", ns, {"timestamp": ts, "frame_id": WORLD_FRAME, "linear": _v3(s[task.VEL]),
-                                               "angular": _v3(s[task.RATE]), "speed": float(np.linalg.norm(s[task.VEL]))})
-                emit("/goal/pose", ns, {"timestamp": ts, "frame_id": WORLD_FRAME,
-                                        "pose": {"position": _v3(g[task.POS]), "orientation": _q(q_goal[i])}})
-                emit("/goal/velocity", ns, {"timestamp": ts, "frame_id": WORLD_FRAME, "linear": _v3(g[task.VEL]),
-                                            "speed": float(np.linalg.norm(g[task.VEL]))})
+                emit(
+                    "/tf",
+                    ns,
+                    {
+                        "timestamp": ts,
+                        "parent_frame_id": WORLD_FRAME,
+                        "child_frame_id": VEHICLE_FRAME,
+                        "translation": _v3(s[task.POS]),
+                        "rotation": _q(q_vehicle[i]),
+                    },
+                )
+                emit(
+                    "/tf",
+                    ns,
+                    {
+                        "timestamp": ts,
+                        "parent_frame_id": WORLD_FRAME,
+                        "child_frame_id": GOAL_FRAME,
+                        "translation": _v3(g[task.POS]),
+                        "rotation": _q(q_goal[i]),
+                    },
+                )
+                emit(
+                    "/vehicle/pose",
+                    ns,
+                    {
+                        "timestamp": ts,
+                        "frame_id": WORLD_FRAME,
+                        "pose": {"position": _v3(s[task.POS]), "orientation": _q(q_vehicle[i])},
+                    },
+                )
+                emit(
+                    "/vehicle/velocity",
+                    ns,
+                    {
+                        "timestamp": ts,
+                        "frame_id": WORLD_FRAME,
+                        "linear": _v3(s[task.VEL]),
+                        "angular": _v3(s[task.RATE]),
+                        "speed": float(np.linalg.norm(s[task.VEL])),
+                    },
+                )
+                emit(
+                    "/goal/pose",
+                    ns,
+                    {
+                        "timestamp": ts,
+                        "frame_id": WORLD_FRAME,
+                        "pose": {"position": _v3(g[task.POS]), "orientation": _q(q_goal[i])},
+                    },
+                )
+                emit(
+                    "/goal/velocity",
+                    ns,
+                    {
+                        "timestamp": ts,
+                        "frame_id": WORLD_FRAME,
+                        "linear": _v3(g[task.VEL]),
+                        "speed": float(np.linalg.norm(g[task.VEL])),
+                    },
+                )
                 if i < L:
                     a = d["action"][i]
                     emit("/action", ns, {"timestamp": ts, **{n: float(a[j]) for j, n in enumerate(task.ACTION_NAMES)}})
-                    emit("/step", ns, {"timestamp": ts, "episode_index": int(d["episode_index"][i]),
-                                       "frame_index": int(d["frame_index"][i]), "reward": float(d["next.reward"][i]),
-                                       "done": bool(d["next.done"][i]), "success": bool(d["next.success"][i])})
+                    emit(
+                        "/step",
+                        ns,
+                        {
+                            "timestamp": ts,
+                            "episode_index": int(d["episode_index"][i]),
+                            "frame_index": int(d["frame_index"][i]),
+                            "reward": float(d["next.reward"][i]),
+                            "done": bool(d["next.done"][i]),
+                            "success": bool(d["next.success"][i]),
+                        },
+                    )
             w.finish()
     return counts
 

@@ -41,13 +41,17 @@ def plot_dataset(path: str | Path, out: str | Path, max_episodes: int = 250) -> 
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     bounds = np.searchsorted(ep, np.arange(len(goal) + 1))
     for i in range(n):
-        p = pos[bounds[i]:bounds[i + 1]]
+        p = pos[bounds[i] : bounds[i + 1]]
         ax.plot(p[:, 0], p[:, 1], p[:, 2], lw=0.6, alpha=0.6, color="tab:blue" if ok[i] else "tab:red")
     ax.scatter(goal[:n, 0], goal[:n, 1], goal[:n, 2], s=8, c="k", depthshade=False, label="desired goals")
     ax.quiver(goal[:n, 0], goal[:n, 1], goal[:n, 2], vel[:n, 0], vel[:n, 1], vel[:n, 2], length=0.15, color="0.4", lw=0.5)
     ax.scatter([0], [0], [0], s=40, c="orange", label="start (hover)")
-    ax.set(xlabel="x (m)", ylabel="y (m)", zlabel="z (m)",
-           title=f"{n} expert trajectories ({100 * ok[:n].mean():.1f}% reach the goal; red = missed)")
+    ax.set(
+        xlabel="x (m)",
+        ylabel="y (m)",
+        zlabel="z (m)",
+        title=f"{n} expert trajectories ({100 * ok[:n].mean():.1f}% reach the goal; red = missed)",
+    )
     ax.legend(loc="upper left", fontsize=8)
 
     ax2 = fig.add_subplot(1, 2, 2)

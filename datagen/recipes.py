@@ -65,8 +65,9 @@ class OUNoise:
         return out
 
 
-def sample_start_states(rng: np.random.Generator, n: int, v_max: float, tilt: float,
-                        w_max: float) -> tuple[np.ndarray, np.ndarray]:
+def sample_start_states(
+    rng: np.random.Generator, n: int, v_max: float, tilt: float, w_max: float
+) -> tuple[np.ndarray, np.ndarray]:
     """``(state (n, 18), x0 (n, 3, 3))``: perturbed starts at the origin and the
     reference's initial ``[axis, (p, v, a)]`` = ``(0, v_0, 0)`` (module docstring)."""
     from scipy.spatial.transform import Rotation
@@ -83,8 +84,9 @@ def sample_start_states(rng: np.random.Generator, n: int, v_max: float, tilt: fl
     return state, x0
 
 
-def replan(coeffs: np.ndarray, t0: np.ndarray, due: np.ndarray, t: float, state: np.ndarray, xf: np.ndarray,
-           T: np.ndarray) -> None:
+def replan(
+    coeffs: np.ndarray, t0: np.ndarray, due: np.ndarray, t: float, state: np.ndarray, xf: np.ndarray, T: np.ndarray
+) -> None:
     """Shrinking-horizon re-plan, in place, of the references ``due`` (bool (N,)) at time ``t``.
 
     ``coeffs`` (N, 3, 6) are in each plan's own time (from ``t0`` (N,)); a re-planned
@@ -94,8 +96,9 @@ def replan(coeffs: np.ndarray, t0: np.ndarray, due: np.ndarray, t: float, state:
     i = np.flatnonzero(due)
     if i.size == 0:
         return
-    x0 = np.stack([state[i, task.POS], state[i, task.VEL],
-                   reference.evaluate(coeffs[i], t - t0[i], order=2)], axis=-1)  # (m, axis, (p, v, a))
+    x0 = np.stack(
+        [state[i, task.POS], state[i, task.VEL], reference.evaluate(coeffs[i], t - t0[i], order=2)], axis=-1
+    )  # (m, axis, (p, v, a))
     c = reference.min_jerk_closed_form(x0, xf[i], T[i] - t)
     coeffs[i] = 0.0  # a degree > 5 reference: the quintic in its first 6 coefficients
     coeffs[i, :, : c.shape[2]] = c

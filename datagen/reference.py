@@ -484,8 +484,15 @@ def _padded_quintic(x0, xf, T, degree) -> np.ndarray:
     return c
 
 
-def min_jerk_qp(x0: np.ndarray, xf: np.ndarray, T: float | np.ndarray, *, degree: int = DEGREE, a_max: float = A_MAX,
-                n_samples: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def min_jerk_qp(
+    x0: np.ndarray,
+    xf: np.ndarray,
+    T: float | np.ndarray,
+    *,
+    degree: int = DEGREE,
+    a_max: float = A_MAX,
+    n_samples: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Acceleration-bounded minimum-jerk polynomials by QP (OSQP), one per reference and axis.
 
     Returns ``(coeffs (N, 3, degree + 1), feasible (N,))``. A reference is feasible iff

@@ -66,15 +66,19 @@ class DatasetSpec:
     # that one of the rest-start flights passes through, translated to the origin, and
     # flies to a fresh goal from rho_D. They show the policy what a planned second leg
     # is (a moving start, a goal relative to it); see datagen/README.md.
-    continuations: int = param(0, "extra episodes from states of the rest-start flights (moved to the origin) to "
-                               "fresh rho_D goals", ge=0)
+    continuations: int = param(
+        0, "extra episodes from states of the rest-start flights (moved to the origin) to fresh rho_D goals", ge=0
+    )
     # Expert-data recipes (beyond the thesis, off by default; datagen/README.md "Recipes").
     # The expert: "open-loop" tracks one reference planned at take-off (the thesis);
     # "replan" re-plans the minimum-jerk reference from the flown state every
     # ``replan_every`` steps with the take-off plan's end time (a shrinking horizon), and
     # stops re-planning ``replan_endgame`` seconds before it (the last plan is tracked).
-    expert: str = param("open-loop", "open-loop (one take-off plan, the thesis) | replan (shrinking-horizon "
-                        "re-planning from the flown state)", choices=EXPERTS)
+    expert: str = param(
+        "open-loop",
+        "open-loop (one take-off plan, the thesis) | replan (shrinking-horizon re-planning from the flown state)",
+        choices=EXPERTS,
+    )
     replan_every: int = param(5, "replan: control steps between re-plans", unit="steps", ge=1)
     replan_endgame: float = param(0.5, "replan: no re-planning in the flight's last seconds", unit="s", ge=0)
     # DART (Laskey et al. 2017): Ornstein-Uhlenbeck noise with stationary std
@@ -82,16 +86,22 @@ class DatasetSpec:
     # time ``noise_tau`` (s) is added to the expert's command while flying; ``action``
     # records what was flown, ``action.expert`` the clean command at the flown state.
     action_noise: tuple[float, float, float, float] = param(
-        (0.0, 0.0, 0.0, 0.0), "DART noise: stationary std of the Ornstein-Uhlenbeck noise added to the flown command, "
+        (0.0, 0.0, 0.0, 0.0),
+        "DART noise: stationary std of the Ornstein-Uhlenbeck noise added to the flown command, "
         "per CTBR dimension c (m/s^2) wx wy wz (rad/s), or 2 numbers (c, rates); at most 5 on thrust and 3 on rates, "
-        "beyond what the expert flies through", ge=0)
+        "beyond what the expert flies through",
+        ge=0,
+    )
     noise_tau: float = param(0.2, "correlation time of the action noise", unit="s", gt=0)
     # Start states: "rest" (hover at the origin, the thesis) or "perturbed": at the
     # origin with v_i ~ U(-start_vel, start_vel) m/s, an attitude whose rotation vector
     # has components ~ U(-start_tilt, start_tilt) rad, and w_i ~ U(-start_rate, start_rate) rad/s.
     # Their bounds are those the expert recovers from reliably.
-    start_states: str = param("rest", "rest (hover at the origin) | perturbed (random velocity, attitude and body "
-                              "rates at the origin)", choices=START_STATES)
+    start_states: str = param(
+        "rest",
+        "rest (hover at the origin) | perturbed (random velocity, attitude and body rates at the origin)",
+        choices=START_STATES,
+    )
     start_vel: float = param(1.0, "perturbed: |v_i| bound", unit="m/s", ge=0, le=3.0)
     start_tilt: float = param(0.3, "perturbed: rotation-vector component bound", unit="rad", ge=0, le=1.0)
     start_rate: float = param(1.0, "perturbed: |w_i| bound", unit="rad/s", ge=0, le=5.0)
@@ -128,11 +138,14 @@ class DatasetSpec:
         if self.fps * self.substeps < 500:
             raise UserError(f"physics rate fps*substeps = {self.fps * self.substeps} Hz is below the 500 Hz floor")
         if self.action_noise[0] > 5.0 or max(self.action_noise[1:]) > 3.0:
-            raise UserError(f"action_noise {list(self.action_noise)} is beyond what the expert flies through "
-                            "(sigma <= 5 m/s^2 on thrust, <= 3 rad/s on rates; at 2 / 1 it reaches 45% of its goals)")
+            raise UserError(
+                f"action_noise {list(self.action_noise)} is beyond what the expert flies through "
+                "(sigma <= 5 m/s^2 on thrust, <= 3 rad/s on rates; at 2 / 1 it reaches 45% of its goals)"
+            )
         if self.rollouts_per_goal > 1 and not (self.noisy or self.start_states == "perturbed"):
-            raise UserError("--rollouts-per-goal > 1 repeats identical flights without --action-noise or "
-                            "--start-states perturbed")
+            raise UserError(
+                "--rollouts-per-goal > 1 repeats identical flights without --action-noise or --start-states perturbed"
+            )
 
     @property
     def noisy(self) -> bool:
@@ -149,9 +162,11 @@ class DatasetSpec:
         # every earlier spec keeps its hash, version name and metadata bytes. A recipe's
         # sub-settings are kept only when the recipe is on.
         on = {
-            "replan_every": self.expert == "replan", "replan_endgame": self.expert == "replan",
+            "replan_every": self.expert == "replan",
+            "replan_endgame": self.expert == "replan",
             "noise_tau": self.noisy,
-            "start_vel": self.start_states == "perturbed", "start_tilt": self.start_states == "perturbed",
+            "start_vel": self.start_states == "perturbed",
+            "start_tilt": self.start_states == "perturbed",
             "start_rate": self.start_states == "perturbed",
         }
         for f, default in RECIPE_DEFAULTS.items():

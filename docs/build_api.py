@@ -8,8 +8,17 @@ from pathlib import Path
 
 # the public API (re-exported lazily by `import aerohrl`, which pdoc cannot follow) and the modules
 # whose objects it takes or returns
-MODULES = ["aerohrl.api", "aerohrl.errors", "aerohrl.task", "aerohrl.datagen.spec", "aerohrl.datagen.dataset",
-           "aerohrl.datagen.exchange", "aerohrl.algorithms.config", "aerohrl.eval.harness", "aerohrl.envs.reach"]
+MODULES = [
+    "aerohrl.api",
+    "aerohrl.errors",
+    "aerohrl.task",
+    "aerohrl.datagen.spec",
+    "aerohrl.datagen.dataset",
+    "aerohrl.datagen.exchange",
+    "aerohrl.algorithms.config",
+    "aerohrl.eval.harness",
+    "aerohrl.envs.reach",
+]
 
 
 def main(out: str | Path = Path(__file__).resolve().parent / "api") -> None:

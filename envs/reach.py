@@ -57,8 +57,9 @@ class NonFiniteAction(ValueError):
 
 def compute_reward(achieved_goal: np.ndarray, desired_goal: np.ndarray, info: Any = None) -> np.ndarray:
     """Sparse goal-reaching reward (docs/spec.md): 1.0 where the goal-reached test holds."""
-    return np.asarray(task.goal_reached(np.asarray(achieved_goal, np.float64), np.asarray(desired_goal, np.float64)),
-                      dtype=np.float64)
+    return np.asarray(
+        task.goal_reached(np.asarray(achieved_goal, np.float64), np.asarray(desired_goal, np.float64)), dtype=np.float64
+    )
 
 
 def _goal_pool_from_dataset(path):
@@ -82,10 +83,23 @@ class QuadrotorReachVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int = 1, *, dataset=None, goals=None, vehicle: str | None = None, fps: int | None = None,
-                 substeps: int | None = None, horizon: int = 500, autoreset: bool = True,
-                 pos_range=(1.0, 2.0), vel_range=(-2.5, 2.5), acc_range=(-5.0, 5.0), tolerance_scale: float = 1.0,
-                 render_mode=None):
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        dataset=None,
+        goals=None,
+        vehicle: str | None = None,
+        fps: int | None = None,
+        substeps: int | None = None,
+        horizon: int = 500,
+        autoreset: bool = True,
+        pos_range=(1.0, 2.0),
+        vel_range=(-2.5, 2.5),
+        acc_range=(-5.0, 5.0),
+        tolerance_scale: float = 1.0,
+        render_mode=None,
+    ):
         from aerohrl.sim import BatchedQuadrotor, get_preset
 
         spec = {}
@@ -94,8 +108,11 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self.goal_pool = None if goals is None else np.asarray(goals, np.float64).reshape(-1, task.GOAL_DIM)
         if self.goal_pool is not None and len(self.goal_pool) == 0:
             raise ValueError("the goal pool is empty")
-        self.goal_ranges = {"pos_range": tuple(spec.get("pos_range", pos_range)), "vel_range": tuple(spec.get("vel_range", vel_range)),
-                            "acc_range": tuple(spec.get("acc_range", acc_range))}
+        self.goal_ranges = {
+            "pos_range": tuple(spec.get("pos_range", pos_range)),
+            "vel_range": tuple(spec.get("vel_range", vel_range)),
+            "acc_range": tuple(spec.get("acc_range", acc_range)),
+        }
         self.vehicle = vehicle or spec.get("vehicle", "hummingbird")
         self.fps = int(fps or spec.get("fps", 100))
         self.substeps = int(substeps or spec.get("substeps", 5))
@@ -106,14 +123,19 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self.autoreset = bool(autoreset)
         self.tolerance = task.TOLERANCE.scaled(float(tolerance_scale))  # of `terminated` (1: the SPEC's goal-reached test)
         inf = np.inf
-        self.single_observation_space = spaces.Dict({
-            "observation": spaces.Box(-inf, inf, (task.STATE_DIM,), np.float64),
-            "achieved_goal": spaces.Box(-inf, inf, (task.GOAL_DIM,), np.float64),
-            "desired_goal": spaces.Box(-inf, inf, (task.GOAL_DIM,), np.float64),
-        })
+        self.single_observation_space = spaces.Dict(
+            {
+                "observation": spaces.Box(-inf, inf, (task.STATE_DIM,), np.float64),
+                "achieved_goal": spaces.Box(-inf, inf, (task.GOAL_DIM,), np.float64),
+                "desired_goal": spaces.Box(-inf, inf, (task.GOAL_DIM,), np.float64),
+            }
+        )
         cmax = float(self.sim.params.max_collective)
-        self.single_action_space = spaces.Box(np.array([0.0, -RATE_LIMIT, -RATE_LIMIT, -RATE_LIMIT]),
-                                              np.array([cmax, RATE_LIMIT, RATE_LIMIT, RATE_LIMIT]), dtype=np.float64)
+        self.single_action_space = spaces.Box(
+            np.array([0.0, -RATE_LIMIT, -RATE_LIMIT, -RATE_LIMIT]),
+            np.array([cmax, RATE_LIMIT, RATE_LIMIT, RATE_LIMIT]),
+            dtype=np.float64,
+        )
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
         self.default_horizon = int(horizon)
@@ -169,8 +191,9 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self._reset_rows(np.arange(n), starts, goals, hz)
         return self._obs(), {}
 
-    def set_desired_goals(self, goals: np.ndarray, mask: np.ndarray | None = None,
-                          horizons: np.ndarray | int | None = None) -> dict:
+    def set_desired_goals(
+        self, goals: np.ndarray, mask: np.ndarray | None = None, horizons: np.ndarray | int | None = None
+    ) -> dict:
         """New goals (and step budgets) for the vehicles in ``mask`` mid-flight; their
         step counters and done flags restart. Returns the observation."""
         mask = np.ones(self.num_envs, bool) if mask is None else np.asarray(mask, bool)
@@ -191,8 +214,11 @@ class QuadrotorReachVectorEnv(VectorEnv):
         bad_action = ~np.isfinite(a).all(1) & ~resetting
         if bad_action.any():
             rows = np.flatnonzero(bad_action)
-            raise NonFiniteAction(f"non-finite action (NaN or inf) for vehicle(s) {rows[:8].tolist()}"
-                                  + (f" and {len(rows) - 8} more" if len(rows) > 8 else "") + ": step refused")
+            raise NonFiniteAction(
+                f"non-finite action (NaN or inf) for vehicle(s) {rows[:8].tolist()}"
+                + (f" and {len(rows) - 8} more" if len(rows) > 8 else "")
+                + ": step refused"
+            )
         a = np.clip(a, self.single_action_space.low, self.single_action_space.high)
         if resetting.any():  # NEXT_STEP autoreset: these ignore their action
             a[resetting] = [GRAVITY, 0.0, 0.0, 0.0]  # hover command
@@ -211,10 +237,17 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self.done |= terminated | truncated
         if resetting.any():
             rows = np.flatnonzero(resetting)
-            self._reset_rows(rows, hover_states(len(rows)), self._sample_goals(len(rows)), np.full(len(rows), self.default_horizon))
+            self._reset_rows(
+                rows, hover_states(len(rows)), self._sample_goals(len(rows)), np.full(len(rows), self.default_horizon)
+            )
         if self.autoreset:
             self._needs_reset |= terminated | truncated
-        info = {"is_success": task.goal_reached(ag, self.goals), "near_success": near, "elapsed": self.elapsed.copy(), "diverged": bad}
+        info = {
+            "is_success": task.goal_reached(ag, self.goals),
+            "near_success": near,
+            "elapsed": self.elapsed.copy(),
+            "diverged": bad,
+        }
         return self._obs(), reward, terminated, truncated, info
 
 

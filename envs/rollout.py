@@ -53,11 +53,25 @@ class PolicyFn:
         return np.clip(np.nan_to_num(a, nan=0.0), self.lo, self.hi)
 
 
-def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPlanner | None = None,
-            n_waypoints: int = 0, leg_horizon: int | None = None, replan: bool = True, replan_every: int = 0,
-            waypoint_tol: float = 1.0, goal_tol: float = 1.0, decline_margin: float | None = None, record: bool = False,
-            vehicle: str = "hummingbird", fps: int = 100, substeps: int = 5, progress: bool = False,
-            desc: str = "rollout") -> dict:
+def rollout(
+    algo: Algorithm,
+    episodes: EpisodeSet,
+    *,
+    planner: Planner | ChainPlanner | None = None,
+    n_waypoints: int = 0,
+    leg_horizon: int | None = None,
+    replan: bool = True,
+    replan_every: int = 0,
+    waypoint_tol: float = 1.0,
+    goal_tol: float = 1.0,
+    decline_margin: float | None = None,
+    record: bool = False,
+    vehicle: str = "hummingbird",
+    fps: int = 100,
+    substeps: int = 5,
+    progress: bool = False,
+    desc: str = "rollout",
+) -> dict:
     """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
 
     ``planner`` (a :class:`~aerohrl.planning.planner.Planner` or ``ChainPlanner``; used only
@@ -88,8 +102,9 @@ def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPl
     T = int(total.max())
     nw = int(n_waypoints) if planner is not None else 0
     leg_h = int(leg_horizon or episodes.meta.get("leg_horizon", T))
-    env = QuadrotorReachVectorEnv(E, vehicle=vehicle, fps=fps, substeps=substeps, autoreset=False, horizon=T,
-                                  tolerance_scale=waypoint_tol)
+    env = QuadrotorReachVectorEnv(
+        E, vehicle=vehicle, fps=fps, substeps=substeps, autoreset=False, horizon=T, tolerance_scale=waypoint_tol
+    )
     out: dict = {}
     t_plan = 0.0
     if nw:
@@ -97,8 +112,12 @@ def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPl
         plan = planner.plan(episodes.start_states, G, n=nw)
         t_plan += time.perf_counter() - t0
         wp = plan.goals.copy()  # (E, nw, 15), rewritten by re-planning
-        out.update(plan_score=plan.score, direct_score=plan.direct_score, planned_frame=plan.frame.copy(),
-                   planned_waypoints=plan.goals.copy())
+        out.update(
+            plan_score=plan.score,
+            direct_score=plan.direct_score,
+            planned_frame=plan.frame.copy(),
+            planned_waypoints=plan.goals.copy(),
+        )
         wp_frame = plan.frame.copy()
     tol = task.TOLERANCE.scaled(float(goal_tol))
     leg = np.zeros(E, np.int64)  # index of the goal being flown to (nw = the task goal)
@@ -154,11 +173,16 @@ def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPl
                     flying_wp = active & ~finished & ~switch & (leg < nw)
                     if flying_wp.any():
                         t0 = time.perf_counter()
-                        wp, wp_frame, leg_to_direct = _replan(planner, obs, G, wp, wp_frame, leg, flying_wp, nw, direct_option=True)
+                        wp, wp_frame, leg_to_direct = _replan(
+                            planner, obs, G, wp, wp_frame, leg, flying_wp, nw, direct_option=True
+                        )
                         t_plan += time.perf_counter() - t0
                         leg[leg_to_direct] = nw
-                        env.set_desired_goals(np.where((leg < nw)[:, None], wp[np.arange(E), np.minimum(leg, nw - 1)], G),
-                                              flying_wp, horizons=np.where(leg < nw, leg_h, total - (t + 1)))
+                        env.set_desired_goals(
+                            np.where((leg < nw)[:, None], wp[np.arange(E), np.minimum(leg, nw - 1)], G),
+                            flying_wp,
+                            horizons=np.where(leg < nw, leg_h, total - (t + 1)),
+                        )
                 if switch.any():
                     leg[switch] += 1
                     if replan and nw > 1:
@@ -176,9 +200,18 @@ def rollout(algo: Algorithm, episodes: EpisodeSet, *, planner: Planner | ChainPl
     finally:
         bar.close()
         algo.train(was_training)
-    out.update(success=success, near_success=near | success, first_success_step=first_success, first_near_step=first_near,
-               steps=steps, final_pos_err=final[:, 0], final_vel_err=final[:, 1], final_rot_err=final[:, 2], min_pos_err=min_pos,
-               plan_seconds=np.full(E, t_plan / max(E, 1)))
+    out.update(
+        success=success,
+        near_success=near | success,
+        first_success_step=first_success,
+        first_near_step=first_near,
+        steps=steps,
+        final_pos_err=final[:, 0],
+        final_vel_err=final[:, 1],
+        final_rot_err=final[:, 2],
+        min_pos_err=min_pos,
+        plan_seconds=np.full(E, t_plan / max(E, 1)),
+    )
     if nw:
         out.update(waypoints=wp, waypoint_frame=wp_frame, legs_reached=legs_reached, final_leg=leg)
     if record:
@@ -203,18 +236,36 @@ def _replan(planner, obs, G, wp, wp_frame, leg, mask, nw, direct_option):
     return wp, wp_frame, to_direct
 
 
-def rollout_reach(algo: Algorithm, goals: np.ndarray, *, horizon: int = 500, vehicle: str = "hummingbird",
-                  fps: int = 100, substeps: int = 5, start_states: np.ndarray | None = None) -> dict:
+def rollout_reach(
+    algo: Algorithm,
+    goals: np.ndarray,
+    *,
+    horizon: int = 500,
+    vehicle: str = "hummingbird",
+    fps: int = 100,
+    substeps: int = 5,
+    start_states: np.ndarray | None = None,
+) -> dict:
     """Reach-Desired style summary (success, near success, mean steps to success) for
     ``goals`` (N, 15) from hover at the origin or ``start_states``: the trainer's hook."""
     goals = np.asarray(goals, np.float64)
     n = len(goals)
-    eps = EpisodeSet("reach-desired", hover_states(n) if start_states is None else np.asarray(start_states, np.float64), goals,
-                     np.full(n, int(horizon), np.int64), np.full(n, -1, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64))
+    eps = EpisodeSet(
+        "reach-desired",
+        hover_states(n) if start_states is None else np.asarray(start_states, np.float64),
+        goals,
+        np.full(n, int(horizon), np.int64),
+        np.full(n, -1, np.int64),
+        np.zeros(n, np.int64),
+        np.zeros(n, np.int64),
+    )
     r = rollout(algo, eps, vehicle=vehicle, fps=fps, substeps=substeps)
     s = r["success"]
-    return {"success": float(s.mean()), "near_success": float(r["near_success"].mean()),
-            "mean_steps_to_success": float(r["first_success_step"][s].mean()) if s.any() else float("nan")}
+    return {
+        "success": float(s.mean()),
+        "near_success": float(r["near_success"].mean()),
+        "mean_steps_to_success": float(r["first_success_step"][s].mean()) if s.any() else float("nan"),
+    }
 
 
 __all__ = ["rollout", "rollout_reach", "PolicyFn"]

@@ -42,21 +42,39 @@ def _eval_parser() -> ArgumentParser:
     FAMILIES = ("position", "velocity", "acceleration", "combined")  # = eval/families.py FAMILIES (numpy-free here)
     d = EvalOptions()
     f = {x.name: x for x in fields(EvalOptions)}
-    ap = ArgumentParser(prog=PROG, description="Evaluate the last checkpoints of a training run in the batched simulator "
-                        "(subcommands: `table RUN...`, `plot ...`, `oracle ...`).")
+    ap = ArgumentParser(
+        prog=PROG,
+        description="Evaluate the last checkpoints of a training run in the batched simulator "
+        "(subcommands: `table RUN...`, `plot ...`, `oracle ...`).",
+    )
     ap.add_argument("--task", required=True, choices=tuple(TASKS), help=f["task"].metadata["help"])
     ap.add_argument("--run", required=True, type=Path, help="training run folder (runs/<run>)")
     add_flags(ap, EvalOptions, skip=EVAL_OWN_FLAGS)
     # no preset under these flags: the parsed values are the settings, defaults included
     ap.set_defaults(**{k: v for k, v in to_flat_dict(d).items() if k not in EVAL_OWN_FLAGS and f[k].metadata.get("flag", True)})
-    ap.add_argument("--horizon", type=T.positive_int, default=None, metavar="N",
-                    help=describe(f["horizon"], "1000; a family ring: its own, scaled to distance"))
+    ap.add_argument(
+        "--horizon",
+        type=T.positive_int,
+        default=None,
+        metavar="N",
+        help=describe(f["horizon"], "1000; a family ring: its own, scaled to distance"),
+    )
     ap.add_argument("--family", default=None, choices=FAMILIES, help=describe(f["family"], "the thesis's OOD set"))
-    ap.add_argument("--decline-margin", type=T.finite_float, default=None, metavar="M",
-                    help=describe(f["decline_margin"], "never: the thesis"))
-    add_common(ap, out={"help": "result folder [RUN/eval/<task>[-<planner>]]"}, quiet=True,
-               threads={"default": 1}, seed={"default": d.seed, "help": f"episode-set seed (>= 0) [{d.seed}]"},
-               device={"default": d.device})
+    ap.add_argument(
+        "--decline-margin",
+        type=T.finite_float,
+        default=None,
+        metavar="M",
+        help=describe(f["decline_margin"], "never: the thesis"),
+    )
+    add_common(
+        ap,
+        out={"help": "result folder [RUN/eval/<task>[-<planner>]]"},
+        quiet=True,
+        threads={"default": 1},
+        seed={"default": d.seed, "help": f"episode-set seed (>= 0) [{d.seed}]"},
+        device={"default": d.device},
+    )
     return ap
 
 
@@ -66,21 +84,33 @@ def cmd_eval(a: argparse.Namespace) -> int:
     from aerohrl.eval.harness import EvalOptions, evaluate_run
 
     set_threads(a.threads)
-    opt = EvalOptions(task=a.task, horizon=a.horizon, family=a.family, decline_margin=a.decline_margin, seed=a.seed,
-                      device=a.device, out=None if a.out is None else str(a.out), progress=progress(a.quiet),
-                      **given_flags(a, EvalOptions, skip=EVAL_OWN_FLAGS))
+    opt = EvalOptions(
+        task=a.task,
+        horizon=a.horizon,
+        family=a.family,
+        decline_margin=a.decline_margin,
+        seed=a.seed,
+        device=a.device,
+        out=None if a.out is None else str(a.out),
+        progress=progress(a.quiet),
+        **given_flags(a, EvalOptions, skip=EVAL_OWN_FLAGS),
+    )
     s = evaluate_run(a.run, opt)
-    print(f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "
-          f"near success {100 * s['near_success_mean']:.1f} ± {100 * s['near_success_std']:.1f} % "
-          f"({len(s['checkpoints'])} checkpoints x {s['episodes']} episodes, {s['seconds']:.0f} s)")
+    print(
+        f"{s['name']}: {s['algo']} {a.run}: success {100 * s['success_mean']:.1f} ± {100 * s['success_std']:.1f} %, "
+        f"near success {100 * s['near_success_mean']:.1f} ± {100 * s['near_success_std']:.1f} % "
+        f"({len(s['checkpoints'])} checkpoints x {s['episodes']} episodes, {s['seconds']:.0f} s)"
+    )
     out = Path(a.out) if a.out else Path(a.run) / "eval" / s["name"]
     print(f"results:   {out}/summary.json, {out}/episodes-step-*.csv")
     return 0
 
 
 def _table_parser() -> ArgumentParser:
-    ap = ArgumentParser(prog=f"{PROG} table", description="Table 3.1 / 3.2 analogues (Markdown on stdout; with -o also "
-                        "PREFIX.md, PREFIX-t31.csv, PREFIX-t32.csv).")
+    ap = ArgumentParser(
+        prog=f"{PROG} table",
+        description="Table 3.1 / 3.2 analogues (Markdown on stdout; with -o also PREFIX.md, PREFIX-t31.csv, PREFIX-t32.csv).",
+    )
     ap.add_argument("runs", nargs="+", type=Path, metavar="RUN", help="run folders (or folders of runs)")
     add_common(ap, out={"help": "file prefix: writes OUT.md, OUT-t31.csv, OUT-t32.csv [stdout only]"})
     return ap
@@ -102,8 +132,10 @@ def cmd_table(a: argparse.Namespace) -> int:
 
 
 def _plot_parser() -> ArgumentParser:
-    ap = ArgumentParser(prog=f"{PROG} plot", description="3D trajectories of an evaluation (thesis Fig. 3.5/3.6) or learning "
-                        "curves of runs (Fig. 3.3/3.4).")
+    ap = ArgumentParser(
+        prog=f"{PROG} plot",
+        description="3D trajectories of an evaluation (thesis Fig. 3.5/3.6) or learning curves of runs (Fig. 3.3/3.4).",
+    )
     from aerohrl.eval.harness import PLANNERS
     from aerohrl.eval.tasks import TASKS
 
@@ -131,21 +163,37 @@ def cmd_plot(a: argparse.Namespace) -> int:
 
 
 def _oracle_parser() -> ArgumentParser:
-    ap = ArgumentParser(prog=f"{PROG} oracle", description="Fly every first and second leg of the single-goal planner "
-                        "(Eq. 3.7) to bound what any planner over the achieved goals can reach with this policy.")
+    ap = ArgumentParser(
+        prog=f"{PROG} oracle",
+        description="Fly every first and second leg of the single-goal planner "
+        "(Eq. 3.7) to bound what any planner over the achieved goals can reach with this policy.",
+    )
     ap.add_argument("--run", type=Path, required=True, help="training run folder (runs/<run>): its newest checkpoint")
     ap.add_argument("--task", default="ood", choices=("ood", "reach-novel"), help="goals of this task [ood]")
     ap.add_argument("--goals", type=T.positive_int, default=40, help="task goals [40]")
-    ap.add_argument("--family", default=None, choices=("position", "velocity", "acceleration", "combined"),
-                    help="goals of an OOD family ring instead (eval/families.py) [none]")
+    ap.add_argument(
+        "--family",
+        default=None,
+        choices=("position", "velocity", "acceleration", "combined"),
+        help="goals of an OOD family ring instead (eval/families.py) [none]",
+    )
     ap.add_argument("--ring", default=None, help="--family: step 1..K or LO:HI [1]")
-    ap.add_argument("--candidate-source", default="dataset", choices=["dataset", "synthetic"],
-                    help="waypoints: the dataset's achieved goals | synthetic states within rho_D of the start [dataset]")
+    ap.add_argument(
+        "--candidate-source",
+        default="dataset",
+        choices=["dataset", "synthetic"],
+        help="waypoints: the dataset's achieved goals | synthetic states within rho_D of the start [dataset]",
+    )
     ap.add_argument("--candidates", type=T.positive_int, default=150, help="achieved goals (seeded subset) [150]")
     ap.add_argument("--leg-horizon", type=T.positive_int, default=500, help="simulator steps per leg (100 Hz) [500]")
     ap.add_argument("--alpha", type=T.nonneg_float, default=1.0, help="variance penalty of the Eq. 3.7 choice [1.0]")
-    add_common(ap, out={"help": "report folder [RUN/eval/oracle-TASK]"}, quiet=True,
-               threads={"default": 1}, seed={"help": "goal and candidate seed (>= 0) [0]"})
+    add_common(
+        ap,
+        out={"help": "report folder [RUN/eval/oracle-TASK]"},
+        quiet=True,
+        threads={"default": 1},
+        seed={"help": "goal and candidate seed (>= 0) [0]"},
+    )
     return ap
 
 
@@ -185,10 +233,21 @@ def cmd_oracle(a: argparse.Namespace) -> int:
 
         cand = synthetic_candidates(data.info.get("spec"), a.candidates, a.seed)
         name += "-synth"
-    r = oracle_single(algo, data, goals, candidates=a.candidates, seed=a.seed, leg_horizon=a.leg_horizon, alpha=a.alpha,
-                      sim=sim_kwargs(data), progress=progress(a.quiet), cand=cand)
-    r.update(run=str(a.run), checkpoint=ckpt.name, step=int(ck["step"]), task=name, seed=a.seed,
-             candidate_source=a.candidate_source)
+    r = oracle_single(
+        algo,
+        data,
+        goals,
+        candidates=a.candidates,
+        seed=a.seed,
+        leg_horizon=a.leg_horizon,
+        alpha=a.alpha,
+        sim=sim_kwargs(data),
+        progress=progress(a.quiet),
+        cand=cand,
+    )
+    r.update(
+        run=str(a.run), checkpoint=ckpt.name, step=int(ck["step"]), task=name, seed=a.seed, candidate_source=a.candidate_source
+    )
     out = a.out or Path(a.run) / "eval" / f"oracle-{name}"
     strict = {k: None if isinstance(v, float) and v != v else v for k, v in r.items()}  # NaN AUC -> null (valid JSON)
     path = results.write_text(out / "oracle.json", json.dumps(strict, indent=2, sort_keys=True, allow_nan=False) + "\n")

@@ -104,8 +104,9 @@ def parse_ring(family: str, ring: str | int) -> Ring:
     if text.isdigit():
         k = int(text)
         if not 1 <= k <= len(all_rings):
-            raise UserError(f"--ring {k}: family {family!r} has rings 1..{len(all_rings)} "
-                            f"({'; '.join(r.label for r in all_rings)})")
+            raise UserError(
+                f"--ring {k}: family {family!r} has rings 1..{len(all_rings)} ({'; '.join(r.label for r in all_rings)})"
+            )
         return all_rings[k - 1]
     m = _RANGE.match(text)
     if not m:
@@ -132,9 +133,15 @@ def _ring_magnitudes(rng: np.random.Generator, n: int, lo: float, hi: float) -> 
     return mag * sign
 
 
-def sample_ring(ring: Ring, n: int, seed: int = 0, *, pos_range: tuple[float, float] = (1.0, 2.0),
-                vel_range: tuple[float, float] = (-2.5, 2.5),
-                acc_range: tuple[float, float] = (-5.0, 5.0)) -> dict[str, np.ndarray]:
+def sample_ring(
+    ring: Ring,
+    n: int,
+    seed: int = 0,
+    *,
+    pos_range: tuple[float, float] = (1.0, 2.0),
+    vel_range: tuple[float, float] = (-2.5, 2.5),
+    acc_range: tuple[float, float] = (-5.0, 5.0),
+) -> dict[str, np.ndarray]:
     """``n`` goals of ``ring`` (``{"pos", "vel", "acc"}`` (n, 3), ``"R"`` (n, 3, 3)); the
     dimensions the ring does not move are drawn from rho_D (the given ranges)."""
     from aerohrl.datagen.goals import flat_attitude, sample_goals
@@ -142,8 +149,13 @@ def sample_ring(ring: Ring, n: int, seed: int = 0, *, pos_range: tuple[float, fl
 
     n = _check_n(n)
     if ring.family == "position" and ring.index == 1:  # the thesis's OOD set, same stream (eval/tasks.py)
-        return sample_goals(np.random.default_rng(OOD_SEED_OFFSET + int(seed)), n, pos_range=ring.ranges["pos"],
-                            vel_range=vel_range, acc_range=acc_range)
+        return sample_goals(
+            np.random.default_rng(OOD_SEED_OFFSET + int(seed)),
+            n,
+            pos_range=ring.ranges["pos"],
+            vel_range=vel_range,
+            acc_range=acc_range,
+        )
     stream = FAMILY_SEED_OFFSET + 1000 * FAMILY_INDEX[ring.family] + 10 * ring.index + int(seed)
     if ring.index == 0:  # custom ring: its own stream, from its bounds
         lo, hi = next(iter(ring.ranges.values()))

@@ -136,9 +136,19 @@ class Feasibility:
 
     def rates(self) -> dict[str, float]:
         """Fractions of goals: direct_min_time, direct, runup, feasible and their near versions."""
-        return {k: float(np.mean(getattr(self, k))) for k in
-                ("direct_min_time", "direct_min_time_near", "direct", "direct_near", "runup", "runup_near",
-                 "feasible", "feasible_near")}
+        return {
+            k: float(np.mean(getattr(self, k)))
+            for k in (
+                "direct_min_time",
+                "direct_min_time_near",
+                "direct",
+                "direct_near",
+                "runup",
+                "runup_near",
+                "feasible",
+                "feasible_near",
+            )
+        }
 
 
 # ------------------------------------------------------------------------ inputs
@@ -177,8 +187,9 @@ _pos_float = reference.positive_number  # a finite number > 0, else a one-line e
 # ------------------------------------------------------------------- references
 
 
-def goal_bounds(acc: np.ndarray, a_max: float | None = None, *, a_spec: float = A_SPEC, margin: float = A_MARGIN,
-                a_cap: float = A_CAP) -> np.ndarray:
+def goal_bounds(
+    acc: np.ndarray, a_max: float | None = None, *, a_spec: float = A_SPEC, margin: float = A_MARGIN, a_cap: float = A_CAP
+) -> np.ndarray:
     """Per-goal per-axis acceleration bound (E,): ``min(a_cap, max(a_spec, margin max_j |acc_j|))``,
     or the fixed ``a_max`` for every goal when given."""
     acc = np.asarray(acc, dtype=np.float64)
@@ -188,8 +199,9 @@ def goal_bounds(acc: np.ndarray, a_max: float | None = None, *, a_spec: float = 
     return np.minimum(a_cap, np.maximum(a_spec, margin * np.abs(acc).max(axis=1)))
 
 
-def min_time(x0: np.ndarray, xf: np.ndarray, a_max: np.ndarray, t_hi: float,
-             tol: float = BISECTION_TOL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def min_time(
+    x0: np.ndarray, xf: np.ndarray, a_max: np.ndarray, t_hi: float, tol: float = BISECTION_TOL
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimum-time quintics with a per-reference bound ``a_max`` (N,) -> ``(T, coeffs, feasible)``.
 
     Thesis Alg. 1 on ``[0, t_hi]`` exactly as :func:`aerohrl.datagen.reference.min_time`
@@ -221,8 +233,13 @@ def min_time(x0: np.ndarray, xf: np.ndarray, a_max: np.ndarray, t_hi: float,
     return hi, reference.min_jerk_closed_form(x0, xf, hi), feasible
 
 
-def runup_waypoints(xf: np.ndarray, a_max: float | np.ndarray, factors: Sequence[float] = DISTANCE_FACTORS,
-                    lateral: Sequence[float] = LATERAL, min_runup: float = MIN_RUNUP) -> np.ndarray:
+def runup_waypoints(
+    xf: np.ndarray,
+    a_max: float | np.ndarray,
+    factors: Sequence[float] = DISTANCE_FACTORS,
+    lateral: Sequence[float] = LATERAL,
+    min_runup: float = MIN_RUNUP,
+) -> np.ndarray:
     """Candidate run-up waypoints (E, O, 3), O = len(factors) x len(lateral) (factor-major):
     ``p - d v_hat + l d u`` with ``d = max(d0, min_runup) f``, ``d0 = |v| max_i |v_i| / (2 a_max)``
     (module docstring)."""
@@ -250,9 +267,18 @@ def runup_waypoints(xf: np.ndarray, a_max: float | np.ndarray, factors: Sequence
 # ------------------------------------------------------------------------ flying
 
 
-def fly(goal_vec: np.ndarray, coeffs: np.ndarray, durations: np.ndarray, horizon: int, *, vehicle: str = "hummingbird",
-        fps: int = 100, substeps: int = 5, record_every: int = 0,
-        tol: task.GoalTolerance = task.TOLERANCE) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def fly(
+    goal_vec: np.ndarray,
+    coeffs: np.ndarray,
+    durations: np.ndarray,
+    horizon: int,
+    *,
+    vehicle: str = "hummingbird",
+    fps: int = 100,
+    substeps: int = 5,
+    record_every: int = 0,
+    tol: task.GoalTolerance = task.TOLERANCE,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Fly N multi-leg references with the clean geometric expert from hover at the origin.
 
     ``coeffs`` (N, L, 3, 6) and ``durations`` (N, L) s: leg l starts when legs 0..l-1 end;
@@ -322,11 +348,25 @@ def _first(step: np.ndarray):
     return reached.any(axis=1), np.where(reached, step, np.iinfo(np.int64).max).argmin(axis=1)
 
 
-def feasibility(goals: dict, horizon_steps: int, vehicle: str = "hummingbird", fps: int = 100, substeps: int = 5,
-                a_max: float | None = None, *, a_spec: float = A_SPEC, margin: float = A_MARGIN, a_cap: float = A_CAP,
-                stretch: Sequence[float] = STRETCH, factors: Sequence[float] = DISTANCE_FACTORS,
-                lateral: Sequence[float] = LATERAL, runup_stretch: Sequence[float] = RUNUP_STRETCH, runup: str = "all",
-                record_every: int = 0, tol: task.GoalTolerance = task.TOLERANCE) -> Feasibility:
+def feasibility(
+    goals: dict,
+    horizon_steps: int,
+    vehicle: str = "hummingbird",
+    fps: int = 100,
+    substeps: int = 5,
+    a_max: float | None = None,
+    *,
+    a_spec: float = A_SPEC,
+    margin: float = A_MARGIN,
+    a_cap: float = A_CAP,
+    stretch: Sequence[float] = STRETCH,
+    factors: Sequence[float] = DISTANCE_FACTORS,
+    lateral: Sequence[float] = LATERAL,
+    runup_stretch: Sequence[float] = RUNUP_STRETCH,
+    runup: str = "all",
+    record_every: int = 0,
+    tol: task.GoalTolerance = task.TOLERANCE,
+) -> Feasibility:
     """Which of ``goals`` (``{"pos", "vel", "acc"}`` (E, 3), ``"R"`` (E, 3, 3)) the expert reaches
     within ``horizon_steps`` at ``fps``: directly from rest at the origin, and through one
     run-up waypoint (module docstring). ``a_max``: one fixed per-axis bound (m/s^2) instead
@@ -425,21 +465,33 @@ def feasibility(goals: dict, horizon_steps: int, vehicle: str = "hummingbird", f
     any_r, first = _first(step_r)
     legs = durs.reshape(E, O, 2)[idx, first]
     res = Feasibility(
-        direct=direct, direct_near=(near_d > 0).any(axis=1),
-        direct_min_time=step_d[:, 0] > 0, direct_min_time_near=near_d[:, 0] > 0,
-        runup=any_r, runup_near=(near_r > 0).any(axis=1),
-        feasible=direct | any_r, feasible_near=(near_d > 0).any(axis=1) | (near_r > 0).any(axis=1),
-        T_direct=T_d, direct_ref=ok_d & (T_d <= t_hi + 1e-9),
+        direct=direct,
+        direct_near=(near_d > 0).any(axis=1),
+        direct_min_time=step_d[:, 0] > 0,
+        direct_min_time_near=near_d[:, 0] > 0,
+        runup=any_r,
+        runup_near=(near_r > 0).any(axis=1),
+        feasible=direct | any_r,
+        feasible_near=(near_d > 0).any(axis=1) | (near_r > 0).any(axis=1),
+        T_direct=T_d,
+        direct_ref=ok_d & (T_d <= t_hi + 1e-9),
         direct_stretch=np.where(direct, stretch[first_d], np.nan),
         direct_step=np.where(direct, step_d[idx, first_d], -1),
         runup_waypoint=np.where(any_r[:, None], W[idx, first // R], np.nan),
         runup_option=np.where(any_r, first, -1),
         runup_T=np.where(any_r[:, None], legs, np.nan),
         runup_step=np.where(any_r, step_r[idx, first], -1),
-        a_max=bound, horizon=horizon,
-        positions_direct=pos_d, positions_runup=chosen_positions(pos, sel, O, any_r, first),
-        options={"stretch": stretch.tolist(), "factors": factors.tolist(), "lateral": lateral.tolist(),
-                 "runup_stretch": runup_stretch.tolist(), "runup": runup},
+        a_max=bound,
+        horizon=horizon,
+        positions_direct=pos_d,
+        positions_runup=chosen_positions(pos, sel, O, any_r, first),
+        options={
+            "stretch": stretch.tolist(),
+            "factors": factors.tolist(),
+            "lateral": lateral.tolist(),
+            "runup_stretch": runup_stretch.tolist(),
+            "runup": runup,
+        },
     )
     res.seconds = time.perf_counter() - t0
     return res
@@ -460,14 +512,28 @@ def ring_feasibility(ring: Ring, n: int, spec: dict, cache: str | Path | None = 
     f = Path(cache) / f"feasibility-{ring.slug}-n{n}.json" if cache is not None else None
     if f is not None and f.exists():
         return {k: np.array(v) for k, v in json.loads(f.read_text()).items()}
-    g = sample_ring(ring, n, 0, pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
-                    vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
-                    acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE))
+    g = sample_ring(
+        ring,
+        n,
+        0,
+        pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
+        vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
+        acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE),
+    )
     # run-ups only for the goals the direct flight misses: "run-up" then counts the goals that need one
-    r = feasibility(g, ring.horizon(), vehicle=spec.get("vehicle", "hummingbird"), fps=int(spec.get("fps", 100)),
-                    substeps=int(spec.get("substeps", 5)), runup="failed")
-    keep = {"direct": np.asarray(r.direct).tolist(), "runup": (np.asarray(r.runup) & ~np.asarray(r.direct)).tolist(),
-            "feasible": np.asarray(r.feasible).tolist()}
+    r = feasibility(
+        g,
+        ring.horizon(),
+        vehicle=spec.get("vehicle", "hummingbird"),
+        fps=int(spec.get("fps", 100)),
+        substeps=int(spec.get("substeps", 5)),
+        runup="failed",
+    )
+    keep = {
+        "direct": np.asarray(r.direct).tolist(),
+        "runup": (np.asarray(r.runup) & ~np.asarray(r.direct)).tolist(),
+        "feasible": np.asarray(r.feasible).tolist(),
+    }
     if f is not None:
         atomic.write_text(f, json.dumps(keep))
     return {k: np.array(v) for k, v in keep.items()}

@@ -61,7 +61,7 @@ class NoGoalPolicy(_Floor):
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The wrapped policy's action (B, 4) with its normalised relative-goal inputs zeroed."""
         x = self.normalizer.inputs(state, goal)
-        x[:, task.OBS_DIM:] = 0.0
+        x[:, task.OBS_DIM :] = 0.0
         return self.normalizer.action_from_unit(self.inner.policy_unit(x))
 
 

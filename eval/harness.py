@@ -63,30 +63,74 @@ class EvalOptions:
     alpha: float = _in_name(param(1.0, "variance penalty of Eq. 3.6/3.7", ge=0), 3, "-a{:g}", planned=True)
     candidates: int = param(1024, "achieved goals scored by the planner (seeded subset; 0 = all)", ge=0)
     replan: bool = param(True, "multi: re-plan the remaining goals at each reached intermediate goal")
-    replan_every: int = _in_name(param(0, "re-plan from the current state every K simulator steps during intermediate "
-                                       "legs (0: never)", unit="steps", ge=0), 1, "-replan{}", planned=True)
+    replan_every: int = _in_name(
+        param(
+            0, "re-plan from the current state every K simulator steps during intermediate legs (0: never)", unit="steps", ge=0
+        ),
+        1,
+        "-replan{}",
+        planned=True,
+    )
     # horizon None: 1000 steps in 2 legs of 500, or a family ring's own
-    horizon: int | None = param(None, "ood: simulator steps per episode (100 Hz: 1000 = 10 s), every planner",
-                                unit="steps", ge=1)
+    horizon: int | None = param(None, "ood: simulator steps per episode (100 Hz: 1000 = 10 s), every planner", unit="steps", ge=1)
     family: str | None = param(None, "ood: goals that leave rho_D along one axis (eval/families.py)")
     ring: str | None = param(None, "ood --family: step 1..K of the family, or a range LO:HI of |x_i| (m, m/s or m/s^2)")
-    leg_horizon: int = param(0, "ood: budget to reach an intermediate goal (0: horizon / (intermediate goals + 1))",
-                             unit="steps", ge=0)
-    waypoint_tol: float = _in_name(param(1.0, "an intermediate goal is reached with the goal tolerances x this "
-                                         "(2.5: near success)", gt=0), 2, "-tol{:g}", planned=True)
-    floor: str = _in_name(param("none", "fly a trivial floor instead of the run's policy: hover (constant [g, 0, 0, 0]) | "
-                                "no-goal (the policy with its goal inputs at their mean); results go to <task>-floor-<floor>",
-                                choices=FLOORS), 8, "-floor-{}")
-    goal_tol: float = _in_name(param(1.0, "the task goal's tolerances x this (0.5: 0.075 m, 0.175 m/s, 0.075 rad; "
-                                     "results go to <task>-goaltol0.5)", gt=0, le=10), 7, "-goaltol{:g}")
-    decline_margin: float | None = _in_name(param(None, "planner: fly straight to G where the plan's score <= V(s0, G) + M "
-                                                  "(flying straight stays a candidate; results go to "
-                                                  "ood-<planner>-decline<M>)"), 5, "-decline{:g}", planned=True)
-    min_leg: float = _in_name(param(0.0, "planner: skip candidates closer than this to the start as first goal (0: none "
-                                    "skipped)", unit="m", ge=0), 4, "-minleg{:g}", planned=True)
-    candidate_source: str = _in_name(param("dataset", "planner: dataset achieved goals | synthetic offsets chained from "
-                                           "the start (far goals, ChainPlanner)", choices=("dataset", "synthetic")),
-                                     6, "-synth", planned=True)
+    leg_horizon: int = param(
+        0, "ood: budget to reach an intermediate goal (0: horizon / (intermediate goals + 1))", unit="steps", ge=0
+    )
+    waypoint_tol: float = _in_name(
+        param(1.0, "an intermediate goal is reached with the goal tolerances x this (2.5: near success)", gt=0),
+        2,
+        "-tol{:g}",
+        planned=True,
+    )
+    floor: str = _in_name(
+        param(
+            "none",
+            "fly a trivial floor instead of the run's policy: hover (constant [g, 0, 0, 0]) | "
+            "no-goal (the policy with its goal inputs at their mean); results go to <task>-floor-<floor>",
+            choices=FLOORS,
+        ),
+        8,
+        "-floor-{}",
+    )
+    goal_tol: float = _in_name(
+        param(
+            1.0,
+            "the task goal's tolerances x this (0.5: 0.075 m, 0.175 m/s, 0.075 rad; results go to <task>-goaltol0.5)",
+            gt=0,
+            le=10,
+        ),
+        7,
+        "-goaltol{:g}",
+    )
+    decline_margin: float | None = _in_name(
+        param(
+            None,
+            "planner: fly straight to G where the plan's score <= V(s0, G) + M "
+            "(flying straight stays a candidate; results go to "
+            "ood-<planner>-decline<M>)",
+        ),
+        5,
+        "-decline{:g}",
+        planned=True,
+    )
+    min_leg: float = _in_name(
+        param(0.0, "planner: skip candidates closer than this to the start as first goal (0: none skipped)", unit="m", ge=0),
+        4,
+        "-minleg{:g}",
+        planned=True,
+    )
+    candidate_source: str = _in_name(
+        param(
+            "dataset",
+            "planner: dataset achieved goals | synthetic offsets chained from the start (far goals, ChainPlanner)",
+            choices=("dataset", "synthetic"),
+        ),
+        6,
+        "-synth",
+        planned=True,
+    )
     seed: int = param(0, "episode-set seed", ge=0)
     device: str = param("cpu", "torch device")
     record: bool = param(True, "keep the trajectories of the newest checkpoint (for plots)", flag=False)
@@ -112,8 +156,12 @@ class EvalOptions:
             head = self.task
         else:
             ring = self.ring_def()
-            head = "ood-" + (ring.slug + "-" if ring is not None else "") + self.planner \
+            head = (
+                "ood-"
+                + (ring.slug + "-" if ring is not None else "")
+                + self.planner
                 + (f"{self.waypoints}" if self.planner == "multi" else "")
+            )
         parts = []
         for f in fields(self):
             if "name_part" not in f.metadata:
@@ -169,7 +217,11 @@ def check_checkpoint_dataset(ck: dict, data: Dataset, path: str | Path) -> None:
 def sim_kwargs(data: Dataset) -> dict:
     """The simulator settings of the dataset's spec: ``vehicle``, ``fps``, ``substeps``."""
     spec = data.info.get("spec") or {}
-    return {"vehicle": spec.get("vehicle", "hummingbird"), "fps": int(spec.get("fps", 100)), "substeps": int(spec.get("substeps", 5))}
+    return {
+        "vehicle": spec.get("vehicle", "hummingbird"),
+        "fps": int(spec.get("fps", 100)),
+        "substeps": int(spec.get("substeps", 5)),
+    }
 
 
 def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Planner | ChainPlanner | None, int]:
@@ -213,8 +265,10 @@ def build_episodes(data: Dataset, opt: EvalOptions) -> EpisodeSet:
 
     goals = int(data.rest_start_episodes().numel())
     if opt.task == "reach-desired" and opt.episodes > goals:  # a repeated goal would be flown the same way again
-        raise UserError(f"--episodes {opt.episodes} exceeds the {goals} desired goals of dataset {data.info.get('path')} "
-                        f"(reach-desired flies each goal once); pass --episodes {goals} or fewer")
+        raise UserError(
+            f"--episodes {opt.episodes} exceeds the {goals} desired goals of dataset {data.info.get('path')} "
+            f"(reach-desired flies each goal once); pass --episodes {goals} or fewer"
+        )
 
     kw = {}
     ring = opt.ring_def()
@@ -254,7 +308,9 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
     per_ckpt = []
     hover_success = None  # Reach-Intermediate: the hover floor's outcomes on these episodes (kind_rates)
     t_start = time.perf_counter()
-    bar = tqdm(ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=None if opt.progress else True, dynamic_ncols=True)  # None: only on a terminal
+    bar = tqdm(
+        ckpts, desc=f"eval {opt.name()}", unit="ckpt", disable=None if opt.progress else True, dynamic_ncols=True
+    )  # None: only on a terminal
     for i, path in enumerate(bar):
         algo, ck = load_policy(path, device, run)
         check_checkpoint_dataset(ck, data, path)
@@ -265,26 +321,48 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
         record = opt.record and i == len(ckpts) - 1
         t0 = time.perf_counter()
-        r = rollout(algo, episodes, planner=planner, n_waypoints=nw, leg_horizon=leg_h, replan=opt.replan,
-                    replan_every=opt.replan_every, waypoint_tol=opt.waypoint_tol, goal_tol=opt.goal_tol, decline_margin=opt.decline_margin, record=record, progress=opt.progress, desc=f"step {ck['step']}",
-                    **sim_kwargs(data))
+        r = rollout(
+            algo,
+            episodes,
+            planner=planner,
+            n_waypoints=nw,
+            leg_horizon=leg_h,
+            replan=opt.replan,
+            replan_every=opt.replan_every,
+            waypoint_tol=opt.waypoint_tol,
+            goal_tol=opt.goal_tol,
+            decline_margin=opt.decline_margin,
+            record=record,
+            progress=opt.progress,
+            desc=f"step {ck['step']}",
+            **sim_kwargs(data),
+        )
         wall = time.perf_counter() - t0
         results.write_episodes(out_dir, int(ck["step"]), episodes, r)
-        per_ckpt.append({"checkpoint": path.name, "step": int(ck["step"]), "success": float(r["success"].mean()),
-                         "near_success": float(r["near_success"].mean()), "seconds": wall,
-                         **({"declined": float(r["declined"].mean())} if "declined" in r else {}),
-                         **results.kind_rates(episodes, r, r["success"] if opt.floor == "hover" else hover_success)})
+        per_ckpt.append(
+            {
+                "checkpoint": path.name,
+                "step": int(ck["step"]),
+                "success": float(r["success"].mean()),
+                "near_success": float(r["near_success"].mean()),
+                "seconds": wall,
+                **({"declined": float(r["declined"].mean())} if "declined" in r else {}),
+                **results.kind_rates(episodes, r, r["success"] if opt.floor == "hover" else hover_success),
+            }
+        )
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
         if record:
             results.write_trajectories(out_dir, int(ck["step"]), episodes, r)
-    summary = results.summarize(per_ckpt, run_dir=run.path, meta=meta, options=opt, episodes=episodes,
-                                seconds=time.perf_counter() - t_start)
+    summary = results.summarize(
+        per_ckpt, run_dir=run.path, meta=meta, options=opt, episodes=episodes, seconds=time.perf_counter() - t_start
+    )
     results.write_summary(out_dir, summary)
     return summary
 
 
-def make_reach_intermediate_evaluator(data: Dataset, cfg: TrainConfig,
-                                      episodes: int | None = None) -> Callable[[Algorithm, int], dict[str, float]]:
+def make_reach_intermediate_evaluator(
+    data: Dataset, cfg: TrainConfig, episodes: int | None = None
+) -> Callable[[Algorithm, int], dict[str, float]]:
     """Reach-Intermediate (docs/spec.md; thesis Fig. 3.4: 75 episodes, a third to the desired
     goal with 500 steps, two thirds to an achieved goal <= 45 steps ahead with 100 steps)
     on a fixed, seeded episode set; default ``3 * cfg.eval_episodes`` episodes: a trainer
@@ -294,14 +372,17 @@ def make_reach_intermediate_evaluator(data: Dataset, cfg: TrainConfig,
 
     eps = reach_intermediate(data, episodes or 3 * cfg.eval_episodes, seed=cfg.seed + 12345)
     spec = data.info.get("spec") or {}
-    kw = {"vehicle": spec.get("vehicle", "hummingbird"), "fps": int(spec.get("fps", 100)), "substeps": int(spec.get("substeps", 5))}
+    kw = {
+        "vehicle": spec.get("vehicle", "hummingbird"),
+        "fps": int(spec.get("fps", 100)),
+        "substeps": int(spec.get("substeps", 5)),
+    }
 
     def evaluate(algo, step):
         r = rollout(algo, eps, **kw)
         return {"success": float(r["success"].mean()), "near_success": float(r["near_success"].mean())}
 
     return evaluate
-
 
 
 def critics_auc(run_dir: str | Path) -> float:
@@ -342,5 +423,12 @@ def critics_auc(run_dir: str | Path) -> float:
     return roc_auc(v, success)
 
 
-__all__ = ["EvalOptions", "evaluate_run", "run_checkpoints", "load_run_dataset", "critics_auc", "PLANNERS",
-           "make_reach_intermediate_evaluator"]
+__all__ = [
+    "EvalOptions",
+    "evaluate_run",
+    "run_checkpoints",
+    "load_run_dataset",
+    "critics_auc",
+    "PLANNERS",
+    "make_reach_intermediate_evaluator",
+]

@@ -56,8 +56,7 @@ def _eval_dir(run, task: str, planner: str | None) -> Path:
     return d
 
 
-def plot_trajectories(run: str | Path, task: str, out: str | Path, planner: str | None = None,
-                      max_per_panel: int = 12) -> Path:
+def plot_trajectories(run: str | Path, task: str, out: str | Path, planner: str | None = None, max_per_panel: int = 12) -> Path:
     """3-D flight paths of the newest evaluated checkpoint of ``run`` on ``task`` (thesis
     Fig. 3.5 / 3.6 analogues; module docstring), successes and failures in two panels of
     at most ``max_per_panel`` paths; written to ``out``, returns it."""
@@ -102,10 +101,12 @@ def plot_trajectories(run: str | Path, task: str, out: str | Path, planner: str 
             ax.scatter(*starts[idx, :3].T, c="orange", s=18, depthshade=False)
             from matplotlib.lines import Line2D
 
-            key = [Line2D([], [], color="orange", marker="o", ls="", ms=4, label="start"),
-                   Line2D([], [], color="grey", lw=1, label="flight (one colour per episode)"),
-                   Line2D([], [], color="grey", marker=".", ls="", ms=5, label="where it ended"),
-                   Line2D([], [], color="grey", marker="*", ls="", ms=9, mec="black", mew=0.4, label="its goal")]
+            key = [
+                Line2D([], [], color="orange", marker="o", ls="", ms=4, label="start"),
+                Line2D([], [], color="grey", lw=1, label="flight (one colour per episode)"),
+                Line2D([], [], color="grey", marker=".", ls="", ms=5, label="where it ended"),
+                Line2D([], [], color="grey", marker="*", ls="", ms=9, mec="black", mew=0.4, label="its goal"),
+            ]
             if wps is not None:
                 key.append(Line2D([], [], color="grey", marker="^", ls="", ms=6, mec="black", mew=0.4, label="its planned goals"))
             ax.legend(handles=key, loc="upper left", fontsize=7)
@@ -157,14 +158,25 @@ def plot_learning_curves(runs: Sequence[str | Path], out: str | Path) -> Path:
         for (task_name, source), curves in series.items():
             harness = source.startswith("aerohrl")
             if len(curves) == 1:
-                (line,) = ax.plot(*zip(*curves[0]), marker="s" if harness else "o", ms=3, ls="--" if harness else "-",
-                                  label=f"{algo} ({name}): {task_name} ({source})")
+                (line,) = ax.plot(
+                    *zip(*curves[0]),
+                    marker="s" if harness else "o",
+                    ms=3,
+                    ls="--" if harness else "-",
+                    label=f"{algo} ({name}): {task_name} ({source})",
+                )
             else:
                 st, mean, lo, hi = _seed_band(curves)
                 if not len(st):
                     continue  # the seeds share no step (yet)
-                (line,) = ax.plot(st, mean, marker="s" if harness else "o", ms=3, ls="--" if harness else "-",
-                                  label=f"{algo} ({name}): {task_name} ({source}), mean of {len(curves)} seeds, band min-max")
+                (line,) = ax.plot(
+                    st,
+                    mean,
+                    marker="s" if harness else "o",
+                    ms=3,
+                    ls="--" if harness else "-",
+                    label=f"{algo} ({name}): {task_name} ({source}), mean of {len(curves)} seeds, band min-max",
+                )
                 ax.fill_between(st, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
             drawn += 1
     if not drawn:

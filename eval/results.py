@@ -53,8 +53,17 @@ def episode_rows(episodes: EpisodeSet, r: dict) -> tuple[list[str], list[list]]:
     E = len(episodes)
     head = ["episode", "kind", "source_episode", "start_frame", "steps_ahead", "horizon"]
     head += [f"start_{n}" for n in task.STATE_NAMES] + [f"goal_{n}" for n in task.GOAL_NAMES]
-    head += ["success", "near_success", "first_success_step", "first_near_step", "steps",
-             "final_pos_err", "final_vel_err", "final_rot_err", "min_pos_err"]
+    head += [
+        "success",
+        "near_success",
+        "first_success_step",
+        "first_near_step",
+        "steps",
+        "final_pos_err",
+        "final_vel_err",
+        "final_rot_err",
+        "min_pos_err",
+    ]
     wp = r.get("waypoints")
     nw = 0 if wp is None else wp.shape[1]
     for k in range(nw):
@@ -64,12 +73,26 @@ def episode_rows(episodes: EpisodeSet, r: dict) -> tuple[list[str], list[list]]:
     kind = episodes.kind()
     rows = []
     for i in range(E):
-        row = [i, kind[i], int(episodes.source_episode[i]), int(episodes.start_frame[i]), int(episodes.steps_ahead[i]),
-               int(episodes.horizons[i])]
+        row = [
+            i,
+            kind[i],
+            int(episodes.source_episode[i]),
+            int(episodes.start_frame[i]),
+            int(episodes.steps_ahead[i]),
+            int(episodes.horizons[i]),
+        ]
         row += [float(x) for x in episodes.start_states[i]] + [float(x) for x in episodes.goals[i]]
-        row += [int(r["success"][i]), int(r["near_success"][i]), int(r["first_success_step"][i]), int(r["first_near_step"][i]),
-                int(r["steps"][i]), float(r["final_pos_err"][i]), float(r["final_vel_err"][i]), float(r["final_rot_err"][i]),
-                float(r["min_pos_err"][i])]
+        row += [
+            int(r["success"][i]),
+            int(r["near_success"][i]),
+            int(r["first_success_step"][i]),
+            int(r["first_near_step"][i]),
+            int(r["steps"][i]),
+            float(r["final_pos_err"][i]),
+            float(r["final_vel_err"][i]),
+            float(r["final_rot_err"][i]),
+            float(r["min_pos_err"][i]),
+        ]
         for k in range(nw):
             row += [int(r["waypoint_frame"][i, k])] + [float(x) for x in wp[i, k, :3]]
         if nw:
@@ -100,8 +123,16 @@ def write_trajectories(out_dir: str | Path, step: int, episodes: EpisodeSet, r: 
     path = Path(out_dir) / f"trajectories-step-{step:09d}.npz"
     buf = io.BytesIO()
     extra = {k: r[k] for k in ("waypoints", "planned_waypoints") if k in r}
-    np.savez_compressed(buf, positions=r["positions"], goals=episodes.goals, start_states=episodes.start_states,
-                        success=r["success"], near_success=r["near_success"], steps=r["steps"], **extra)
+    np.savez_compressed(
+        buf,
+        positions=r["positions"],
+        goals=episodes.goals,
+        start_states=episodes.start_states,
+        success=r["success"],
+        near_success=r["near_success"],
+        steps=r["steps"],
+        **extra,
+    )
     return atomic.write_bytes(path, buf.getvalue())
 
 
@@ -130,8 +161,9 @@ def kind_rates(episodes: EpisodeSet, r: dict, hover_success: np.ndarray | None =
     return out
 
 
-def summarize(per_ckpt: list[dict], *, run_dir: str | Path, meta: dict, options: EvalOptions, episodes: EpisodeSet,
-              seconds: float) -> dict:
+def summarize(
+    per_ckpt: list[dict], *, run_dir: str | Path, meta: dict, options: EvalOptions, episodes: EpisodeSet, seconds: float
+) -> dict:
     """The ``summary.json`` of an evaluation: the per-checkpoint results ``per_ckpt`` and the
     mean/std of success and near success over them, with the run, algorithm, task,
     options, dataset and timing."""
@@ -194,8 +226,11 @@ def evaluation_is_current(run_dir: str | Path, name: str, episodes: int, checkpo
     except (OSError, ValueError):
         return False
     done = [c.get("checkpoint") for c in s.get("checkpoints", [])]
-    return (s.get("episodes") == episodes and done == [c.name for c in ckpts]
-            and f.stat().st_mtime > max(c.stat().st_mtime for c in ckpts))
+    return (
+        s.get("episodes") == episodes
+        and done == [c.name for c in ckpts]
+        and f.stat().st_mtime > max(c.stat().st_mtime for c in ckpts)
+    )
 
 
 def _algo_of(run_dir) -> str:
@@ -241,16 +276,22 @@ def paired_vs_none(run_dirs: Sequence[str | Path], name: str) -> dict | None:
         return None
     n = only_planner + only_none
     x = np.array(diffs)
-    return {"diff": float(x.mean()), "se": float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan"),
-            "only_planner": only_planner, "only_none": only_none,
-            "p": float(binomtest(only_planner, n).pvalue) if n else 1.0, "checkpoints": len(x)}
+    return {
+        "diff": float(x.mean()),
+        "se": float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan"),
+        "only_planner": only_planner,
+        "only_none": only_none,
+        "p": float(binomtest(only_planner, n).pvalue) if n else 1.0,
+        "checkpoints": len(x),
+    }
 
 
 def _paired_cell(pv: dict | None) -> str:
     if pv is None:
         return "—"
-    return (f"{100 * pv['diff']:+.1f} ± {100 * pv['se']:.1f} (episodes {pv['only_planner']} : {pv['only_none']}, "
-            f"p = {pv['p']:.2f})")
+    return (
+        f"{100 * pv['diff']:+.1f} ± {100 * pv['se']:.1f} (episodes {pv['only_planner']} : {pv['only_none']}, p = {pv['p']:.2f})"
+    )
 
 
 # ----------------------------------------------------------------------------- seeds
@@ -270,8 +311,12 @@ def seed_stats(values: Iterable[float]) -> dict:
     """A claim over seeds: mean, std (ddof 1; 0 for one seed), the 95 % bootstrap interval
     of the mean and every seed's value."""
     v = [float(x) for x in values]
-    return {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1)) if len(v) > 1 else 0.0,
-            "ci95": bootstrap_ci(v), "values": v}
+    return {
+        "mean": float(np.mean(v)),
+        "std": float(np.std(v, ddof=1)) if len(v) > 1 else 0.0,
+        "ci95": bootstrap_ci(v),
+        "values": v,
+    }
 
 
 def seed_cell(st: dict | None, digits: int = 1) -> str:
@@ -313,18 +358,24 @@ def _seed_figures(runs: list[Path], name: str) -> dict | None:
     sums = [(rd, s) for rd in runs if (s := read_summary(rd, name))]
     if not sums:
         return None
+
     def over_seeds(key: str) -> dict | None:  # a per-checkpoint rate some summaries carry
         per_seed = [np.mean(f) for _, s in sums if (f := [c[key] for c in s["checkpoints"] if key in c])]
         return seed_stats([100 * x for x in per_seed]) if per_seed else None
 
-    return {"success": seed_stats([100 * s["success_mean"] for _, s in sums]),
-            "spread": float(np.mean([100 * s["success_std"] for _, s in sums])),
-            "near": seed_stats([100 * s["near_success_mean"] for _, s in sums]),
-            "near_std": float(np.mean([100 * s["near_success_std"] for _, s in sums])),
-            "seeds": len(sums), "ckpts": len(sums[0][1]["checkpoints"]), "episodes": sums[0][1]["episodes"],
-            "far": over_seeds("success_intermediate_far"), "beyond_hover": over_seeds("success_beyond_hover"),
-            "planner": sums[0][1].get("planner"),
-            "runs": [rd for rd, _ in sums]}
+    return {
+        "success": seed_stats([100 * s["success_mean"] for _, s in sums]),
+        "spread": float(np.mean([100 * s["success_std"] for _, s in sums])),
+        "near": seed_stats([100 * s["near_success_mean"] for _, s in sums]),
+        "near_std": float(np.mean([100 * s["near_success_std"] for _, s in sums])),
+        "seeds": len(sums),
+        "ckpts": len(sums[0][1]["checkpoints"]),
+        "episodes": sums[0][1]["episodes"],
+        "far": over_seeds("success_intermediate_far"),
+        "beyond_hover": over_seeds("success_beyond_hover"),
+        "planner": sums[0][1].get("planner"),
+        "runs": [rd for rd, _ in sums],
+    }
 
 
 def _t31_row(runs: list[Path], suffix: str, th: dict) -> tuple[list[str], list[Path]] | None:
@@ -335,9 +386,13 @@ def _t31_row(runs: list[Path], suffix: str, th: dict) -> tuple[list[str], list[P
     for name in ("reach-desired", "reach-intermediate"):
         f = _seed_figures(runs, name + suffix)
         flown += [rd for rd in (f["runs"] if f else []) if rd not in flown]
-        cells += [seed_cell(f["success"]) if f else "—", f"{f['spread']:.1f}" if f else "—",
-                  f"{f['near']['mean']:.1f}" if f else "—", f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—",
-                  f"{f['seeds']} x {f['ckpts']} x {f['episodes']}" if f else "0"]
+        cells += [
+            seed_cell(f["success"]) if f else "—",
+            f"{f['spread']:.1f}" if f else "—",
+            f"{f['near']['mean']:.1f}" if f else "—",
+            f"{th[name][0]:.1f} ± {th[name][1]:.2f}" if name in th else "—",
+            f"{f['seeds']} x {f['ckpts']} x {f['episodes']}" if f else "0",
+        ]
         if name == "reach-intermediate":  # goals >= FAR_AHEAD steps ahead; goals the hover floor misses
             cells += [seed_cell(f[k]) if f and f[k] else "—" for k in ("far", "beyond_hover")]
     nov = _seed_figures(runs, "reach-novel" + suffix)  # the generalisation diagnostic, beyond the thesis
@@ -346,7 +401,11 @@ def _t31_row(runs: list[Path], suffix: str, th: dict) -> tuple[list[str], list[P
 
 
 def _runs_label(runs: list[Path]) -> str:
-    return str(runs[0]) if len(runs) == 1 else f"{runs[0]} (+{len(runs) - 1} seed{'s' if len(runs) > 2 else ''}: " + ", ".join(p.name for p in runs[1:]) + ")"
+    return (
+        str(runs[0])
+        if len(runs) == 1
+        else f"{runs[0]} (+{len(runs) - 1} seed{'s' if len(runs) > 2 else ''}: " + ", ".join(p.name for p in runs[1:]) + ")"
+    )
 
 
 def floor_label(algo: str, floor: str) -> str:
@@ -373,8 +432,10 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
     t31, t32 = [], []
     for runs in group_runs(run_dirs):
         algo = _algo_of(runs[0])
-        for suffix, label in (("", ALGO_NAMES.get(algo, algo)),
-                              *((f"-floor-{fl}", f"floor: {floor_label(algo, fl)}") for fl in ("hover", "no-goal"))):
+        for suffix, label in (
+            ("", ALGO_NAMES.get(algo, algo)),
+            *((f"-floor-{fl}", f"floor: {floor_label(algo, fl)}") for fl in ("hover", "no-goal")),
+        ):
             row = _t31_row(runs, suffix, THESIS_T31.get(algo, {}) if not suffix else {})
             if row:  # named by the runs it was flown on (a floor: the first seed's only)
                 cells, flown = row
@@ -385,21 +446,52 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
             planner, tol, floor = _ood_variant(name)
             label = f"floor: {floor_label(algo, floor)}" if floor else ALGO_NAMES.get(algo, algo)
             th2 = THESIS_T32.get(planner) if algo == "gcsl" and not (tol or floor) and planner in ("none", "single") else None
-            t32.append([label, _runs_label(f["runs"]),  # the runs that have this evaluation
-                        planner + (f" (goal tolerance x {tol})" if tol else ""), seed_cell(f["success"]), f"{f['spread']:.1f}",
-                        f"{f['near']['mean']:.1f} ± {f['near_std']:.1f}" if f["seeds"] == 1 else seed_cell(f["near"]),
-                        f"{th2[0]:.1f}" if th2 else "—", f"{th2[1]:.1f}" if th2 else "—",
-                        f"{f['seeds']} x {f['ckpts']} x {f['episodes']}",
-                        # a planner against flying straight; a floor or a stricter tolerance is no planner
-                        _paired_cell(paired_vs_none(runs, name)) if planner != "none" and not (tol or floor) else "—"])
+            t32.append(
+                [
+                    label,
+                    _runs_label(f["runs"]),  # the runs that have this evaluation
+                    planner + (f" (goal tolerance x {tol})" if tol else ""),
+                    seed_cell(f["success"]),
+                    f"{f['spread']:.1f}",
+                    f"{f['near']['mean']:.1f} ± {f['near_std']:.1f}" if f["seeds"] == 1 else seed_cell(f["near"]),
+                    f"{th2[0]:.1f}" if th2 else "—",
+                    f"{th2[1]:.1f}" if th2 else "—",
+                    f"{f['seeds']} x {f['ckpts']} x {f['episodes']}",
+                    # a planner against flying straight; a floor or a stricter tolerance is no planner
+                    _paired_cell(paired_vs_none(runs, name)) if planner != "none" and not (tol or floor) else "—",
+                ]
+            )
     if not t31 and not t32:
         raise UserError("none of the runs has evaluation results (run `aerohrl eval --task ... --run RUN` first)")
-    h31 = ["algorithm", "runs", "Reach-Desired success %", "ckpt spread", "near %", "thesis %", "seeds x ckpts x episodes",
-           "Reach-Intermediate success %", "ckpt spread", "near %", "thesis %", "seeds x ckpts x episodes",
-           f"RI >= {FAR_AHEAD} steps ahead %", "RI goals hover misses %", "Reach-Novel % (diagnostic)"]
-    h32 = ["algorithm", "runs", "planner", "success %", "ckpt spread", "near success %", "thesis success %", "thesis near %",
-           "seeds x ckpts x episodes",
-           "success vs none, paired: points ± s.e. (episodes won only by planner : only by none, sign test)"]
+    h31 = [
+        "algorithm",
+        "runs",
+        "Reach-Desired success %",
+        "ckpt spread",
+        "near %",
+        "thesis %",
+        "seeds x ckpts x episodes",
+        "Reach-Intermediate success %",
+        "ckpt spread",
+        "near %",
+        "thesis %",
+        "seeds x ckpts x episodes",
+        f"RI >= {FAR_AHEAD} steps ahead %",
+        "RI goals hover misses %",
+        "Reach-Novel % (diagnostic)",
+    ]
+    h32 = [
+        "algorithm",
+        "runs",
+        "planner",
+        "success %",
+        "ckpt spread",
+        "near success %",
+        "thesis success %",
+        "thesis near %",
+        "seeds x ckpts x episodes",
+        "success vs none, paired: points ± s.e. (episodes won only by planner : only by none, sign test)",
+    ]
     return {"t31": (h31, t31), "t32": (h32, t32)}
 
 
@@ -414,20 +506,32 @@ def tables_markdown(t: dict) -> str:
     """The tables of :func:`tables` as Markdown, each with its caption."""
     out = []
     if t["t31"][1]:
-        out += ["**Table 3.1 analogue** (success %: a seed's figure is the mean over its evaluated checkpoints; over "
-                "seeds mean ± std [95 % bootstrap interval of the mean, shown with 3 or more seeds] (per-seed values); ckpt spread = the "
-                "std over checkpoints, mean over seeds; near = near success, mean; thesis values beside: last 10 "
-                "checkpoints x 250 episodes, one run; floors: hover, and the policy without its goal inputs)\n",
-                markdown(*t["t31"])]
+        out += [
+            "**Table 3.1 analogue** (success %: a seed's figure is the mean over its evaluated checkpoints; over "
+            "seeds mean ± std [95 % bootstrap interval of the mean, shown with 3 or more seeds] (per-seed values); ckpt spread = the "
+            "std over checkpoints, mean over seeds; near = near success, mean; thesis values beside: last 10 "
+            "checkpoints x 250 episodes, one run; floors: hover, and the policy without its goal inputs)\n",
+            markdown(*t["t31"]),
+        ]
     if t["t32"][1]:
-        out += ["**Table 3.2 analogue** (OOD goals; over seeds as above; thesis values for GCSL; the last column "
-                "compares each planner with flying straight on the same goals and checkpoints, pooled over seeds)\n",
-                markdown(*t["t32"])]
+        out += [
+            "**Table 3.2 analogue** (OOD goals; over seeds as above; thesis values for GCSL; the last column "
+            "compares each planner with flying straight on the same goals and checkpoints, pooled over seeds)\n",
+            markdown(*t["t32"]),
+        ]
     return "\n".join(out)
 
 
-def write_results_page(folder: str | Path, study: str, command: str, body: str, *,
-                       title: str | None = None, figures: Sequence[str | Path] = (), date: str | None = None) -> Path:
+def write_results_page(
+    folder: str | Path,
+    study: str,
+    command: str,
+    body: str,
+    *,
+    title: str | None = None,
+    figures: Sequence[str | Path] = (),
+    date: str | None = None,
+) -> Path:
     """Write a study's result as the dated page ``FOLDER/YYYY-MM-DD-STUDY.md`` (atomic).
 
     The page opens with ``title`` (default: the study's name) and the command that
@@ -453,11 +557,31 @@ def write_results_page(folder: str | Path, study: str, command: str, body: str, 
         dest.parent.mkdir(parents=True, exist_ok=True)
         atomic.write_bytes(dest, fig.read_bytes())
         shown.append(f"![{fig.stem}]({dest.relative_to(folder).as_posix()})")
-    text = (f"# {title or study.replace('-', ' ').capitalize()}, {day}\n\nProduced by:\n\n```\n{command.strip()}\n```\n\n"
-            + body.strip() + "\n" + "".join(f"\n{s}\n" for s in shown))
+    text = (
+        f"# {title or study.replace('-', ' ').capitalize()}, {day}\n\nProduced by:\n\n```\n{command.strip()}\n```\n\n"
+        + body.strip()
+        + "\n"
+        + "".join(f"\n{s}\n" for s in shown)
+    )
     return atomic.write_text(folder / f"{stem}.md", text)
 
 
-__all__ = ["write_episodes", "write_trajectories", "write_summary", "read_summary", "evaluation_is_current",
-           "write_results_page", "summarize", "tables", "tables_markdown",
-           "markdown", "to_csv", "group_runs", "seed_stats", "seed_cell", "bootstrap_ci", "THESIS_T31", "THESIS_T32"]
+__all__ = [
+    "write_episodes",
+    "write_trajectories",
+    "write_summary",
+    "read_summary",
+    "evaluation_is_current",
+    "write_results_page",
+    "summarize",
+    "tables",
+    "tables_markdown",
+    "markdown",
+    "to_csv",
+    "group_runs",
+    "seed_stats",
+    "seed_cell",
+    "bootstrap_ci",
+    "THESIS_T31",
+    "THESIS_T32",
+]

@@ -84,8 +84,13 @@ def options(base: EvalOptions, ring: Ring, variant: str, margin: float | None = 
     elif variant.startswith("single"):
         kw.update(planner="single")
     elif variant.startswith("chain"):
-        kw.update(planner="multi", waypoints=chain_waypoints(ring), candidate_source="synthetic",
-                  candidates=CHAIN_CANDIDATES, beam=CHAIN_BEAM)
+        kw.update(
+            planner="multi",
+            waypoints=chain_waypoints(ring),
+            candidate_source="synthetic",
+            candidates=CHAIN_CANDIDATES,
+            beam=CHAIN_BEAM,
+        )
     else:
         raise UserError(f"unknown variant {variant!r}")
     if variant.endswith("-decline"):
@@ -99,8 +104,10 @@ def episode_outcomes(summary_dir: Path) -> dict[int, dict]:
     for f in sorted(summary_dir.glob("episodes-step-*.csv")):
         with open(f, newline="") as fh:
             rows = list(csv.DictReader(fh))
-        rec = {"success": np.array([r["success"] == "1" for r in rows], bool),
-               "near": np.array([r["near_success"] == "1" for r in rows], bool)}
+        rec = {
+            "success": np.array([r["success"] == "1" for r in rows], bool),
+            "near": np.array([r["near_success"] == "1" for r in rows], bool),
+        }
         if rows and "plan_score" in rows[0]:
             rec["diff"] = np.array([float(r["plan_score"]) - float(r["direct_score"]) for r in rows])
         out[int(f.stem.rsplit("-", 1)[1])] = rec
@@ -122,8 +129,17 @@ def _done(out_dir: Path, opt) -> bool:
 def _subset(eps, idx: np.ndarray):
     from aerohrl.envs.episodes import EpisodeSet
 
-    return EpisodeSet(eps.task, eps.start_states[idx], eps.goals[idx], eps.horizons[idx], eps.source_episode[idx],
-                      eps.start_frame[idx], eps.steps_ahead[idx], eps.seed, dict(eps.meta))
+    return EpisodeSet(
+        eps.task,
+        eps.start_states[idx],
+        eps.goals[idx],
+        eps.horizons[idx],
+        eps.source_episode[idx],
+        eps.start_frame[idx],
+        eps.steps_ahead[idx],
+        eps.seed,
+        dict(eps.meta),
+    )
 
 
 def _slice(r: dict, idx: np.ndarray, E: int) -> dict:
@@ -138,11 +154,19 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     from aerohrl.eval import results
     from aerohrl.algorithms.base import load_policy
     from aerohrl.envs.rollout import rollout
-    from aerohrl.eval.harness import (build_episodes, check_checkpoint_dataset, check_options, make_planner, run_checkpoints,
-                                      sim_kwargs)
+    from aerohrl.eval.harness import (
+        build_episodes,
+        check_checkpoint_dataset,
+        check_options,
+        make_planner,
+        run_checkpoints,
+        sim_kwargs,
+    )
 
-    outs = [eval_root(run, opts[0].episodes if not heldout else base_episodes) / ("heldout" if heldout else "") / o.name()
-            for o in opts]
+    outs = [
+        eval_root(run, opts[0].episodes if not heldout else base_episodes) / ("heldout" if heldout else "") / o.name()
+        for o in opts
+    ]
     todo = [(o, d) for o, d in zip(opts, outs) if not _done(d, o)]
     if not todo:
         return outs
@@ -156,9 +180,15 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     bounds = np.cumsum([0] + [len(e) for e in sets])
     from aerohrl.envs.episodes import EpisodeSet
 
-    allset = EpisodeSet("ood", *(np.concatenate([getattr(e, f) for e in sets]) for f in
-                                 ("start_states", "goals", "horizons", "source_episode", "start_frame", "steps_ahead")),
-                        seed=sets[0].seed, meta={"leg_horizon": horizons.pop()})
+    allset = EpisodeSet(
+        "ood",
+        *(
+            np.concatenate([getattr(e, f) for e in sets])
+            for f in ("start_states", "goals", "horizons", "source_episode", "start_frame", "steps_ahead")
+        ),
+        seed=sets[0].seed,
+        meta={"leg_horizon": horizons.pop()},
+    )
     o0 = todo[0][0]
     per_ckpt = [[] for _ in todo]
     t_all = time.perf_counter()
@@ -170,22 +200,46 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
         leg_h = o0.leg_horizon or max(1, int(allset.horizons.max()) // (nw + 1))
         record = o0.record and i == len(ckpts) - 1
         t0 = time.perf_counter()
-        r = rollout(algo, allset, planner=planner, n_waypoints=nw, leg_horizon=leg_h, replan=o0.replan,
-                    replan_every=o0.replan_every, waypoint_tol=o0.waypoint_tol, goal_tol=o0.goal_tol,
-                    decline_margin=o0.decline_margin, record=record, **sim_kwargs(data))
+        r = rollout(
+            algo,
+            allset,
+            planner=planner,
+            n_waypoints=nw,
+            leg_horizon=leg_h,
+            replan=o0.replan,
+            replan_every=o0.replan_every,
+            waypoint_tol=o0.waypoint_tol,
+            goal_tol=o0.goal_tol,
+            decline_margin=o0.decline_margin,
+            record=record,
+            **sim_kwargs(data),
+        )
         wall = (time.perf_counter() - t0) / len(todo)
         for j, ((_o, d), eps) in enumerate(zip(todo, sets)):
             idx = np.arange(bounds[j], bounds[j + 1])
             rj = _slice(r, idx, len(allset))
             results.write_episodes(d, int(ck["step"]), eps, rj)
-            per_ckpt[j].append({"checkpoint": path.name, "step": int(ck["step"]), "success": float(rj["success"].mean()),
-                                "near_success": float(rj["near_success"].mean()), "seconds": wall,
-                                **({"declined": float(rj["declined"].mean())} if "declined" in rj else {})})
+            per_ckpt[j].append(
+                {
+                    "checkpoint": path.name,
+                    "step": int(ck["step"]),
+                    "success": float(rj["success"].mean()),
+                    "near_success": float(rj["near_success"].mean()),
+                    "seconds": wall,
+                    **({"declined": float(rj["declined"].mean())} if "declined" in rj else {}),
+                }
+            )
             if record:
                 results.write_trajectories(d, int(ck["step"]), eps, rj)
     for j, ((o, d), eps) in enumerate(zip(todo, sets)):
-        s = results.summarize(per_ckpt[j], run_dir=run, meta=meta, options=replace(o, out=str(d)), episodes=eps,
-                              seconds=(time.perf_counter() - t_all) / len(todo))
+        s = results.summarize(
+            per_ckpt[j],
+            run_dir=run,
+            meta=meta,
+            options=replace(o, out=str(d)),
+            episodes=eps,
+            seconds=(time.perf_counter() - t_all) / len(todo),
+        )
         s["batched_with"] = [x.name() for x, _ in todo]  # flown side by side in one closed loop
         results.write_summary(d, s)
     return outs
@@ -209,16 +263,24 @@ def choose_margin(pairs: dict, max_loss: float = MAX_LOSS) -> tuple[float, dict]
     prefers the larger margin (declining more)."""
     table = {}
     for m in MARGIN_GRID:
-        gains = {ring: float(np.mean([decline_success(s, p, d, m).mean() - s.mean() for s, p, d in v]))
-                 for ring, v in pairs.items()}
+        gains = {
+            ring: float(np.mean([decline_success(s, p, d, m).mean() - s.mean() for s, p, d in v])) for ring, v in pairs.items()
+        }
         table[m] = {"worst": min(gains.values()), "mean": float(np.mean(list(gains.values()))), "gains": gains}
     ok = [m for m in MARGIN_GRID if table[m]["worst"] >= -max_loss - 1e-12]
     best = max(ok, key=lambda m: (round(table[m]["mean"], 9), m))
     return best, table
 
 
-def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, heldout_n: int,
-          log: Callable[[str], Any], fly_declines: bool = False) -> dict:
+def study(
+    runs: list[Path],
+    rings: list[Ring],
+    variants: list[str],
+    base: EvalOptions,
+    heldout_n: int,
+    log: Callable[[str], Any],
+    fly_declines: bool = False,
+) -> dict:
     """Fly everything (resumable); returns {"margins": {planner: M}, "margin_tables": ...}."""
     from aerohrl.eval.harness import load_run_dataset
 
@@ -243,8 +305,10 @@ def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOp
                 opts = [replace(o, episodes=heldout_n, seed=HELDOUT_SEED) for o in opts]
             t0 = time.perf_counter()
             fly_group(run, opts, data_of(run), heldout, base.episodes)
-            log(f"{run.name} {'held-out' if heldout else 'test'} {variant} horizon {h} "
-                f"({', '.join(r.slug for r in rs)}): {time.perf_counter() - t0:.0f} s")
+            log(
+                f"{run.name} {'held-out' if heldout else 'test'} {variant} horizon {h} "
+                f"({', '.join(r.slug for r in rs)}): {time.perf_counter() - t0:.0f} s"
+            )
 
     # 1. held-out goals: straight and every planner, for the margins
     for run in runs:
@@ -259,8 +323,10 @@ def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOp
                 q = episode_outcomes(h / replace(options(base, ring, p), seed=HELDOUT_SEED).name())
                 pairs.setdefault(ring.slug, []).extend((s[k]["success"], q[k]["success"], q[k]["diff"]) for k in q if k in s)
         margins[p], margin_tables[p] = choose_margin(pairs)
-        log(f"margin of {p}: {margins[p]} (held-out worst ring {100 * margin_tables[p][margins[p]]['worst']:+.1f}, "
-            f"mean {100 * margin_tables[p][margins[p]]['mean']:+.1f} points)")
+        log(
+            f"margin of {p}: {margins[p]} (held-out worst ring {100 * margin_tables[p][margins[p]]['worst']:+.1f}, "
+            f"mean {100 * margin_tables[p][margins[p]]['mean']:+.1f} points)"
+        )
     # 2. test goals: every variant; a declining one is flown for real only with fly_declines
     #    (otherwise composed exactly from its straight and planned flights: collect())
     for run in runs:
@@ -272,8 +338,7 @@ def study(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOp
     return {"margins": margins, "margin_tables": {p: {str(k): v for k, v in t.items()} for p, t in margin_tables.items()}}
 
 
-def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, margins: dict,
-            feas: dict) -> list[dict]:
+def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: EvalOptions, margins: dict, feas: dict) -> list[dict]:
     """Per ring: per variant the success per seed (mean over checkpoints), on all and on
     feasible goals, and the paired gain over straight pooled over seeds."""
     from aerohrl.eval.results import seed_stats
@@ -300,9 +365,14 @@ def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: Eval
                         ep = episode_outcomes(flown)
                     else:  # composed exactly: declining episodes fly what the straight flight flew
                         planned = episode_outcomes(root / options(base, ring, v.removesuffix("-decline")).name())
-                        ep = {k: {"success": decline_success(straight[run][k]["success"], q["success"], q["diff"], m),
-                                  "near": decline_success(straight[run][k]["near"], q["near"], q["diff"], m)}
-                              for k, q in planned.items() if k in straight[run]}
+                        ep = {
+                            k: {
+                                "success": decline_success(straight[run][k]["success"], q["success"], q["diff"], m),
+                                "near": decline_success(straight[run][k]["near"], q["near"], q["diff"], m),
+                            }
+                            for k, q in planned.items()
+                            if k in straight[run]
+                        }
                 else:
                     ep = episode_outcomes(root / options(base, ring, v, m).name())
                 if not ep:
@@ -310,8 +380,12 @@ def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: Eval
                 per_seed.append(100 * np.mean([e["success"].mean() for e in ep.values()]))
                 near.append(100 * np.mean([e["near"].mean() for e in ep.values()]))
                 if fz is not None and fz["feasible"].any():
-                    per_seed_f.append(100 * np.mean([e["success"][fz["feasible"]].mean() for e in ep.values()
-                                                     if len(e["success"]) == len(fz["feasible"])]))
+                    per_seed_f.append(
+                        100
+                        * np.mean(
+                            [e["success"][fz["feasible"]].mean() for e in ep.values() if len(e["success"]) == len(fz["feasible"])]
+                        )
+                    )
                 for k, e in ep.items():
                     s = straight[run].get(k)
                     if s is not None and len(s["success"]) == len(e["success"]):
@@ -319,11 +393,17 @@ def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: Eval
                         only[0] += int((e["success"] & ~s["success"]).sum())
                         only[1] += int((s["success"] & ~e["success"]).sum())
             if per_seed:
-                rec["variants"][v] = {"success": seed_stats(per_seed), "near": seed_stats(near),
-                                      "feasible": seed_stats(per_seed_f) if per_seed_f else None,
-                                      "paired": {"diff": float(np.mean(diffs)) if diffs else float("nan"),
-                                                 "only_variant": only[0], "only_straight": only[1]},
-                                      "margin": m}
+                rec["variants"][v] = {
+                    "success": seed_stats(per_seed),
+                    "near": seed_stats(near),
+                    "feasible": seed_stats(per_seed_f) if per_seed_f else None,
+                    "paired": {
+                        "diff": float(np.mean(diffs)) if diffs else float("nan"),
+                        "only_variant": only[0],
+                        "only_straight": only[1],
+                    },
+                    "margin": m,
+                }
         out.append(rec)
     return out
 
@@ -336,8 +416,13 @@ def _paired(p: dict) -> str:
     return f"{p['diff']:+.1f} ({p['only_variant']}:{p['only_straight']}, p={pv:.2f})"
 
 
-VARIANT_LABEL = {"straight": "straight", "single": "single (Eq. 3.7, thesis)", "single-decline": "single, declining",
-                 "chain": "chain (synthetic)", "chain-decline": "chain, declining"}
+VARIANT_LABEL = {
+    "straight": "straight",
+    "single": "single (Eq. 3.7, thesis)",
+    "single-decline": "single, declining",
+    "chain": "chain (synthetic)",
+    "chain-decline": "chain, declining",
+}
 
 
 def tables(recs: list[dict], variants: list[str], margins: dict) -> str:
@@ -351,7 +436,11 @@ def tables(recs: list[dict], variants: list[str], margins: dict) -> str:
     shown = [v for v in variants if any(v in r["variants"] for r in recs)]
     parts = []
     for fam, rs in fams.items():
-        head = "| ring | horizon | expert reaches: directly / only by run-up / either (%) | " + " | ".join(VARIANT_LABEL[v] for v in shown) + " |\n"
+        head = (
+            "| ring | horizon | expert reaches: directly / only by run-up / either (%) | "
+            + " | ".join(VARIANT_LABEL[v] for v in shown)
+            + " |\n"
+        )
         head += "|---" * (3 + len(shown)) + "|\n"
         lines = []
         for r in rs:
@@ -369,7 +458,9 @@ def tables(recs: list[dict], variants: list[str], margins: dict) -> str:
                 if x["feasible"]:
                     c += f"; feasible goals {x['feasible']['mean']:.1f}"
                 cells.append(c)
-            lines.append(f"| {r['ring'].label.replace('|', chr(92) + '|')} | {r['ring'].horizon()} | {fcell} | " + " | ".join(cells) + " |")
+            lines.append(
+                f"| {r['ring'].label.replace('|', chr(92) + '|')} | {r['ring'].horizon()} | {fcell} | " + " | ".join(cells) + " |"
+            )
         parts.append(f"**{fam}**\n\n" + head + "\n".join(lines) + "\n")
     ms = ", ".join(f"{p}: {m:g}" for p, m in margins.items())
     return "\n".join(parts) + (f"\nDecline margins chosen on held-out goals: {ms}.\n" if ms else "")
@@ -386,8 +477,13 @@ def plot_curves(recs: list[dict], variants: list[str], path: Path) -> Path:
     for r in recs:
         fams.setdefault(r["ring"].family, []).append(r)
     fig, axes = plt.subplots(1, len(fams), figsize=(4.2 * len(fams), 3.8), squeeze=False)
-    colours = {"straight": "black", "single": "tab:blue", "single-decline": "tab:cyan", "chain": "tab:red",
-               "chain-decline": "tab:orange"}
+    colours = {
+        "straight": "black",
+        "single": "tab:blue",
+        "single-decline": "tab:cyan",
+        "chain": "tab:red",
+        "chain-decline": "tab:orange",
+    }
     for ax, (fam, rs) in zip(axes[0], fams.items()):
         x = np.arange(len(rs))
         for v in variants:
@@ -397,14 +493,25 @@ def plot_curves(recs: list[dict], variants: list[str], path: Path) -> Path:
             mean = [y["success"]["mean"] if y else np.nan for y in ys]
             lo = [min(y["success"]["values"]) if y else np.nan for y in ys]
             hi = [max(y["success"]["values"]) if y else np.nan for y in ys]
-            ax.plot(x, mean, "--o" if v.endswith("-decline") else "-o", ms=3, color=colours.get(v), label=VARIANT_LABEL[v],
-                    lw=1.2 if v.endswith("-decline") else 1.6)
+            ax.plot(
+                x,
+                mean,
+                "--o" if v.endswith("-decline") else "-o",
+                ms=3,
+                color=colours.get(v),
+                label=VARIANT_LABEL[v],
+                lw=1.2 if v.endswith("-decline") else 1.6,
+            )
             ax.fill_between(x, lo, hi, color=colours.get(v), alpha=0.15)
         fz = [r["feasible"]["feasible"] if r["feasible"] else np.nan for r in rs]
         if not np.all(np.isnan(fz)):
             ax.plot(x, fz, ":", color="grey", label="expert feasible")
-        ax.set_xticks(x, [r["ring"].label.split(" in ")[1] if len(r["ring"].ranges) == 1 else "p, v and a\nout at once"
-                          for r in rs], rotation=20, fontsize=7)
+        ax.set_xticks(
+            x,
+            [r["ring"].label.split(" in ")[1] if len(r["ring"].ranges) == 1 else "p, v and a\nout at once" for r in rs],
+            rotation=20,
+            fontsize=7,
+        )
         unit = rs[0]["ring"].label.split(" in ")[0] if len(rs[0]["ring"].ranges) == 1 else "rings"
         ax.set_xlabel(f"{fam}: {unit}")
         ax.set_ylabel("success % (mean; band: min-max over seeds)")
@@ -419,8 +526,7 @@ def plot_curves(recs: list[dict], variants: list[str], path: Path) -> Path:
     return path
 
 
-def plot_paths(run: Path, rings: list[Ring], base: EvalOptions, variant: str, path: Path,
-               per_ring: int = 3) -> Path | None:
+def plot_paths(run: Path, rings: list[Ring], base: EvalOptions, variant: str, path: Path, per_ring: int = 3) -> Path | None:
     """3-D paths of far goals (the last ring of each family), planned waypoints marked
     (thesis Fig. 3.6 analogue): flown path per episode, start, goal and its waypoints."""
     import matplotlib

@@ -87,8 +87,16 @@ def reach_desired(data: Dataset, n: int = 250, seed: int = 0) -> EpisodeSet:
     rest = data.rest_start_episodes().cpu().numpy()
     goals = data.desired_goals().cpu().numpy().astype(np.float64)[rest]
     idx = _pick(np.random.default_rng([seed, 1]), len(goals), n)
-    return EpisodeSet("reach-desired", hover_states(n), goals[idx], np.full(n, HORIZON_DESIRED, np.int64),
-                      rest[idx].astype(np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64), seed)
+    return EpisodeSet(
+        "reach-desired",
+        hover_states(n),
+        goals[idx],
+        np.full(n, HORIZON_DESIRED, np.int64),
+        rest[idx].astype(np.int64),
+        np.zeros(n, np.int64),
+        np.zeros(n, np.int64),
+        seed,
+    )
 
 
 def reach_intermediate(data: Dataset, n: int = 250, seed: int = 0, max_ahead: int = MAX_AHEAD) -> EpisodeSet:
@@ -112,20 +120,40 @@ def reach_intermediate(data: Dataset, n: int = 250, seed: int = 0, max_ahead: in
     achieved = task.achieved_goal(data.next_state.cpu().numpy().astype(np.float64)[np.maximum(frame + d - 1, frame)])
     goals = np.where((d > 0)[:, None], achieved, desired)
     horizons = np.where(d > 0, HORIZON_INTERMEDIATE, HORIZON_DESIRED).astype(np.int64)
-    return EpisodeSet("reach-intermediate", state, goals, horizons, ep.astype(np.int64), j, d, seed,
-                      meta={"max_ahead": int(max_ahead), "n_desired": n_desired})
+    return EpisodeSet(
+        "reach-intermediate",
+        state,
+        goals,
+        horizons,
+        ep.astype(np.int64),
+        j,
+        d,
+        seed,
+        meta={"max_ahead": int(max_ahead), "n_desired": n_desired},
+    )
 
 
-def ood_goals(n: int, seed: int = 0, *, pos_range: tuple[float, float] = OOD_POS_RANGE,
-              vel_range: tuple[float, float] | None = None, acc_range: tuple[float, float] | None = None,
-              stream: int = OOD_SEED_OFFSET) -> np.ndarray:
+def ood_goals(
+    n: int,
+    seed: int = 0,
+    *,
+    pos_range: tuple[float, float] = OOD_POS_RANGE,
+    vel_range: tuple[float, float] | None = None,
+    acc_range: tuple[float, float] | None = None,
+    stream: int = OOD_SEED_OFFSET,
+) -> np.ndarray:
     """(n, 15) out-of-distribution goals (docs/spec.md "ood"); another ``pos_range`` and
     ``stream`` give other goal sets (``reach-novel``)."""
     from aerohrl.datagen.goals import goal_vectors, sample_goals
 
     n = _check_n(n)
-    g = sample_goals(np.random.default_rng(stream + int(seed)), n, pos_range=pos_range,
-                     vel_range=vel_range or DEFAULT_VEL_RANGE, acc_range=acc_range or DEFAULT_ACC_RANGE)
+    g = sample_goals(
+        np.random.default_rng(stream + int(seed)),
+        n,
+        pos_range=pos_range,
+        vel_range=vel_range or DEFAULT_VEL_RANGE,
+        acc_range=acc_range or DEFAULT_ACC_RANGE,
+    )
     return goal_vectors(g)
 
 
@@ -133,28 +161,47 @@ def reach_novel(data: Dataset | None, n: int = 250, seed: int = 0) -> EpisodeSet
     """Reach-Novel (diagnostic): origin -> a *new* goal from the dataset's own ranges, 500 steps."""
     spec = (data.info.get("spec") or {}) if data is not None else {}
     pos = tuple(spec.get("pos_range") or DEFAULT_POS_RANGE)
-    goals = ood_goals(n, seed, pos_range=pos, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"),
-                      stream=NOVEL_SEED_OFFSET)
+    goals = ood_goals(
+        n, seed, pos_range=pos, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"), stream=NOVEL_SEED_OFFSET
+    )
     n = len(goals)
-    return EpisodeSet("reach-novel", hover_states(n), goals, np.full(n, HORIZON_DESIRED, np.int64),
-                      np.full(n, -1, np.int64), np.full(n, -1, np.int64), np.zeros(n, np.int64), seed,
-                      meta={"pos_range": list(pos), "seed_stream": NOVEL_SEED_OFFSET + int(seed)})
+    return EpisodeSet(
+        "reach-novel",
+        hover_states(n),
+        goals,
+        np.full(n, HORIZON_DESIRED, np.int64),
+        np.full(n, -1, np.int64),
+        np.full(n, -1, np.int64),
+        np.zeros(n, np.int64),
+        seed,
+        meta={"pos_range": list(pos), "seed_stream": NOVEL_SEED_OFFSET + int(seed)},
+    )
 
 
-def ood(data: Dataset | None, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED,
-        legs: int = 2) -> EpisodeSet:
+def ood(data: Dataset | None, n: int = 250, seed: int = 0, leg_horizon: int = HORIZON_DESIRED, legs: int = 2) -> EpisodeSet:
     """OOD (docs/spec.md): origin -> a goal with |p_i| in [2, 3.5] m; ``legs * leg_horizon`` steps in all."""
     spec = (data.info.get("spec") or {}) if data is not None else {}
     goals = ood_goals(n, seed, vel_range=spec.get("vel_range"), acc_range=spec.get("acc_range"))
     n = len(goals)
-    return EpisodeSet("ood", hover_states(n), goals, np.full(n, leg_horizon * legs, np.int64),
-                      np.full(n, -1, np.int64), np.full(n, -1, np.int64), np.zeros(n, np.int64), seed,
-                      meta={"leg_horizon": int(leg_horizon), "legs": int(legs), "pos_range": list(OOD_POS_RANGE),
-                            "seed_stream": OOD_SEED_OFFSET + int(seed)})
+    return EpisodeSet(
+        "ood",
+        hover_states(n),
+        goals,
+        np.full(n, leg_horizon * legs, np.int64),
+        np.full(n, -1, np.int64),
+        np.full(n, -1, np.int64),
+        np.zeros(n, np.int64),
+        seed,
+        meta={
+            "leg_horizon": int(leg_horizon),
+            "legs": int(legs),
+            "pos_range": list(OOD_POS_RANGE),
+            "seed_stream": OOD_SEED_OFFSET + int(seed),
+        },
+    )
 
 
-def ood_family(data: Dataset | None, n: int = 250, seed: int = 0, *, ring: Ring,
-               horizon: int | None = None) -> EpisodeSet:
+def ood_family(data: Dataset | None, n: int = 250, seed: int = 0, *, ring: Ring, horizon: int | None = None) -> EpisodeSet:
     """OOD goals of a family ring (eval/families.py): origin -> a goal that leaves rho_D
     along the ring's dimensions, the others from the dataset's ranges; ``horizon`` steps
     (default: the ring's, scaled to the distance)."""
@@ -162,16 +209,35 @@ def ood_family(data: Dataset | None, n: int = 250, seed: int = 0, *, ring: Ring,
     from aerohrl.eval.families import sample_ring
 
     spec = (data.info.get("spec") or {}) if data is not None else {}
-    g = sample_ring(ring, n, seed, pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
-                    vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
-                    acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE))
+    g = sample_ring(
+        ring,
+        n,
+        seed,
+        pos_range=tuple(spec.get("pos_range") or DEFAULT_POS_RANGE),
+        vel_range=tuple(spec.get("vel_range") or DEFAULT_VEL_RANGE),
+        acc_range=tuple(spec.get("acc_range") or DEFAULT_ACC_RANGE),
+    )
     goals = goal_vectors(g)
     n = len(goals)
     h = int(horizon or ring.horizon())
-    return EpisodeSet("ood", hover_states(n), goals, np.full(n, h, np.int64), np.full(n, -1, np.int64),
-                      np.full(n, -1, np.int64), np.zeros(n, np.int64), seed,
-                      meta={"leg_horizon": h, "legs": 1, "family": ring.family, "ring": ring.index,
-                            "ranges": {k: list(v) for k, v in ring.ranges.items()}, "goal_acc": g["acc"]})
+    return EpisodeSet(
+        "ood",
+        hover_states(n),
+        goals,
+        np.full(n, h, np.int64),
+        np.full(n, -1, np.int64),
+        np.full(n, -1, np.int64),
+        np.zeros(n, np.int64),
+        seed,
+        meta={
+            "leg_horizon": h,
+            "legs": 1,
+            "family": ring.family,
+            "ring": ring.index,
+            "ranges": {k: list(v) for k, v in ring.ranges.items()},
+            "goal_acc": g["acc"],
+        },
+    )
 
 
 def make_episodes(name: str, data: Dataset | None, n: int = 250, seed: int = 0, **kw: Any) -> EpisodeSet:

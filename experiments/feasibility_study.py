@@ -23,8 +23,10 @@ PROG = "experiments/feasibility_study.py"
 
 def parser() -> ArgumentParser:
     """The command's argument parser."""
-    ap = ArgumentParser(prog=PROG, description="Direct / run-up / feasible rates of the expert on one ring of an OOD "
-                                               "goal family (eval/families.py).")
+    ap = ArgumentParser(
+        prog=PROG,
+        description="Direct / run-up / feasible rates of the expert on one ring of an OOD goal family (eval/families.py).",
+    )
     ap.add_argument("--family", required=True, help="position | velocity | acceleration | combined")
     ap.add_argument("--ring", required=True, help="1-based step of the family, or a custom range LO:HI")
     ap.add_argument("--n", type=int, default=250, help="goals (default 250)")
@@ -32,8 +34,11 @@ def parser() -> ArgumentParser:
     ap.add_argument("--vehicle", default="hummingbird")
     ap.add_argument("--a-max", type=float, default=None, help="one fixed per-axis bound (default: per-goal rule)")
     ap.add_argument("--runup", default="all", help="all | failed | none (default all)")
-    ap.add_argument("--results-dir", default="docs/results",
-                    help="folder of the dated results page YYYY-MM-DD-feasibility-FAMILY-RING.md [docs/results]")
+    ap.add_argument(
+        "--results-dir",
+        default="docs/results",
+        help="folder of the dated results page YYYY-MM-DD-feasibility-FAMILY-RING.md [docs/results]",
+    )
     return ap
 
 
@@ -52,12 +57,16 @@ def main(argv: list[str] | None = None) -> int:
         ring = parse_ring(a.family, a.ring)
         goals = sample_ring(ring, a.n, a.seed)
         r = feasibility(goals, ring.horizon(), vehicle=a.vehicle, a_max=a.a_max, runup=a.runup)
-        line = (f"{ring.family} ring {ring.index} ({ring.label}), n={a.n}, seed={a.seed}, horizon {ring.horizon()} steps: "
-                + ", ".join(f"{k} {100 * v:.1f} %" for k, v in r.rates().items()) + f"  [{r.seconds:.1f} s]")
+        line = (
+            f"{ring.family} ring {ring.index} ({ring.label}), n={a.n}, seed={a.seed}, horizon {ring.horizon()} steps: "
+            + ", ".join(f"{k} {100 * v:.1f} %" for k, v in r.rates().items())
+            + f"  [{r.seconds:.1f} s]"
+        )
         print(line)
         slug = re.sub(r"[^a-z0-9]+", "-", f"{ring.family}-{a.ring}".lower()).strip("-")
-        write_results_page(a.results_dir, f"feasibility-{slug}", command, line,
-                           title=f"Expert feasibility, {ring.family} ring {a.ring}")
+        write_results_page(
+            a.results_dir, f"feasibility-{slug}", command, line, title=f"Expert feasibility, {ring.family} ring {a.ring}"
+        )
         return 0
 
     return run_cli(PROG, go)

@@ -78,26 +78,52 @@ def train(preset: str, seed: int, runs: Path, threads: int) -> Path:
     elif run.exists():
         raise UserError(f"{run} holds no checkpoint (stopped in its first iteration?): remove it and run this again")
     else:
-        ipp(["train", "--preset", preset, "--seed", str(seed), "--threads", str(threads), "--out", str(runs),
-             "--name", run.name, "--quiet"])
+        ipp(
+            [
+                "train",
+                "--preset",
+                preset,
+                "--seed",
+                str(seed),
+                "--threads",
+                str(threads),
+                "--out",
+                str(runs),
+                "--name",
+                run.name,
+                "--quiet",
+            ]
+        )
     return run
 
 
 def main(argv: list[str] | None = None) -> int:
     """Train the learned IPP policies over seeds and bench them with every baseline; exit code."""
-    ap = ArgumentParser(prog=PROG, description="Train the IPP learned policies (cpu and thesis presets) over seeds, bench "
-                        "them with every baseline on the test worlds, write the results page.")
+    ap = ArgumentParser(
+        prog=PROG,
+        description="Train the IPP learned policies (cpu and thesis presets) over seeds, bench "
+        "them with every baseline on the test worlds, write the results page.",
+    )
     ap.add_argument("--runs", type=Path, default=Path("runs"), help="folder of the training runs [runs]")
     ap.add_argument("--out", type=Path, default=Path("runs/ipp-bench-seeds"), help="the bench's files [runs/ipp-bench-seeds]")
     ap.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS, help="[cpu thesis]")
     ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=list(SEEDS), help="[7 8 9]")
     ap.add_argument("--envs", type=T.positive_int, default=100, help="test worlds of the bench [100]")
     ap.add_argument("--threads", type=T.positive_int, default=1, help="torch threads of training and bench [1]")
-    ap.add_argument("--extra-run", action="append", default=[], metavar="RUN",
-                    help="another run (or policy file) benched beside them; repeatable")
+    ap.add_argument(
+        "--extra-run",
+        action="append",
+        default=[],
+        metavar="RUN",
+        help="another run (or policy file) benched beside them; repeatable",
+    )
     ap.add_argument("--bench-only", action="store_true", help="train nothing; bench the runs that are there")
-    ap.add_argument("--results-dir", type=Path, default=Path("docs/results"),
-                    help="folder of the dated results page YYYY-MM-DD-ipp-learned-targets.md [docs/results]")
+    ap.add_argument(
+        "--results-dir",
+        type=Path,
+        default=Path("docs/results"),
+        help="folder of the dated results page YYYY-MM-DD-ipp-learned-targets.md [docs/results]",
+    )
     a = ap.parse_args(argv)
     command = " ".join(["python", PROG, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
 
@@ -120,13 +146,33 @@ def main(argv: list[str] | None = None) -> int:
             mine = [r for p, r in runs if p == preset]
             bench_runs += [str(r) for r in mine] + ([str(r / "best.pt") for r in mine] if preset == "cpu" else [])
         bench_runs += a.extra_run
-        ipp(["bench", "--all", "--envs", str(a.envs), "--threads", str(a.threads), "-o", str(a.out),
-             *[x for r in bench_runs for x in ("--run", r)], "--quiet"])
+        ipp(
+            [
+                "bench",
+                "--all",
+                "--envs",
+                str(a.envs),
+                "--threads",
+                str(a.threads),
+                "-o",
+                str(a.out),
+                *[x for r in bench_runs for x in ("--run", r)],
+                "--quiet",
+            ]
+        )
         md = (a.out / "ipp_bench.md").read_text()
-        body = (f"`aerohrl ipp bench --all --envs {a.envs}` on the seeded test worlds (seed 1000, centre start) with the "
-                f"runs {', '.join(f'`{r}`' for r in bench_runs)}.\n\n" + md)
-        page = write_results_page(a.results_dir, STUDY, command, body, title="IPP learned targets over seeds",
-                                  figures=[a.out / "ipp_kl.png"] if (a.out / "ipp_kl.png").exists() else [])
+        body = (
+            f"`aerohrl ipp bench --all --envs {a.envs}` on the seeded test worlds (seed 1000, centre start) with the "
+            f"runs {', '.join(f'`{r}`' for r in bench_runs)}.\n\n" + md
+        )
+        page = write_results_page(
+            a.results_dir,
+            STUDY,
+            command,
+            body,
+            title="IPP learned targets over seeds",
+            figures=[a.out / "ipp_kl.png"] if (a.out / "ipp_kl.png").exists() else [],
+        )
         print(f"bench written to {a.out} and {page}", flush=True)
         return 0
 

@@ -47,25 +47,40 @@ def page_name(section: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     """The OOD reach study command (families flown straight and planned over seeds, decline
     margins on held-out goals, tables and figures); exit code."""
-    ap = argparse.ArgumentParser(prog=PROG, description="OOD goal families flown straight and planned over seeds; decline "
-                                 "margins chosen on held-out goals; reach tables and curves.")
+    ap = argparse.ArgumentParser(
+        prog=PROG,
+        description="OOD goal families flown straight and planned over seeds; decline "
+        "margins chosen on held-out goals; reach tables and curves.",
+    )
     ap.add_argument("--runs", nargs="+", type=Path, required=True, help="one run per training seed (same recipe and algorithm)")
     ap.add_argument("--families", nargs="+", default=None, help="families to fly [all of eval/families.py]")
-    ap.add_argument("--variants", nargs="+", default=None,
-                    help="straight | single | single-decline | chain | chain-decline [all]")
+    ap.add_argument(
+        "--variants", nargs="+", default=None, help="straight | single | single-decline | chain | chain-decline [all]"
+    )
     ap.add_argument("--episodes", type=int, default=250, help="test goals per ring [250]")
     ap.add_argument("--heldout", type=int, default=100, help="held-out goals per ring (margin choice) [100]")
     ap.add_argument("--checkpoints", type=int, default=1, help="newest checkpoints per run [1]")
     ap.add_argument("--candidates", type=int, default=1024, help="single: achieved goals scored [1024]")
     ap.add_argument("--out", type=Path, default=Path("results/reach"), help="tables and plots [results/reach]")
-    ap.add_argument("--results-dir", type=Path, default=Path("docs/results"),
-                    help="folder of the dated results page YYYY-MM-DD-reach-families[-SUFFIX].md [docs/results]")
-    ap.add_argument("--section", default="reach", help="file names in --out and the results page's suffix "
-                    "(a second study with other variants or sizes gets its own) [reach]")
+    ap.add_argument(
+        "--results-dir",
+        type=Path,
+        default=Path("docs/results"),
+        help="folder of the dated results page YYYY-MM-DD-reach-families[-SUFFIX].md [docs/results]",
+    )
+    ap.add_argument(
+        "--section",
+        default="reach",
+        help="file names in --out and the results page's suffix "
+        "(a second study with other variants or sizes gets its own) [reach]",
+    )
     ap.add_argument("--report-only", action="store_true", help="tables from existing evaluations; fly nothing")
-    ap.add_argument("--fly-declines", action="store_true",
-                    help="fly the declining variants on the test goals too (default: composed exactly from the straight "
-                         "and planned flights, which they equal episode by episode; tests/test_eval_reach.py)")
+    ap.add_argument(
+        "--fly-declines",
+        action="store_true",
+        help="fly the declining variants on the test goals too (default: composed exactly from the straight "
+        "and planned flights, which they equal episode by episode; tests/test_eval_reach.py)",
+    )
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args(argv)
     command = " ".join(["python", PROG, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
@@ -94,8 +109,9 @@ def main(argv: list[str] | None = None) -> int:
             raise UserError(f"unknown variant {bad[0]!r} (choose from {', '.join(R.VARIANT_LABEL)})")
         if not a.section.replace("-", "").isalnum():
             raise UserError(f"--section must be letters, digits and '-', got {a.section!r}")
-        base = EvalOptions(task="ood", episodes=a.episodes, checkpoints=a.checkpoints, candidates=a.candidates,
-                           progress=sys.stderr.isatty())
+        base = EvalOptions(
+            task="ood", episodes=a.episodes, checkpoints=a.checkpoints, candidates=a.candidates, progress=sys.stderr.isatty()
+        )
         a.out.mkdir(parents=True, exist_ok=True)
         logf = open(a.out / "reach.log", "a")
 
@@ -123,21 +139,24 @@ def main(argv: list[str] | None = None) -> int:
             log(f"feasibility {ring.slug}: {100 * f['feasible'].mean():.1f} % ({time.perf_counter() - t1:.0f} s)")
         recs = R.collect(a.runs, rings, variants, base, margins, feas)
         curves = R.plot_curves(recs, variants, a.out / f"{a.section}_curves.png")
-        paths = R.plot_paths(a.runs[0], rings, base, "chain" if "chain" in variants else "single",
-                             a.out / f"{a.section}_paths.png")
+        paths = R.plot_paths(
+            a.runs[0], rings, base, "chain" if "chain" in variants else "single", a.out / f"{a.section}_paths.png"
+        )
         figs = [f for f in (curves, paths) if f is not None]
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         runs_s = " ".join(str(r) for r in a.runs)
         args = "" if a.episodes == 250 else f" --episodes {a.episodes} --heldout {a.heldout}"
         args += f" --variants {' '.join(variants)}" + (f" --section {a.section}" if a.section != "reach" else "")
-        block = (f"Written by `python {PROG} --runs {runs_s}{args}` on {stamp}: {len(a.runs)} seeds, newest "
-                 f"{a.checkpoints} checkpoint(s) x {a.episodes} test goals per ring and seed; success %, mean ± std over seeds "
-                 f"[95 % bootstrap interval] (per-seed values); \"vs straight\": paired gain in points pooled over seeds "
-                 f"(episodes only this variant : only straight reaches, sign test).\n\n"
-                 + R.tables(recs, variants, margins))
+        block = (
+            f"Written by `python {PROG} --runs {runs_s}{args}` on {stamp}: {len(a.runs)} seeds, newest "
+            f"{a.checkpoints} checkpoint(s) x {a.episodes} test goals per ring and seed; success %, mean ± std over seeds "
+            f'[95 % bootstrap interval] (per-seed values); "vs straight": paired gain in points pooled over seeds '
+            f"(episodes only this variant : only straight reaches, sign test).\n\n" + R.tables(recs, variants, margins)
+        )
         atomic.write_text(a.out / f"{a.section}.md", block + "\n" + "\n\n".join(f"Plot: `{f}`" for f in figs) + "\n")
-        page = write_results_page(a.results_dir, page_name(a.section), command, block,
-                                  title="Reach beyond the data: goal families", figures=figs)
+        page = write_results_page(
+            a.results_dir, page_name(a.section), command, block, title="Reach beyond the data: goal families", figures=figs
+        )
         log(f"reach tables written to {page} and {a.out / f'{a.section}.md'} ({(time.perf_counter() - t0) / 60:.1f} min)")
         return 0
 

@@ -81,7 +81,6 @@ FLOORS = ("hover", "no-goal")  # eval/floors.py: flown on the newest checkpoint 
 FLOOR_COLS = ("reach-desired", "reach-novel", "reach-intermediate", "ood")
 
 
-
 @dataclass(frozen=True)
 class Row:
     recipe: str
@@ -103,13 +102,15 @@ PLANS: dict[str, list[Row]] = {
     # the recipe table: every recipe on the same 2,500 goals, 15k steps
     "table": [Row(r, 2500, 0, 15000) for r in RECIPES],
     # data efficiency: Reach-Novel against dataset size at equal steps
-    "size": [Row("noise", n, 0, 15000) for n in (250, 1000, 10000, 25000)] + [Row("clean", 10000, 0, 15000),
-                                                                            Row("noise", 100000, 0, 15000)],
+    "size": [Row("noise", n, 0, 15000) for n in (250, 1000, 10000, 25000)]
+    + [Row("clean", 10000, 0, 15000), Row("noise", 100000, 0, 15000)],
     # seeds for the leading table rows
     "seeds": [Row(r, 2500, s, 15000) for r in ("noise", "replan + noise") for s in (1, 2)],
     # the table's recipes at a second size (10,000 flights): does the ranking hold with more data?
-    "sizes": [Row(r, 10000, 0, 15000) for r in ("noise x2", "replan + noise", "noise + perturbed starts",
-                                                "noise + 4 flights per goal", "noise x0.5", "replan")],
+    "sizes": [
+        Row(r, 10000, 0, 15000)
+        for r in ("noise x2", "replan + noise", "noise + perturbed starts", "noise + 4 flights per goal", "noise x0.5", "replan")
+    ],
 }
 CHECKPOINTS = {"best": 10}  # last K checkpoints evaluated (others: 3)
 
@@ -126,8 +127,9 @@ def dataset_for(py: str, recipe: str, goals: int, root: str, log: TextIO) -> str
         raise UserError(f"unknown recipe {recipe!r} (choose from {', '.join(RECIPES)})")
     flags = list(RECIPES[recipe])
     goals = max(1, goals // flights_per_goal(recipe))  # equal flights: k flights of goals / k goals
-    out = run_logged([py, "-m", "aerohrl.datagen.cli", "build", "--goals", str(goals), "--seed", "0", "--out", root, "--quiet",
-                *flags], log)
+    out = run_logged(
+        [py, "-m", "aerohrl.datagen.cli", "build", "--goals", str(goals), "--seed", "0", "--out", root, "--quiet", *flags], log
+    )
     return out.strip().splitlines()[-1].strip()
 
 
@@ -138,19 +140,57 @@ def run_row(py: str, row: Row, ds: str, runs: Path, k: int, log: TextIO) -> Path
     if (rd / "config.json").exists():
         run_logged(train + ["--resume", str(rd), "--quiet", "--steps", str(row.steps)], log)
     else:
-        run_logged(train + ["--algo", "gcsl", "--preset", "cpu", *TRAIN_FLAGS.get(row.recipe, []), "--dataset", ds,
-                      "--seed", str(row.seed), "--steps", str(row.steps),
-                      "--checkpoint-every", str(max(1, row.steps // 30)), "--out", str(runs), "--name", row.name,
-                      "--quiet"], log)
+        run_logged(
+            train
+            + [
+                "--algo",
+                "gcsl",
+                "--preset",
+                "cpu",
+                *TRAIN_FLAGS.get(row.recipe, []),
+                "--dataset",
+                ds,
+                "--seed",
+                str(row.seed),
+                "--steps",
+                str(row.steps),
+                "--checkpoint-every",
+                str(max(1, row.steps // 30)),
+                "--out",
+                str(runs),
+                "--name",
+                row.name,
+                "--quiet",
+            ],
+            log,
+        )
     todo = [(EVAL_DIR.get(col, col), flags, k) for col, flags in EVALS]
     if row.seed == 0:
-        todo += [(f"{EVAL_DIR.get(col, col)}-floor-{f}", flags + ["--floor", f], 1)
-                 for f in FLOORS for col, flags in EVALS if col in FLOOR_COLS]
+        todo += [
+            (f"{EVAL_DIR.get(col, col)}-floor-{f}", flags + ["--floor", f], 1)
+            for f in FLOORS
+            for col, flags in EVALS
+            if col in FLOOR_COLS
+        ]
     for name, flags, kk in todo:
         n = min(EPISODES, row.goals) if name.startswith("reach-desired") else EPISODES  # one flight per own goal at most
         if not evaluation_is_current(rd, name, n, kk):
-            run_logged([py, "-m", "aerohrl.eval.cli", *flags, "--run", str(rd), "--episodes", str(n), "--checkpoints", str(kk),
-                  "--quiet"], log)
+            run_logged(
+                [
+                    py,
+                    "-m",
+                    "aerohrl.eval.cli",
+                    *flags,
+                    "--run",
+                    str(rd),
+                    "--episodes",
+                    str(n),
+                    "--checkpoints",
+                    str(kk),
+                    "--quiet",
+                ],
+                log,
+            )
     return rd
 
 
@@ -183,8 +223,7 @@ def aggregate(rows: list[Row], runs: Path) -> list[dict]:
                 per_seed[r.seed] = fig
         if not per_seed:
             continue
-        rec = {"recipe": recipe, "goals": goals, "steps": steps, "seeds": sorted(per_seed), "cols": {},
-               "floors": {}}
+        rec = {"recipe": recipe, "goals": goals, "steps": steps, "seeds": sorted(per_seed), "cols": {}, "floors": {}}
         rd0 = runs / rs[0].name
         for fl in FLOORS:
             ff = row_figures(rd0, f"-floor-{fl}") if rd0.is_dir() else {}
@@ -206,25 +245,36 @@ def _flights(recipe: str, goals: int) -> str:
 def table(recs: list[dict]) -> str:
     """The recipe table as Markdown: one line per recipe/size/steps with the seeds' success on
     every task (and at half tolerance) and the critics' AUC."""
-    head = ("| recipe | flights (goals) | steps | seeds | Reach-Desired (own goals) | Reach-Novel | Reach-Intermediate | OOD straight | "
-            "critics' AUC (Reach-Novel) | RD @ half tol | RN @ half tol | RI @ half tol | OOD @ half tol |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    head = (
+        "| recipe | flights (goals) | steps | seeds | Reach-Desired (own goals) | Reach-Novel | Reach-Intermediate | OOD straight | "
+        "critics' AUC (Reach-Novel) | RD @ half tol | RN @ half tol | RI @ half tol | OOD @ half tol |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+    )
     lines = []
     for r in recs:
         c = r["cols"]
         auc = c.get("auc")
         auc_s = "—" if not auc or any(math.isnan(v) for v in auc["values"]) else seed_cell(auc, 3)
-        lines.append(f"| {r['recipe']} | {_flights(r['recipe'], r['goals'])} | {r['steps'] // 1000}k | {len(r['seeds'])} | "
-                     + " | ".join(seed_cell(c.get(k)) for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
-                     + f" | {auc_s} | "
-                     + " | ".join(seed_cell(c.get(k)) for k in ("reach-desired-goaltol0.5", "reach-novel-goaltol0.5",
-                                                             "reach-intermediate-goaltol0.5", "ood-goaltol0.5")) + " |")
+        lines.append(
+            f"| {r['recipe']} | {_flights(r['recipe'], r['goals'])} | {r['steps'] // 1000}k | {len(r['seeds'])} | "
+            + " | ".join(seed_cell(c.get(k)) for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
+            + f" | {auc_s} | "
+            + " | ".join(
+                seed_cell(c.get(k))
+                for k in ("reach-desired-goaltol0.5", "reach-novel-goaltol0.5", "reach-intermediate-goaltol0.5", "ood-goaltol0.5")
+            )
+            + " |"
+        )
     floors = [(r, fl, v) for r in recs[:1] for fl, v in r["floors"].items()]
     for r, fl, v in floors:  # one set of floors per table: on the first row's data and policy
-        what = "hover: constant [g, 0, 0, 0]" if fl == "hover" else f"no goal: the {r['recipe']} policy, goal inputs at their mean"
-        lines.append(f"| *floor, {what}* | {_flights(r['recipe'], r['goals'])} | | | "
-                     + " | ".join(f"{v[k]:.1f}" if k in v else "—" for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
-                     + " | | | | | |")
+        what = (
+            "hover: constant [g, 0, 0, 0]" if fl == "hover" else f"no goal: the {r['recipe']} policy, goal inputs at their mean"
+        )
+        lines.append(
+            f"| *floor, {what}* | {_flights(r['recipe'], r['goals'])} | | | "
+            + " | ".join(f"{v[k]:.1f}" if k in v else "—" for k in ("reach-desired", "reach-novel", "reach-intermediate", "ood"))
+            + " | | | | | |"
+        )
     return head + "\n".join(lines) + "\n"
 
 
@@ -248,16 +298,24 @@ def plot_size(recs: list[dict], path: Path) -> Path | None:
     for recipe in ("clean", "noise"):
         rs = sorted(by.get(recipe, []), key=lambda r: r["goals"])
         x = [r["goals"] for r in rs]
-        for col, style, label in (("reach-novel", "-o", "Reach-Novel"), ("reach-novel-goaltol0.5", ":^", "Reach-Novel @ half tol"),
-                                  ("ood", "--s", "OOD straight")):
+        for col, style, label in (
+            ("reach-novel", "-o", "Reach-Novel"),
+            ("reach-novel-goaltol0.5", ":^", "Reach-Novel @ half tol"),
+            ("ood", "--s", "OOD straight"),
+        ):
             y = [r["cols"].get(col, {}).get("mean", np.nan) for r in rs]
             ax.plot(x, y, style, color=colour[recipe], label=f"{recipe}: {label}")
     many = sorted((k for k, rs in by.items() if len({r["goals"] for r in rs}) >= 2), key=lambda k: (k not in colour, k))
     cmap = plt.get_cmap("tab10")
     for i, recipe in enumerate(many):
         rs = sorted(by[recipe], key=lambda r: r["goals"])
-        ax2.plot([r["goals"] for r in rs], [r["cols"]["reach-novel"]["mean"] for r in rs], "-o",
-                 color=colour.get(recipe, cmap((i + 2) % 10)), label=recipe)
+        ax2.plot(
+            [r["goals"] for r in rs],
+            [r["cols"]["reach-novel"]["mean"] for r in rs],
+            "-o",
+            color=colour.get(recipe, cmap((i + 2) % 10)),
+            label=recipe,
+        )
     for a, xl in ((ax, "goals in the dataset (one flight each)"), (ax2, "flights in the dataset")):
         a.axhline(95, color="grey", lw=0.8, ls="--")
         a.set_xscale("log")
@@ -278,14 +336,22 @@ def plot_size(recs: list[dict], path: Path) -> Path | None:
 def main(argv: list[str] | None = None) -> int:
     """The recipe study command: build the recipe datasets, train GCSL on each, evaluate
     and write the recipe table; exit code."""
-    ap = argparse.ArgumentParser(prog=PROG, description="Build recipe datasets, train GCSL on each, evaluate, write the recipe table.")
-    ap.add_argument("--plan", nargs="+", default=["best", "table", "size", "seeds", "sizes"], choices=list(PLANS),
-                    help="which rows to train and report [all]")
+    ap = argparse.ArgumentParser(
+        prog=PROG, description="Build recipe datasets, train GCSL on each, evaluate, write the recipe table."
+    )
+    ap.add_argument(
+        "--plan",
+        nargs="+",
+        default=["best", "table", "size", "seeds", "sizes"],
+        choices=list(PLANS),
+        help="which rows to train and report [all]",
+    )
     ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
     ap.add_argument("--runs", default="runs/recipes", help="runs root [runs/recipes]")
     ap.add_argument("--out", default="results/recipes", help="tables and plots [results/recipes]")
-    ap.add_argument("--results-dir", default="docs/results",
-                    help="folder of the dated results page YYYY-MM-DD-recipes.md [docs/results]")
+    ap.add_argument(
+        "--results-dir", default="docs/results", help="folder of the dated results page YYYY-MM-DD-recipes.md [docs/results]"
+    )
     ap.add_argument("--jobs", type=int, default=2, help="rows at a time, one thread each [2]")
     ap.add_argument("--steps", type=int, default=None, help="override every row's steps (smoke runs)")
     ap.add_argument("--goals-scale", type=float, default=1.0, help="multiply every row's goal count (smoke runs) [1]")
@@ -309,8 +375,9 @@ def main(argv: list[str] | None = None) -> int:
         py = sys.executable
         out, runs = Path(a.out), Path(a.runs)
         out.mkdir(parents=True, exist_ok=True)
-        plan_rows = {p: [Row(r.recipe, max(1, int(r.goals * a.goals_scale)), r.seed, a.steps or r.steps) for r in PLANS[p]]
-                     for p in a.plan}
+        plan_rows = {
+            p: [Row(r.recipe, max(1, int(r.goals * a.goals_scale)), r.seed, a.steps or r.steps) for r in PLANS[p]] for p in a.plan
+        }
         t0 = time.perf_counter()
         failed = 0
         with open(out / "study.log", "a") as log:
@@ -365,19 +432,24 @@ def main(argv: list[str] | None = None) -> int:
             if not recs:
                 continue
             all_recs[p] = recs
-            sections.append(f"**{p}** (GCSL, cpu preset; last {CHECKPOINTS.get(p, 3)} checkpoints x 250 "
-                            f"episodes per task; success %, mean ± std over seeds [95 % bootstrap interval of the mean, "
-                            f"from 3 seeds] (per-seed values))\n\n" + table(recs))
+            sections.append(
+                f"**{p}** (GCSL, cpu preset; last {CHECKPOINTS.get(p, 3)} checkpoints x 250 "
+                f"episodes per task; success %, mean ± std over seeds [95 % bootstrap interval of the mean, "
+                f"from 3 seeds] (per-seed values))\n\n" + table(recs)
+            )
         pooled = [r for recs in all_recs.values() for r in recs]
         fig = plot_size(pooled, out / "reach_novel_vs_size.png")
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-        block = (f"Written by `{command}` on {stamp}"
-                 + (f" (steps overridden: {a.steps})" if a.steps else "") + (f" (goals x {a.goals_scale})" if a.goals_scale != 1 else "")
-                 + ".\n\n" + "\n".join(sections))
+        block = (
+            f"Written by `{command}` on {stamp}"
+            + (f" (steps overridden: {a.steps})" if a.steps else "")
+            + (f" (goals x {a.goals_scale})" if a.goals_scale != 1 else "")
+            + ".\n\n"
+            + "\n".join(sections)
+        )
         (out / "recipes.md").write_text(block + (f"\nPlot: `{fig}`.\n" if fig else ""))
         (out / "recipes.json").write_text(json.dumps(all_recs, indent=1))
-        page = write_results_page(a.results_dir, STUDY, command, block, title="Expert-data recipes",
-                                  figures=[fig] if fig else [])
+        page = write_results_page(a.results_dir, STUDY, command, block, title="Expert-data recipes", figures=[fig] if fig else [])
         print(f"recipe tables written to {page} and {out / 'recipes.md'} ({(time.perf_counter() - t0) / 60:.1f} min)")
         if failed:
             raise UserError(f"{failed} row(s) failed (see {out / 'study.log'}); the tables hold the others")

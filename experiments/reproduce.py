@@ -52,7 +52,6 @@ STUDY = "chapter3-tables"  # the results page: RESULTS_DIR/YYYY-MM-DD-chapter3-t
 CONT_RANDOM_GOAL = 0.3  # the planner experiment's --critic-random-goal-prob (eval/README.md)
 
 
-
 def _train_all(items: list[tuple[str, Path, dict]], log, jobs: int, address: str | None = None) -> dict[str, float]:
     """Train the runs ``(label, run folder, config)`` through ``aerohrl sweep``'s Ray tasks
     (aerohrl/sweep.py: one CPU each on a local Ray of ``jobs`` cores, or on the cluster at
@@ -67,8 +66,12 @@ def _train_all(items: list[tuple[str, Path, dict]], log, jobs: int, address: str
         log.flush()
 
     # the longest (CQL, the continuation runs: listed last) first, so that 2 cores end together
-    done = train_runs([(label, str(rd.resolve()), to_dict(cfg)) for label, rd, cfg in reversed(items)],
-                      address=address, num_cpus=None if address else jobs, log=note)
+    done = train_runs(
+        [(label, str(rd.resolve()), to_dict(cfg)) for label, rd, cfg in reversed(items)],
+        address=address,
+        num_cpus=None if address else jobs,
+        log=note,
+    )
     return {label: done[label]["seconds"] for label, *_ in items}
 
 
@@ -79,25 +82,45 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--datasets", default="datasets", help="dataset root [datasets]")
     ap.add_argument("--runs", default="runs", help="runs root [runs]")
     ap.add_argument("--out", default="results", help="tables and plots [results]")
-    ap.add_argument("--results-dir", default="docs/results",
-                    help="folder of the dated results page YYYY-MM-DD-chapter3-tables.md [docs/results]")
+    ap.add_argument(
+        "--results-dir",
+        default="docs/results",
+        help="folder of the dated results page YYYY-MM-DD-chapter3-tables.md [docs/results]",
+    )
     ap.add_argument("--algos", nargs="+", default=list(ALGOS))
-    ap.add_argument("--seeds", nargs="+", type=T.nonneg_int, default=[0, 1, 2],
-                    help="training seeds of every run; seed 0 keeps the names ALGO-cpu, others ALGO-cpu-sN [0 1 2]")
+    ap.add_argument(
+        "--seeds",
+        nargs="+",
+        type=T.nonneg_int,
+        default=[0, 1, 2],
+        help="training seeds of every run; seed 0 keeps the names ALGO-cpu, others ALGO-cpu-sN [0 1 2]",
+    )
     ap.add_argument("--steps", type=T.positive_int, default=None, help="override the cpu preset's training steps (smoke runs)")
     ap.add_argument("--episodes", type=T.positive_int, default=250)
     ap.add_argument("--checkpoints", type=T.positive_int, default=10)
     ap.add_argument("--oracle-goals", type=T.positive_int, default=40, help="OOD goals of the planner oracle [40]")
     ap.add_argument("--oracle-candidates", type=T.positive_int, default=150, help="candidates of the planner oracle [150]")
-    ap.add_argument("--jobs", type=T.positive_int, default=2,
-                    help="local Ray's core budget: training runs at a time, one thread each [2 = the 2 cores]")
+    ap.add_argument(
+        "--jobs",
+        type=T.positive_int,
+        default=2,
+        help="local Ray's core budget: training runs at a time, one thread each [2 = the 2 cores]",
+    )
     ap.add_argument("--address", default=None, help="run the training stage on the Ray cluster at HOST:PORT (aerohrl sweep's)")
     ap.add_argument("--planner-algos", nargs="+", default=["gcsl"], help="runs evaluated on OOD with the planners [gcsl]")
-    ap.add_argument("--continuations", type=T.nonneg_int, default=5000,
-                    help="planner experiment: goals and continuation episodes of its dataset (0: skip it) [5000]")
+    ap.add_argument(
+        "--continuations",
+        type=T.nonneg_int,
+        default=5000,
+        help="planner experiment: goals and continuation episodes of its dataset (0: skip it) [5000]",
+    )
     ap.add_argument("--continuation-steps", type=T.positive_int, default=60000, help="planner experiment: GCSL steps [60000]")
-    ap.add_argument("--critic-random-goal-prob", type=T.nonneg_float, default=CONT_RANDOM_GOAL,
-                    help=f"planner experiment: the critics' random-goal probability [{CONT_RANDOM_GOAL}]")
+    ap.add_argument(
+        "--critic-random-goal-prob",
+        type=T.nonneg_float,
+        default=CONT_RANDOM_GOAL,
+        help=f"planner experiment: the critics' random-goal probability [{CONT_RANDOM_GOAL}]",
+    )
     ap.add_argument("--reevaluate", action="store_true", help="redo evaluations whose results are up to date")
     a = ap.parse_args(argv)
     command = " ".join(["python", PROG, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
@@ -134,15 +157,33 @@ def main(argv: list[str] | None = None) -> int:
                 sfx = f"-s{seed}" if seed else ""
                 for algo in a.algos:
                     rd = Path(a.runs) / f"{algo}-cpu{sfx}"
-                    items.append((f"train {algo}{sfx}", rd, config(algo=algo, dataset=str(Path(ds).resolve()), seed=seed, steps=a.steps,
-                                                                   checkpoint_every=ckpt_every)))
+                    items.append(
+                        (
+                            f"train {algo}{sfx}",
+                            rd,
+                            config(
+                                algo=algo, dataset=str(Path(ds).resolve()), seed=seed, steps=a.steps, checkpoint_every=ckpt_every
+                            ),
+                        )
+                    )
                     runs.append((rd, algo, f"{algo}{sfx}", seed))
                 if a.continuations:
                     rd = Path(a.runs) / f"gcsl-cpu-cont{sfx}"
                     c_steps = a.steps or a.continuation_steps
-                    items.append((f"train gcsl-cont{sfx}", rd, config(
-                        algo="gcsl", dataset=str(Path(ds_cont).resolve()), seed=seed, steps=c_steps, checkpoint_every=max(1, c_steps // 30),
-                        critic_random_goal_prob=a.critic_random_goal_prob)))
+                    items.append(
+                        (
+                            f"train gcsl-cont{sfx}",
+                            rd,
+                            config(
+                                algo="gcsl",
+                                dataset=str(Path(ds_cont).resolve()),
+                                seed=seed,
+                                steps=c_steps,
+                                checkpoint_every=max(1, c_steps // 30),
+                                critic_random_goal_prob=a.critic_random_goal_prob,
+                            ),
+                        )
+                    )
                     runs.append((rd, "gcsl", f"gcsl-cont{sfx}", seed))
             times.update(_train_all(items, log, a.jobs, a.address))
             ev = [py, "-m", "aerohrl.eval.cli"]
@@ -151,8 +192,9 @@ def main(argv: list[str] | None = None) -> int:
             def evaluate(rd: Path, name: str, flags: list[str], checkpoints: int | None = None) -> None:
                 k = checkpoints or a.checkpoints
                 if a.reevaluate or not evaluation_is_current(rd, name, a.episodes, k):
-                    run_logged(ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k),
-                                       "--quiet"], log)
+                    run_logged(
+                        ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k), "--quiet"], log
+                    )
 
             for rd, algo, label, seed in runs:
                 t0 = time.perf_counter()
@@ -165,13 +207,34 @@ def main(argv: list[str] | None = None) -> int:
                     for name, pl in (("none", ["none"]), ("single", ["single"]), ("multi2", ["multi", "--waypoints", "2"])):
                         evaluate(rd, f"ood-{name}", ["--task", "ood", "--planner"] + pl)
                 if algo in a.planner_algos and seed == a.seeds[0]:  # the oracle and the figures: the first seed's run
-                    rep = run_logged(ev + ["oracle", "--run", str(rd), "--goals", str(a.oracle_goals), "--candidates",
-                                     str(a.oracle_candidates), "--quiet"], log)
-                    oracles.append(f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
-                                   f"{a.oracle_goals} --candidates {a.oracle_candidates}`, planning/oracle.py):\n\n```\n"
-                                   + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:")) + "\n```\n")
-                    run_logged(ev + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")], log)
-                run_logged(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log)
+                    rep = run_logged(
+                        ev
+                        + [
+                            "oracle",
+                            "--run",
+                            str(rd),
+                            "--goals",
+                            str(a.oracle_goals),
+                            "--candidates",
+                            str(a.oracle_candidates),
+                            "--quiet",
+                        ],
+                        log,
+                    )
+                    oracles.append(
+                        f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
+                        f"{a.oracle_goals} --candidates {a.oracle_candidates}`, planning/oracle.py):\n\n```\n"
+                        + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:"))
+                        + "\n```\n"
+                    )
+                    run_logged(
+                        ev
+                        + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")],
+                        log,
+                    )
+                run_logged(
+                    ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log
+                )
                 times[f"eval {label}"] = time.perf_counter() - t0
             dirs = [str(rd) for rd, *_ in runs]
             run_logged(ev + ["plot", "--curves", *dirs, "-o", str(out / "learning-curves.png")], log)
@@ -183,13 +246,20 @@ def main(argv: list[str] | None = None) -> int:
         from aerohrl.algorithms.runs import summary
 
         trained = ", ".join(f"{label} {summary(rd)['training_s'] / 60:.1f} min" for rd, _, label, _ in runs)
-        block = (f"Reproduced by `make results` on {stamp} (dataset `{ds}`"
-                 + (f"; planner experiment `gcsl-cpu-cont` on `{ds_cont}`, {a.steps or a.continuation_steps} steps, "
-                    f"critic random-goal probability {a.critic_random_goal_prob}" if a.continuations else "")
-                 + "; cpu preset"
-                 + (f", {a.steps} training steps" if a.steps else "") + f", {a.episodes} episodes x last {a.checkpoints} checkpoints)"
-                 f"; wall time {total / 60:.1f} min ({wall}); gradient steps of each run ({a.jobs} at a time, one thread "
-                 f"each): {trained}.\n\n" + tables + "".join("\n" + o for o in oracles))
+        block = (
+            f"Reproduced by `make results` on {stamp} (dataset `{ds}`"
+            + (
+                f"; planner experiment `gcsl-cpu-cont` on `{ds_cont}`, {a.steps or a.continuation_steps} steps, "
+                f"critic random-goal probability {a.critic_random_goal_prob}"
+                if a.continuations
+                else ""
+            )
+            + "; cpu preset"
+            + (f", {a.steps} training steps" if a.steps else "")
+            + f", {a.episodes} episodes x last {a.checkpoints} checkpoints)"
+            f"; wall time {total / 60:.1f} min ({wall}); gradient steps of each run ({a.jobs} at a time, one thread "
+            f"each): {trained}.\n\n" + tables + "".join("\n" + o for o in oracles)
+        )
         (out / "results.md").write_text(block)
         page = write_results_page(a.results_dir, STUDY, command, block, title="Chapter 3 tables (make results)")
         print(f"tables written to {page} and {out / 'results.md'}; total {total / 60:.1f} min")

@@ -13,14 +13,28 @@ import importlib
 # the package's names, loaded on first use (PEP 562): `aerohrl ipp ... --help` and
 # `import aerohrl.ipp` stay light (scipy.ndimage and torch load with the modules that need them)
 _EXPORTS = {
-    "PLANNERS": "baselines", "PlannerConfig": "baselines", "make_planner": "baselines",
-    "TERMS": "env", "EnvConfig": "env", "SearchEnv": "env", "semantic_config": "env",
-    "create_env": "factory", "make_env": "factory",
-    "Lattice": "lattice", "LatticeConfig": "lattice", "build_lattice": "lattice", "default_lattice": "lattice",
-    "load_lattice": "lattice", "save_lattice": "lattice",
-    "CLASSES": "semantic", "SemanticConfig": "semantic", "load_class_raster": "semantic",
+    "PLANNERS": "baselines",
+    "PlannerConfig": "baselines",
+    "make_planner": "baselines",
+    "TERMS": "env",
+    "EnvConfig": "env",
+    "SearchEnv": "env",
+    "semantic_config": "env",
+    "create_env": "factory",
+    "make_env": "factory",
+    "Lattice": "lattice",
+    "LatticeConfig": "lattice",
+    "build_lattice": "lattice",
+    "default_lattice": "lattice",
+    "load_lattice": "lattice",
+    "save_lattice": "lattice",
+    "CLASSES": "semantic",
+    "SemanticConfig": "semantic",
+    "load_class_raster": "semantic",
     "SensorConfig": "sensor",
-    "WorldConfig": "world", "Worlds": "world", "sample_worlds": "world",
+    "WorldConfig": "world",
+    "Worlds": "world",
+    "sample_worlds": "world",
 }
 ENV_ID = "aerohrl/IPPSearch-v0"  # = aerohrl.envs.IPP_SEARCH_ID = gym_env.ENV_ID
 
@@ -45,8 +59,27 @@ try:  # gymnasium is a dependency; registration (by name, of every id) must neve
 except ImportError:  # pragma: no cover
     pass
 
-__all__ = ["PLANNERS", "PlannerConfig", "make_planner", "TERMS", "EnvConfig", "SearchEnv",
-           "make_env", "create_env", "semantic_config", "CLASSES", "SemanticConfig",
-           "load_class_raster", "Lattice", "LatticeConfig", "build_lattice", "default_lattice",
-           "load_lattice", "save_lattice", "SensorConfig", "WorldConfig", "Worlds",
-           "sample_worlds"]
+__all__ = [
+    "PLANNERS",
+    "PlannerConfig",
+    "make_planner",
+    "TERMS",
+    "EnvConfig",
+    "SearchEnv",
+    "make_env",
+    "create_env",
+    "semantic_config",
+    "CLASSES",
+    "SemanticConfig",
+    "load_class_raster",
+    "Lattice",
+    "LatticeConfig",
+    "build_lattice",
+    "default_lattice",
+    "load_lattice",
+    "save_lattice",
+    "SensorConfig",
+    "WorldConfig",
+    "Worlds",
+    "sample_worlds",
+]

@@ -53,12 +53,18 @@ from .scoring import info_gain  # noqa: F401  (re-exported: tests, features' doc
 
 PLANNERS = ("greedy", "dp", "cmaes", "coverage", "prio_coverage")  # thesis Table 2.1
 TEACHERS = ("detect",)  # training-time teachers; `ipp bench --planner detect`, not in --all
-THESIS_NAMES = {"greedy": "Greedy-IPP", "dp": "DP-IPP", "cmaes": "CMAES-IPP",
-                "coverage": "Coverage", "prio_coverage": "Prioritised Coverage",
-                # learned rows are named by policy.describe_policy (what trained them);
-                # these two are the thesis's own names, for its columns only
-                "rl_nolstm": "Ours-noLSTM (thesis)", "rl": "Ours-LSTM (thesis)",
-                "detect": "Detection tree (teacher)"}
+THESIS_NAMES = {
+    "greedy": "Greedy-IPP",
+    "dp": "DP-IPP",
+    "cmaes": "CMAES-IPP",
+    "coverage": "Coverage",
+    "prio_coverage": "Prioritised Coverage",
+    # learned rows are named by policy.describe_policy (what trained them);
+    # these two are the thesis's own names, for its columns only
+    "rl_nolstm": "Ours-noLSTM (thesis)",
+    "rl": "Ours-LSTM (thesis)",
+    "detect": "Detection tree (teacher)",
+}
 
 
 @dataclass(frozen=True)
@@ -75,17 +81,29 @@ class PlannerConfig:
     sigma0: float = param(0.3, "CMA-ES initial step size on [0, 1]^horizon", gt=0)
     max_nodes: int = param(2_000_000, "memory bound per chunk for dense overlap maps", ge=1)
     budget_aware: bool | None = param(None, "tree planners score by min(cost, remaining budget) (none: detect only)")
-    scoring: str = param("ratio", "utility per unit cost, or utility - w * cost (the original's form)",
-                         choices=("ratio", "additive"))
-    cost_weight: float = param(0.0, "additive scoring: w per cost unit (0: utility alone, as the original's "
-                               "coverage planners)", ge=0)
-    prio_revisit: bool = param(True, "prioritised coverage scores the belief mass of every sensed cell, covered "
-                               "or not (the original); false: new cells only")
-    info_weight: float = param(0.0, "detect: + this x the expected information gain (bits) of the sensed cells, "
-                               "a value for cells one pass cannot confirm (0: detections alone)", ge=0)
-    cmaes_tol: float = param(0.0, "CMA-ES: stop an environment's search when the std of its generation-best "
-                             "score over the last 10 generations is <= tol * |mean| (the original: absolute "
-                             "std < 0.1 in its reward units); 0: run every generation", ge=0)
+    scoring: str = param(
+        "ratio", "utility per unit cost, or utility - w * cost (the original's form)", choices=("ratio", "additive")
+    )
+    cost_weight: float = param(
+        0.0, "additive scoring: w per cost unit (0: utility alone, as the original's coverage planners)", ge=0
+    )
+    prio_revisit: bool = param(
+        True,
+        "prioritised coverage scores the belief mass of every sensed cell, covered or not (the original); false: new cells only",
+    )
+    info_weight: float = param(
+        0.0,
+        "detect: + this x the expected information gain (bits) of the sensed cells, "
+        "a value for cells one pass cannot confirm (0: detections alone)",
+        ge=0,
+    )
+    cmaes_tol: float = param(
+        0.0,
+        "CMA-ES: stop an environment's search when the std of its generation-best "
+        "score over the last 10 generations is <= tol * |mean| (the original: absolute "
+        "std < 0.1 in its reward units); 0: run every generation",
+        ge=0,
+    )
 
     def validate(self) -> None:
         """ValueError (one line, naming the setting) for a setting out of its declared
@@ -129,8 +147,7 @@ class TreePlanner(Planner):
         # budget-aware scoring: a primitive started with budget left is executed in full
         # but charged only the remainder; later ones never happen. Off for the thesis
         # baselines (their score is utility / full cost), on for the detect teacher.
-        self.budget_aware = bool(budget_aware if self.cfg.budget_aware is None
-                                 else self.cfg.budget_aware)
+        self.budget_aware = bool(budget_aware if self.cfg.budget_aware is None else self.cfg.budget_aware)
         self.depth = int(depth if self.cfg.depth is None else self.cfg.depth)
         if not 1 <= self.depth <= 4:
             raise ValueError(f"planner depth must be in 1..4, got {self.depth}")
@@ -181,6 +198,7 @@ class TreePlanner(Planner):
         live = np.flatnonzero(~env.done)
         if self._fast() and len(live):  # semantic detect tree: the features' fast path
             from .features import semantic_fast
+
             first = semantic_fast(env)[1][live]
             best = first.argmax(1)
             flat_zero = ~(first.max(1) > 1e-9)
@@ -189,7 +207,7 @@ class TreePlanner(Planner):
             out[live] = best
             return out
         for s in range(0, len(live), chunk):
-            idx = live[s:s + chunk]
+            idx = live[s : s + chunk]
             out[idx] = self._plan(idx)
         return out
 
@@ -198,10 +216,10 @@ class TreePlanner(Planner):
         feature 14 computes (:func:`aerohrl.ipp.features.semantic_fast`, sparse products
         on a window instead of the (slot, slot, cell, class) arrays; same values up to
         float rounding, a test checks): use it (75 -> ~2 ms per decision)."""
-        if not (self.kind == "detect" and self.depth == 2 and self.budget_aware
-                and self.cfg.info_weight == 0 and self.use_fast):
+        if not (self.kind == "detect" and self.depth == 2 and self.budget_aware and self.cfg.info_weight == 0 and self.use_fast):
             return False
         from .features import fast_path_applies
+
         return fast_path_applies(self.env)
 
     use_fast = True  # False: always the generic tree search (tests compare the two)
@@ -251,8 +269,7 @@ class TreePlanner(Planner):
             else:
                 lp = lmap[np.arange(n)[:, None, None, None], np.arange(K)[None, :, None, None], wl]
             uc = np.zeros(lam.shape)
-            b_in = None if self.kind == "coverage" else \
-                env.plan_cells(idx[np.nonzero(inside)[0]], flat[inside])
+            b_in = None if self.kind == "coverage" else env.plan_cells(idx[np.nonzero(inside)[0]], flat[inside])
             uc[inside] = self._util(b_in, c[inside], lp[inside], lam[inside])
             u = uc.sum(-1)  # (n, K, A)
             if self.budget_aware:  # steps that start after the budget is spent count 0
@@ -262,10 +279,8 @@ class TreePlanner(Planner):
             alive = ok.reshape(n, K * A)
             if k + 1 < self.depth:
                 w = np.where(inside, lam, 0.0)
-                ii = (np.arange(n * K * A)[:, None] * (Wn * Wn)
-                      + wl.reshape(n * K * A, -1))
-                nl = np.bincount(ii.ravel(), weights=w.reshape(-1),
-                                 minlength=n * K * A * Wn * Wn).reshape(n, K, A, Wn * Wn)
+                ii = np.arange(n * K * A)[:, None] * (Wn * Wn) + wl.reshape(n * K * A, -1)
+                nl = np.bincount(ii.ravel(), weights=w.reshape(-1), minlength=n * K * A * Wn * Wn).reshape(n, K, A, Wn * Wn)
                 if lmap is not None:
                     nl += lmap[:, :, None, :]
                 lmap = nl.reshape(n, K * A, Wn * Wn)
@@ -286,7 +301,7 @@ class TreePlanner(Planner):
         S, p = env.S, env.pad
         out = np.zeros(len(idx), np.int64)
         for j, n in enumerate(idx):  # one distance transform per env (not per cell)
-            unc = ~env.cov[n, p:p + S, p:p + S]
+            unc = ~env.cov[n, p : p + S, p : p + S]
             okm = env.ok[env.vert[n], :, env.pos[n, 1], env.pos[n, 0]]
             if not unc.any():
                 out[j] = int(np.argmax(okm))
@@ -380,10 +395,15 @@ class CMAESPlanner(Planner):
             opts = []
             for n in need:
                 self.replans[n] += 1
-                opts.append(CMA(mean=np.full(h, 0.5), sigma=cfg.sigma0,
-                                bounds=np.tile([0.0, 1.0], (h, 1)),
-                                population_size=cfg.popsize,
-                                seed=int(env.worlds.seeds[n, 1] * 7919 + self.replans[n])))
+                opts.append(
+                    CMA(
+                        mean=np.full(h, 0.5),
+                        sigma=cfg.sigma0,
+                        bounds=np.tile([0.0, 1.0], (h, 1)),
+                        population_size=cfg.popsize,
+                        seed=int(env.worlds.seeds[n, 1] * 7919 + self.replans[n]),
+                    )
+                )
             best_f = np.full(len(need), np.inf)
             best_a = np.zeros((len(need), h), np.int64)
             P = cfg.popsize
@@ -440,7 +460,6 @@ def make_planner(name: str, env: SearchEnv, cfg: PlannerConfig | None = None) ->
     elif name == "cmaes":
         p = CMAESPlanner(env, cfg)
     else:
-        raise ValueError(f"unknown planner {name!r} (choose from "
-                        f"{', '.join(PLANNERS + TEACHERS)})")
+        raise ValueError(f"unknown planner {name!r} (choose from {', '.join(PLANNERS + TEACHERS)})")
     p.name = name
     return p

@@ -42,9 +42,12 @@ class BenchConfig:
     batch: int = param(100, "environments stepped together", ge=1)
     env: EnvConfig = section(EnvConfig, "the test environment")
     planner: PlannerConfig = section(PlannerConfig, "the planners' knobs")
-    execution: str = param("ideal", "the lattice's sensing (ideal), the simulator flying each primitive (flown) "
-                           "or the chapter-3 policy flying it (skill); see aerohrl.ipp.flown",
-                           choices=EXECUTIONS)
+    execution: str = param(
+        "ideal",
+        "the lattice's sensing (ideal), the simulator flying each primitive (flown) "
+        "or the chapter-3 policy flying it (skill); see aerohrl.ipp.flown",
+        choices=EXECUTIONS,
+    )
 
     def validate(self) -> None:
         """UserError (one line) for a setting out of its declared range
@@ -52,13 +55,19 @@ class BenchConfig:
         validate(self)
         for p in self.planners:
             if p not in PLANNERS + TEACHERS + ("rl",):
-                raise UserError(f"unknown planner {p!r} (choose from "
-                                f"{', '.join(PLANNERS + TEACHERS)}, rl)")
+                raise UserError(f"unknown planner {p!r} (choose from {', '.join(PLANNERS + TEACHERS)}, rl)")
 
 
-def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids: Sequence[int] | np.ndarray | None = None,
-                 progress: Any = None, keep_env: bool = False, model: ActorCritic | None = None,
-                 skill: PolicyFn | None = None) -> dict:
+def run_episodes(
+    name: str,
+    lattice: Lattice,
+    cfg: BenchConfig,
+    env_ids: Sequence[int] | np.ndarray | None = None,
+    progress: Any = None,
+    keep_env: bool = False,
+    model: ActorCritic | None = None,
+    skill: PolicyFn | None = None,
+) -> dict:
     """Run ``name`` on the suite; returns per-env metrics, summary inputs and timing."""
     ids = np.arange(cfg.envs) if env_ids is None else np.asarray(env_ids)
     per_env: dict[str, list] = {}
@@ -67,20 +76,23 @@ def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids: Sequenc
     tracking: list[np.ndarray] = []
     legs: list[np.ndarray] = []
     for s in range(0, len(ids), cfg.batch):
-        chunk = ids[s:s + cfg.batch]
+        chunk = ids[s : s + cfg.batch]
         if cfg.execution == "ideal":
             env = create_env(cfg.env, lattice)
         else:
             from .flown import create_flown_env
+
             env = create_flown_env(cfg.env, lattice, cfg.execution, skill)
             env.keep_trace = keep_env
         env.reset(sample_for(cfg.env, cfg.seed, chunk))
         env.lazy_obs = True  # baselines read the maps directly, RLPlanner observes itself
         if s == 0:  # per-lattice tables of the semantic fast path: built once, not timed
             from .features import fast_path_applies
+
             fast_path_applies(env)
         if model is not None:
             from .policy import RLPlanner
+
             pl = RLPlanner(env, model)
         else:
             pl = make_planner(name, env, cfg.planner)
@@ -105,9 +117,13 @@ def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids: Sequenc
             tracking.append(tt)
         if hasattr(env, "leg_table"):
             legs.append(env.leg_table())
-    out = {"per_env": {k: np.concatenate(v) for k, v in per_env.items()},
-           "ms_per_decision": 1000.0 * plan_time / max(decisions, 1),
-           "n": len(ids), "env_ids": ids, "execution": cfg.execution}
+    out = {
+        "per_env": {k: np.concatenate(v) for k, v in per_env.items()},
+        "ms_per_decision": 1000.0 * plan_time / max(decisions, 1),
+        "n": len(ids),
+        "env_ids": ids,
+        "execution": cfg.execution,
+    }
     if tracking:  # per flown primitive: world, max error (m), RMS error (m), duration (s)
         out["tracking"] = np.concatenate(tracking, 0)
     if legs:  # per skill leg: strict success, near success, duration (s)
@@ -120,6 +136,7 @@ def run_episodes(name: str, lattice: Lattice, cfg: BenchConfig, env_ids: Sequenc
 def render_episode(env: SearchEnv, n: int, path: str | Path, title: str = "") -> Path:
     """Fig. 2.3 analogue for env ``n`` of a finished run: truth, prior, path at 70/30/0 %."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -132,24 +149,28 @@ def render_episode(env: SearchEnv, n: int, path: str | Path, title: str = "") ->
     if semantic:  # Fig. 2.5 analogue: classes, prior (expected colour), final belief
         from .semantic import CLASSES, PALETTE, class_rgb
         from matplotlib.patches import Patch
-        fig.legend(handles=[Patch(color=PALETTE[i] / 255.0, label=c) for i, c in
-                            enumerate(CLASSES[:w.prior.shape[-1]])],
-                   loc="lower center", ncol=len(CLASSES), fontsize=8, frameon=False)
+
+        fig.legend(
+            handles=[Patch(color=PALETTE[i] / 255.0, label=c) for i, c in enumerate(CLASSES[: w.prior.shape[-1]])],
+            loc="lower center",
+            ncol=len(CLASSES),
+            fontsize=8,
+            frameon=False,
+        )
         axes[0].imshow(class_rgb(w.classes[n]), origin="lower", extent=ext)
         axes[0].set_title(f"truth ({int(env.n_targets[n])} feature cells)")
-        prior_img = np.clip((w.prior[n] @ PALETTE[:w.prior.shape[-1]].astype(float)) / 255.0, 0, 1)
+        prior_img = np.clip((w.prior[n] @ PALETTE[: w.prior.shape[-1]].astype(float)) / 255.0, 0, 1)
         axes[1].imshow(prior_img, origin="lower", extent=ext)
         axes[1].set_title(f"prior (CE {w.kl[n]:.2f} nats/cell)")
-        final_img = np.clip((env.probs()[n] @ PALETTE[:w.prior.shape[-1]].astype(float)) / 255.0, 0, 1)
+        final_img = np.clip((env.probs()[n] @ PALETTE[: w.prior.shape[-1]].astype(float)) / 255.0, 0, 1)
         alpha = 1.0
     else:
         im = axes[0].imshow(w.density[n], origin="lower", extent=ext, cmap="Greys")
         fig.colorbar(im, ax=axes[0], fraction=0.046, pad=0.02, label="true target density")
         ty, tx = np.nonzero(w.targets[n])
         p0 = env.pad
-        found = env.found[n, p0:p0 + S, p0:p0 + S][ty, tx]
-        axes[0].scatter(tx[found], ty[found], c="limegreen", s=10, edgecolors="k",
-                        linewidths=0.3, label="found")
+        found = env.found[n, p0 : p0 + S, p0 : p0 + S][ty, tx]
+        axes[0].scatter(tx[found], ty[found], c="limegreen", s=10, edgecolors="k", linewidths=0.3, label="found")
         axes[0].scatter(tx[~found], ty[~found], c="r", marker="x", s=12, label="missed")
         axes[0].legend(fontsize=6, loc="upper right")
         axes[0].set_title(f"truth ({len(tx)} targets, {int(found.sum())} found)")
@@ -160,11 +181,17 @@ def render_episode(env: SearchEnv, n: int, path: str | Path, title: str = "") ->
     for ax, frac in zip(axes[2:], (0.7, 0.3, 0.0)):
         k = int(np.searchsorted(-budget, -frac, side="right"))  # steps taken at >= frac left
         k = min(k, len(env.trace_prim))
-        im = ax.imshow(final_img if frac == 0.0 else prior_img, origin="lower", extent=ext,
-                       cmap=None if semantic else "Blues", vmin=0, vmax=1, alpha=alpha)
+        im = ax.imshow(
+            final_img if frac == 0.0 else prior_img,
+            origin="lower",
+            extent=ext,
+            cmap=None if semantic else "Blues",
+            vmin=0,
+            vmax=1,
+            alpha=alpha,
+        )
         if not semantic:
-            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02,
-                         label="belief P(target)" if frac == 0.0 else "prior P(target)")
+            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label="belief P(target)" if frac == 0.0 else "prior P(target)")
         for j in range(k):
             pr = int(env.trace_prim[j][n])
             if pr < 0:
@@ -192,14 +219,23 @@ def render_episode(env: SearchEnv, n: int, path: str | Path, title: str = "") ->
     return path
 
 
-def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, path: str | Path,
-                    model: ActorCritic | None = None, title: str = "", fps: int = 4,
-                    skill: PolicyFn | None = None) -> Path:
+def animate_episode(
+    name: str,
+    lattice: Lattice,
+    cfg: BenchConfig,
+    env_id: int,
+    path: str | Path,
+    model: ActorCritic | None = None,
+    title: str = "",
+    fps: int = 4,
+    skill: PolicyFn | None = None,
+) -> Path:
     """Animated episode (GIF) on test world ``env_id`` (target search): one frame per
     primitive, showing the belief (colour bar), the path so far (flown path too with
     ``cfg.execution == "flown"``), the true targets found (green) and not yet found (red
     x), and the budget left. Written with matplotlib's PillowWriter, atomically."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.animation import FuncAnimation, PillowWriter
@@ -210,10 +246,12 @@ def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, 
         env = create_env(cfg.env, lattice)
     else:
         from .flown import create_flown_env
+
         env = create_flown_env(cfg.env, lattice, cfg.execution, skill)
     env.reset(sample_for(cfg.env, cfg.seed, [env_id]))
     if model is not None:
         from .policy import RLPlanner
+
         pl = RLPlanner(env, model)
     else:
         pl = make_planner(name, env, cfg.planner)
@@ -221,8 +259,15 @@ def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, 
     S, p = env.S, env.pad
     frames = []
     while True:
-        frames.append((env.belief()[0].copy(), env.found[0, p:p + S, p:p + S].copy(),
-                       len(env.trace_prim), float(env.remaining[0]), int(env.n_found[0])))
+        frames.append(
+            (
+                env.belief()[0].copy(),
+                env.found[0, p : p + S, p : p + S].copy(),
+                len(env.trace_prim),
+                float(env.remaining[0]),
+                int(env.n_found[0]),
+            )
+        )
         if env.done.all():
             break
         env.step(pl.act())
@@ -253,21 +298,23 @@ def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, 
         xy = np.concatenate([segs[j] for j in range(k)], 0) if k else np.zeros((0, 2))
         line.set_data(xy[:, 0], xy[:, 1])
         if fline is not None:
-            fx = np.concatenate(flown[0][:k + 1], 0)
+            fx = np.concatenate(flown[0][: k + 1], 0)
             fline.set_data(fx[:, 0], fx[:, 1])
         pos = env.trace[k][0]
         agent.set_data([pos[0]], [pos[1]])
         hit = fnd[ty, tx]
         fsc.set_offsets(np.c_[tx[hit], ty[hit]] if hit.any() else np.zeros((0, 2)))
         msc.set_offsets(np.c_[tx[~hit], ty[~hit]] if (~hit).any() else np.zeros((0, 2)))
-        ax.set_title(f"{title}\nprimitive {k}, budget left {100 * max(rem, 0.0) / cfg.env.budget:.0f} %, "
-                     f"found {nf}/{len(tx)}", fontsize=9)
+        ax.set_title(
+            f"{title}\nprimitive {k}, budget left {100 * max(rem, 0.0) / cfg.env.budget:.0f} %, found {nf}/{len(tx)}", fontsize=9
+        )
         return im, line, agent, fsc, msc
 
     anim = FuncAnimation(fig, draw, frames=len(frames), blit=False)
     import tempfile
 
     from aerohrl.atomic import write_bytes
+
     with tempfile.TemporaryDirectory() as d:  # Pillow picks the format from the suffix
         f = Path(d) / "episode.gif"
         anim.save(str(f), writer=PillowWriter(fps=fps))
@@ -275,5 +322,4 @@ def animate_episode(name: str, lattice: Lattice, cfg: BenchConfig, env_id: int, 
         return write_bytes(path, f.read_bytes())
 
 
-__all__ = ["BenchConfig", "run_episodes", "render_episode", "animate_episode", "TEST_SEED",
-           "THESIS_NAMES"]
+__all__ = ["BenchConfig", "run_episodes", "render_episode", "animate_episode", "TEST_SEED", "THESIS_NAMES"]

@@ -61,72 +61,123 @@ def _parser() -> argparse.ArgumentParser:
     add_common(b, out={"required": True, "type": str, "help": "lattice file to write (.npz)"})
     b.add_argument("--plot", metavar="PATH", help="figure path [OUT with .png]")
     b.add_argument("--no-plot", action="store_true", help="no figure")
-    b.add_argument("--vertices", type=T.positive_int, default=lc.n_vertices, dest="n_vertices",
-                   help=f"lattice vertices (velocity states), hover included [{lc.n_vertices}]")
+    b.add_argument(
+        "--vertices",
+        type=T.positive_int,
+        default=lc.n_vertices,
+        dest="n_vertices",
+        help=f"lattice vertices (velocity states), hover included [{lc.n_vertices}]",
+    )
     b.add_argument("--v-max", type=T.positive_float, default=lc.v_max, help=f"speed bound |v| (m/s) [{lc.v_max:g}]")
     b.add_argument("--a-max", type=T.positive_float, default=lc.a_max, help=f"acceleration bound |a| (m/s^2) [{lc.a_max:g}]")
-    b.add_argument("--rho", type=T.positive_float, default=lc.rho,
-                   help=f"weight of time in the primitive cost rho*T + int |jerk|^2 (1/s) [{lc.rho:g}]")
-    b.add_argument("--reach", type=T.positive_int, default=lc.reach,
-                   help=f"displacement window |dx|, |dy| <= reach (cells) [{lc.reach}]")
-    b.add_argument("--max-edges", type=T.positive_int, default=lc.max_edges,
-                   help=f"primitives per vertex (action slots) [{lc.max_edges}]")
-    b.add_argument("--footprint-radius", type=T.nonneg_int, default=lc.footprint_radius,
-                   help=f"sensor footprint (2r+1)^2 (cells) [{lc.footprint_radius}]")
-    b.add_argument("--sense-dt", type=T.positive_float, default=lc.sense_dt,
-                   help=f"sampling of the trajectory for sensing (s) [{lc.sense_dt:g}]")
+    b.add_argument(
+        "--rho",
+        type=T.positive_float,
+        default=lc.rho,
+        help=f"weight of time in the primitive cost rho*T + int |jerk|^2 (1/s) [{lc.rho:g}]",
+    )
+    b.add_argument(
+        "--reach", type=T.positive_int, default=lc.reach, help=f"displacement window |dx|, |dy| <= reach (cells) [{lc.reach}]"
+    )
+    b.add_argument(
+        "--max-edges", type=T.positive_int, default=lc.max_edges, help=f"primitives per vertex (action slots) [{lc.max_edges}]"
+    )
+    b.add_argument(
+        "--footprint-radius",
+        type=T.nonneg_int,
+        default=lc.footprint_radius,
+        help=f"sensor footprint (2r+1)^2 (cells) [{lc.footprint_radius}]",
+    )
+    b.add_argument(
+        "--sense-dt",
+        type=T.positive_float,
+        default=lc.sense_dt,
+        help=f"sampling of the trajectory for sensing (s) [{lc.sense_dt:g}]",
+    )
 
     def world_flags(q):
-        q.add_argument("--world", choices=("targets", "semantic"), default=None,
-                       help="target search (Table 2.1, default) or semantic feature detection "
-                       "(Table 2.2)")
-        q.add_argument("--raster", help="semantic: class raster (.npy/.npz/.png) instead of "
-                       "procedural campus maps (see aerohrl.ipp.semantic)")
-        q.add_argument("--map-size", type=T.positive_int, default=None,
-                       help=f"map side (cells) (default {ec.map_size}; semantic 256)")
-        q.add_argument("--budget", type=_budget, default=None,
-                       help=f"cost budget in primitive-cost units (sum of rho*T + int |jerk|^2): a number > 0 "
-                       f"or a name ({_budget_names()}; "
-                       f"default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})")
+        q.add_argument(
+            "--world",
+            choices=("targets", "semantic"),
+            default=None,
+            help="target search (Table 2.1, default) or semantic feature detection (Table 2.2)",
+        )
+        q.add_argument(
+            "--raster",
+            help="semantic: class raster (.npy/.npz/.png) instead of procedural campus maps (see aerohrl.ipp.semantic)",
+        )
+        q.add_argument(
+            "--map-size", type=T.positive_int, default=None, help=f"map side (cells) (default {ec.map_size}; semantic 256)"
+        )
+        q.add_argument(
+            "--budget",
+            type=_budget,
+            default=None,
+            help=f"cost budget in primitive-cost units (sum of rho*T + int |jerk|^2): a number > 0 "
+            f"or a name ({_budget_names()}; "
+            f"default {ec.budget:g}; semantic {SEMANTIC_BUDGET:g})",
+        )
 
     def env_flags(q):
         q.add_argument("--lattice", help="lattice file (default: the shipped one)")
         world_flags(q)
         q.add_argument("--start", choices=("center", "random"), default=ec.start, help=f"start cell [{ec.start}]")
         add_common(q, seed={"default": TEST_SEED, "help": f"test-suite seed (>= 0) [{TEST_SEED}]"})
-        q.add_argument("--depth", type=T.positive_int, default=None,
-                       help="tree depth in primitives (greedy/dp/coverage) [the planner's own]")
+        q.add_argument(
+            "--depth", type=T.positive_int, default=None, help="tree depth in primitives (greedy/dp/coverage) [the planner's own]"
+        )
         q.add_argument("--horizon", type=T.positive_int, default=5, help="CMA-ES horizon (primitives) [5]")
         q.add_argument("--popsize", type=T.positive_int, default=12, help="CMA-ES population size [12]")
         q.add_argument("--generations", type=T.positive_int, default=15, help="CMA-ES generations [15]")
-        q.add_argument("--scoring", choices=("ratio", "additive"), default="ratio",
-                       help="planners: utility per unit cost (default) or utility - "
-                       "w * cost (the original's form)")
-        q.add_argument("--cost-weight", type=T.nonneg_float, default=0.0,
-                       help="--scoring additive: w per cost unit (default 0: utility alone)")
-        q.add_argument("--info-weight", type=T.nonneg_float, default=0.0,
-                       help="detect: + w x the information gain (bits) of the sensed cells "
-                       "[0: expected new detections alone]")
-        q.add_argument("--prio-revisit", action=argparse.BooleanOptionalAction, default=True,
-                       help="prio_coverage scores the belief mass of covered cells too "
-                       "(default, the original); --no-prio-revisit: new cells only")
-        q.add_argument("--cmaes-tol", type=T.nonneg_float, default=0.0,
-                       help="CMA-ES: stop when the best score's std over 10 generations is "
-                       "< tol (original 0.1; default 0: run every generation)")
-        q.add_argument("--budget-aware", action=argparse.BooleanOptionalAction, default=None,
-                       help="tree planners: score by min(cost, remaining budget) (default: "
-                       "on for detect only)")
-        q.add_argument("--run", action="append", default=None,
-                       help="trained policy run directory (planner rl); bench takes several")
+        q.add_argument(
+            "--scoring",
+            choices=("ratio", "additive"),
+            default="ratio",
+            help="planners: utility per unit cost (default) or utility - w * cost (the original's form)",
+        )
+        q.add_argument(
+            "--cost-weight",
+            type=T.nonneg_float,
+            default=0.0,
+            help="--scoring additive: w per cost unit (default 0: utility alone)",
+        )
+        q.add_argument(
+            "--info-weight",
+            type=T.nonneg_float,
+            default=0.0,
+            help="detect: + w x the information gain (bits) of the sensed cells [0: expected new detections alone]",
+        )
+        q.add_argument(
+            "--prio-revisit",
+            action=argparse.BooleanOptionalAction,
+            default=True,
+            help="prio_coverage scores the belief mass of covered cells too "
+            "(default, the original); --no-prio-revisit: new cells only",
+        )
+        q.add_argument(
+            "--cmaes-tol",
+            type=T.nonneg_float,
+            default=0.0,
+            help="CMA-ES: stop when the best score's std over 10 generations is "
+            "< tol (original 0.1; default 0: run every generation)",
+        )
+        q.add_argument(
+            "--budget-aware",
+            action=argparse.BooleanOptionalAction,
+            default=None,
+            help="tree planners: score by min(cost, remaining budget) (default: on for detect only)",
+        )
+        q.add_argument(
+            "--run", action="append", default=None, help="trained policy run directory (planner rl); bench takes several"
+        )
 
     tr = sub.add_parser("train", help="train the learned recurrent policy")
     _train_flags(tr)
-    tr.add_argument("--start", choices=("center", "random"), default=None,
-                    help="training start cells (default random; test suite: center)")
-    add_common(tr, out={"default": "runs", "type": str, "help": "folder of runs: the run goes to OUT/NAME [runs]"},
-               quiet=True)
-    tr.add_argument("--name", default=None,
-                    help="run folder name, must be new [ipp-PRESET[-nornn]-sSEED-YYYYMMDD-HHMMSS-XXXXXX]")
+    tr.add_argument(
+        "--start", choices=("center", "random"), default=None, help="training start cells (default random; test suite: center)"
+    )
+    add_common(tr, out={"default": "runs", "type": str, "help": "folder of runs: the run goes to OUT/NAME [runs]"}, quiet=True)
+    tr.add_argument("--name", default=None, help="run folder name, must be new [ipp-PRESET[-nornn]-sSEED-YYYYMMDD-HHMMSS-XXXXXX]")
     tr.add_argument("--lattice", help="lattice file (default: the shipped one)")
     world_flags(tr)
     tr.set_defaults(_defaults={a.dest: a.default for a in tr._actions})
@@ -139,40 +190,54 @@ def _parser() -> argparse.ArgumentParser:
     g = be.add_mutually_exclusive_group()
     g.add_argument("--planner", help=f"one of {', '.join(PLANNERS + TEACHERS)}, rl (default dp)")
     g.add_argument("--all", action="store_true", help="every baseline (+ rl with --run)")
-    be.add_argument("--envs", type=T.positive_int, default=None,
-                    help="test environments (default 100; semantic 30, as the thesis)")
+    be.add_argument(
+        "--envs", type=T.positive_int, default=None, help="test environments (default 100; semantic 30, as the thesis)"
+    )
     be.add_argument("--batch", type=T.positive_int, default=100, help="environments stepped together [100]")
-    add_common(be, out={"default": "runs/ipp-bench", "type": str, "help": "Markdown, CSV and plot go here [runs/ipp-bench]"},
-               quiet=True,
-               threads={"help": "torch and OpenMP threads (policy rl, --execution skill) [their default]"})
-    be.add_argument("--execution", type=_executions, default=("ideal",),
-                    help="ideal (the lattice's sensing, default), flown (the 6-DoF "
-                    "simulator and geometric controller fly each primitive; sensing along the "
-                    "flown path) and/or skill (the chapter-3 policy of --skill-run flies it "
-                    "through goals 0.5-1 s apart), comma-separated: e.g. 'ideal,flown,skill' "
-                    "writes ipp_execution.md")
-    be.add_argument("--skill-run", default=None,
-                    help="--execution skill: the chapter-3 goal-conditioned policy run "
-                    "(directory: its last checkpoint; or a checkpoint file)")
-    be.add_argument("--budgets", type=_budget_list, default=None,
-                    help="sweep: comma-separated budgets (numbers or names); writes "
-                    "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)")
+    add_common(
+        be,
+        out={"default": "runs/ipp-bench", "type": str, "help": "Markdown, CSV and plot go here [runs/ipp-bench]"},
+        quiet=True,
+        threads={"help": "torch and OpenMP threads (policy rl, --execution skill) [their default]"},
+    )
+    be.add_argument(
+        "--execution",
+        type=_executions,
+        default=("ideal",),
+        help="ideal (the lattice's sensing, default), flown (the 6-DoF "
+        "simulator and geometric controller fly each primitive; sensing along the "
+        "flown path) and/or skill (the chapter-3 policy of --skill-run flies it "
+        "through goals 0.5-1 s apart), comma-separated: e.g. 'ideal,flown,skill' "
+        "writes ipp_execution.md",
+    )
+    be.add_argument(
+        "--skill-run",
+        default=None,
+        help="--execution skill: the chapter-3 goal-conditioned policy run "
+        "(directory: its last checkpoint; or a checkpoint file)",
+    )
+    be.add_argument(
+        "--budgets",
+        type=_budget_list,
+        default=None,
+        help="sweep: comma-separated budgets (numbers or names); writes "
+        "ipp_budgets.md/.csv and ipp_budgets.png (each metric against budget)",
+    )
     env_flags(be)
 
     co = sub.add_parser("compare", help="two benches paired over the worlds both ran (e.g. two planners run apart)")
     co.add_argument("bench_a", metavar="A", help="bench folder (or its ipp_bench_envs.csv) of one planner")
     co.add_argument("bench_b", metavar="B", help="the bench it is compared with")
-    co.add_argument("--metric", default="search_efficiency",
-                    help="per-world column of ipp_bench_envs.csv [search_efficiency]")
+    co.add_argument("--metric", default="search_efficiency", help="per-world column of ipp_bench_envs.csv [search_efficiency]")
 
     sh = sub.add_parser("show", help="Fig. 2.3 analogue: truth, prior, path over the budget")
     sh.add_argument("--env", type=T.nonneg_int, default=0, help="test-suite world index")
     sh.add_argument("--planner", default="dp", help=f"one of {', '.join(PLANNERS + TEACHERS)}, rl [dp]")
     add_common(sh, out={"required": True, "type": str, "help": "figure file (.png)"})
-    sh.add_argument("--gif", help="also write an animated episode (GIF): belief, path, found "
-                    "and missed targets, one frame per primitive")
-    sh.add_argument("--execution", type=_executions, default=("ideal",),
-                    help="ideal (default), flown or skill")
+    sh.add_argument(
+        "--gif", help="also write an animated episode (GIF): belief, path, found and missed targets, one frame per primitive"
+    )
+    sh.add_argument("--execution", type=_executions, default=("ideal",), help="ideal (default), flown or skill")
     sh.add_argument("--skill-run", default=None, help="--execution skill: policy run")
     env_flags(sh)
     return p
@@ -205,21 +270,39 @@ def _train_flags(tr) -> None:
     def helps(name: str) -> str:
         return describe(_train_field(name), getattr(cpu, name), default_label="cpu")
 
-    tr.add_argument("--preset", default=None, choices=preset_names(),
-                    help="hyper-parameter preset (ipp/presets/NAME.toml) [cpu; with --world semantic: semantic]")
-    tr.add_argument("--resume", metavar="RUN",
-                    help="continue RUN from its checkpoint.pt with its config.json "
-                    "(only --iterations, --lattice, --quiet may be given)")
+    tr.add_argument(
+        "--preset",
+        default=None,
+        choices=preset_names(),
+        help="hyper-parameter preset (ipp/presets/NAME.toml) [cpu; with --world semantic: semantic]",
+    )
+    tr.add_argument(
+        "--resume",
+        metavar="RUN",
+        help="continue RUN from its checkpoint.pt with its config.json (only --iterations, --lattice, --quiet may be given)",
+    )
     tr.add_argument("--envs", type=_setting("n_envs", int), default=None, dest="n_envs", metavar="N", help=helps("n_envs"))
-    tr.add_argument("--teacher-depth", type=_setting("teacher_depth", int), default=None, metavar="N",
-                    help=describe(_train_field("teacher_depth"), "the planner's own"))
-    tr.add_argument("--adv-weights", type=_floats, default=None, metavar="W,W,W,W,W",
-                    help=helps("adv_weights").replace(" [", ", comma-separated [", 1))
-    add_common(tr, seed={"default": None, "help": f"random seed (>= 0) [cpu: {cpu.seed}]"},
-               threads={"help": f"torch threads [cpu: {cpu.threads}]"})
+    tr.add_argument(
+        "--teacher-depth",
+        type=_setting("teacher_depth", int),
+        default=None,
+        metavar="N",
+        help=describe(_train_field("teacher_depth"), "the planner's own"),
+    )
+    tr.add_argument(
+        "--adv-weights",
+        type=_floats,
+        default=None,
+        metavar="W,W,W,W,W",
+        help=helps("adv_weights").replace(" [", ", comma-separated [", 1),
+    )
+    add_common(
+        tr,
+        seed={"default": None, "help": f"random seed (>= 0) [cpu: {cpu.seed}]"},
+        threads={"help": f"torch threads [cpu: {cpu.threads}]"},
+    )
     tr.add_argument("--no-rnn", action="store_true", help="MLP core (thesis 'no-LSTM')")
-    tr.add_argument("--no-features", action="store_true",
-                    help="map observations only (thesis), no per-primitive features")
+    tr.add_argument("--no-features", action="store_true", help="map observations only (thesis), no per-primitive features")
     add_flags(tr, TrainConfig, skip=_train_skip(), defaults=cpu, default_label="cpu")
 
 
@@ -257,6 +340,7 @@ def _budget_names() -> str:
 def _budget(text: str) -> float:
     """A budget: a name of :data:`aerohrl.ipp.env.BUDGETS` or a finite number > 0."""
     from .env import BUDGETS
+
     if text.strip() in BUDGETS:
         return BUDGETS[text.strip()]
     return T.positive_float(text)
@@ -277,11 +361,11 @@ _budget_list.__name__ = "budget list"
 
 def _executions(text: str) -> tuple[str, ...]:
     from .flown import EXECUTIONS
+
     modes = tuple(t.strip() for t in text.split(",") if t.strip())
     bad = [m for m in modes if m not in EXECUTIONS]
     if not modes or bad:
-        raise argparse.ArgumentTypeError(f"unknown execution mode {(bad or [text])[0]!r} "
-                                         f"(choose from {', '.join(EXECUTIONS)})")
+        raise argparse.ArgumentTypeError(f"unknown execution mode {(bad or [text])[0]!r} (choose from {', '.join(EXECUTIONS)})")
     return tuple(dict.fromkeys(modes))
 
 
@@ -311,10 +395,18 @@ def _configs(a):
     from .baselines import PlannerConfig
 
     env = _env_config(a, a.start)
-    pc = PlannerConfig(depth=a.depth, horizon=a.horizon, popsize=a.popsize,
-                       generations=a.generations, budget_aware=a.budget_aware,
-                       scoring=a.scoring, cost_weight=a.cost_weight,
-                       info_weight=a.info_weight, prio_revisit=a.prio_revisit, cmaes_tol=a.cmaes_tol)
+    pc = PlannerConfig(
+        depth=a.depth,
+        horizon=a.horizon,
+        popsize=a.popsize,
+        generations=a.generations,
+        budget_aware=a.budget_aware,
+        scoring=a.scoring,
+        cost_weight=a.cost_weight,
+        info_weight=a.info_weight,
+        prio_revisit=a.prio_revisit,
+        cmaes_tol=a.cmaes_tol,
+    )
     if a.horizon < 1 or a.popsize < 2 or a.generations < 1:
         raise UserError("--horizon >= 1, --popsize >= 2 and --generations >= 1 are required")
     return env, pc
@@ -329,29 +421,40 @@ def _env_config(a, start):
     if a.world == "semantic":
         if a.raster is not None and not Path(a.raster).is_file():
             raise UserError(f"class raster {a.raster} not found")
-        env = semantic_config(budget=a.budget, raster=a.raster, start=start,
-                              map_size=a.map_size or 256)
+        env = semantic_config(budget=a.budget, raster=a.raster, start=start, map_size=a.map_size or 256)
         if a.raster is not None:  # fail early, one line, on a bad raster
             from .semantic import load_class_raster
+
             load_class_raster(a.raster, env.map_size, env.semantic.n_classes)
         return env
     if a.raster is not None:
         raise UserError("--raster needs --world semantic")
     size = a.map_size or EnvConfig().map_size
-    return EnvConfig(map_size=size, budget=EnvConfig().budget if a.budget is None else a.budget,
-                     start=start, world=WorldConfig(map_size=size))
+    return EnvConfig(
+        map_size=size, budget=EnvConfig().budget if a.budget is None else a.budget, start=start, world=WorldConfig(map_size=size)
+    )
 
 
 def _lattice_build(a) -> int:
     from .lattice import LatticeConfig, build_lattice, plot_lattice, save_lattice
 
-    cfg = replace(LatticeConfig(), n_vertices=a.n_vertices, v_max=a.v_max, a_max=a.a_max,
-                  rho=a.rho, reach=a.reach, max_edges=a.max_edges,
-                  footprint_radius=a.footprint_radius, sense_dt=a.sense_dt)
+    cfg = replace(
+        LatticeConfig(),
+        n_vertices=a.n_vertices,
+        v_max=a.v_max,
+        a_max=a.a_max,
+        rho=a.rho,
+        reach=a.reach,
+        max_edges=a.max_edges,
+        footprint_radius=a.footprint_radius,
+        sense_dt=a.sense_dt,
+    )
     lat = build_lattice(cfg)
     out = save_lattice(lat, a.out)
-    print(f"lattice: {lat.n_vertices} vertices, {lat.n_prims} primitives, "
-          f"<= {lat.n_actions} per vertex, dispersion {lat.dispersion[-1]:.1f} -> {out}")
+    print(
+        f"lattice: {lat.n_vertices} vertices, {lat.n_prims} primitives, "
+        f"<= {lat.n_actions} per vertex, dispersion {lat.dispersion[-1]:.1f} -> {out}"
+    )
     if not a.no_plot:
         fig = plot_lattice(lat, a.plot or Path(a.out).with_suffix(".png"))
         print(f"plot -> {fig}")
@@ -363,6 +466,7 @@ def _load_models(a, kind: str = "targets") -> dict:
     if not a.run:
         raise UserError("planner rl needs --run <trained run directory>")
     from .policy import load_policy
+
     out = {}
     for path in a.run:
         m = load_policy(path)
@@ -386,8 +490,16 @@ def _bench(a) -> int:
     from .bench import BenchConfig, run_episodes
     from .factory import create_env
     from .lattice import get_lattice
-    from .metrics import (markdown_table, paired_markdown, per_env_csv, plot_kl, seeds_markdown,
-                          summarise, summary_csv, write_atomic)
+    from .metrics import (
+        markdown_table,
+        paired_markdown,
+        per_env_csv,
+        plot_kl,
+        seeds_markdown,
+        summarise,
+        summary_csv,
+        write_atomic,
+    )
 
     set_threads(a.threads)
     env, pc = _configs(a)
@@ -396,8 +508,7 @@ def _bench(a) -> int:
     names = tuple(PLANNERS) if a.all else (a.planner or "dp",)
     if a.all and a.run:
         names += ("rl",)
-    cfg = BenchConfig(planners=names, envs=a.envs, seed=a.seed, batch=a.batch, env=env,
-                      planner=pc)
+    cfg = BenchConfig(planners=names, envs=a.envs, seed=a.seed, batch=a.batch, env=env, planner=pc)
     cfg.validate()
     lat = get_lattice(a.lattice, env.kind)
     probe = create_env(env, lat)  # validate map size / budget / planner flags up front
@@ -415,6 +526,7 @@ def _bench(a) -> int:
     skill = skill_label = None
     if "skill" in a.execution:
         from .flown import load_skill
+
         skill, skill_label = load_skill(a.skill_run)
     elif a.skill_run is not None:
         raise UserError("--skill-run needs --execution skill")
@@ -423,8 +535,9 @@ def _bench(a) -> int:
         mcfg = replace(cfg, execution=mode)
         res = {}
         for name, model in rows:
-            bar = tqdm(total=a.envs, desc=f"{name} ({mode})", file=sys.stderr,
-                       disable=a.quiet or not sys.stderr.isatty(), leave=False)
+            bar = tqdm(
+                total=a.envs, desc=f"{name} ({mode})", file=sys.stderr, disable=a.quiet or not sys.stderr.isatty(), leave=False
+            )
             r = run_episodes(name, lat, mcfg, progress=bar, model=model, skill=skill)
             bar.close()
             r["summary"] = summarise(r["per_env"])
@@ -434,6 +547,7 @@ def _bench(a) -> int:
     labels = dict(THESIS_NAMES)
     labels = _variant_labels(labels, names, pc)
     from .policy import describe_policy
+
     recipes: dict[str, dict] = {}  # one recipe, several training seeds: a claim over seeds
     for k, m in models.items():  # what each policy is: never the thesis's name
         desc, it = describe_policy(m), m.train_info.get("iterations")
@@ -442,30 +556,40 @@ def _bench(a) -> int:
             desc += f", {it} PPO it."
         seeds = recipes.setdefault(f"{desc}, {m.checkpoint_name}", {})
         seeds.setdefault(m.train_info.get("seed"), []).append(k)
-    groups = {f"{r}, seeds {', '.join(str(s) for s in sd)}": [ks[0] for ks in sd.values()]
-              for r, sd in recipes.items() if None not in sd}  # a re-run is not another seed
+    groups = {
+        f"{r}, seeds {', '.join(str(s) for s in sd)}": [ks[0] for ks in sd.values()]
+        for r, sd in recipes.items()
+        if None not in sd
+    }  # a re-run is not another seed
     md = ""
     for mode, res in by_mode.items():
         if len(by_mode) > 1 or mode != "ideal":
             md += f"\n**{mode} execution**\n\n"
-        md += markdown_table(res, labels, env.kind) + paired_markdown(res, labels, PLANNERS) \
+        md += (
+            markdown_table(res, labels, env.kind)
+            + paired_markdown(res, labels, PLANNERS)
             + seeds_markdown(res, labels, groups, PLANNERS)
+        )
     out = Path(a.out)
     if len(by_mode) > 1 or set(by_mode) & {"flown", "skill"}:
         from .metrics import execution_markdown
+
         ex = execution_markdown(by_mode, labels)
-        md += "\n**Execution: " + " vs ".join(by_mode) + "**" + (
-            f" (skill: {skill_label})" if skill_label else "") + "\n\n" + ex
+        md += "\n**Execution: " + " vs ".join(by_mode) + "**" + (f" (skill: {skill_label})" if skill_label else "") + "\n\n" + ex
         write_atomic(out / "ipp_execution.md", ex)
     print(md, end="")
     write_atomic(out / "ipp_bench.md", md)
-    flat = results if len(by_mode) == 1 else \
-        {f"{k}@{m}": r for m, res in by_mode.items() for k, r in res.items()}  # every mode
+    flat = results if len(by_mode) == 1 else {f"{k}@{m}": r for m, res in by_mode.items() for k, r in res.items()}  # every mode
     write_atomic(out / "ipp_bench.csv", summary_csv(flat, env.kind))
     write_atomic(out / "ipp_bench_envs.csv", per_env_csv(flat))
-    plot_kl(results, labels, out / "ipp_kl.png",
-            xlabel="prior cross-entropy (nats/cell), quantile bins" if env.kind == "semantic"
-            else "KL(truth || prior) (nats), quantile bins")
+    plot_kl(
+        results,
+        labels,
+        out / "ipp_kl.png",
+        xlabel="prior cross-entropy (nats/cell), quantile bins"
+        if env.kind == "semantic"
+        else "KL(truth || prior) (nats), quantile bins",
+    )
     print(f"wrote {out}/ipp_bench.md, ipp_bench.csv, ipp_bench_envs.csv, ipp_kl.png")
     return 0
 
@@ -495,6 +619,7 @@ def _variant_labels(labels: dict, names, pc) -> dict:
 def _labels(names, models, pc) -> dict:
     from .baselines import THESIS_NAMES
     from .policy import describe_policy
+
     labels = _variant_labels(THESIS_NAMES, names, pc)
     for k, m in models.items():
         labels[k] = f"{describe_policy(m)} ({m.run_label})"
@@ -518,8 +643,9 @@ def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
     for b in a.budgets:
         bc = dc_replace(cfg, env=dc_replace(cfg.env, budget=b))
         for name, model in rows:
-            bar = tqdm(total=a.envs, desc=f"{name} @ {b:g}", file=sys.stderr,
-                       disable=a.quiet or not sys.stderr.isatty(), leave=False)
+            bar = tqdm(
+                total=a.envs, desc=f"{name} @ {b:g}", file=sys.stderr, disable=a.quiet or not sys.stderr.isatty(), leave=False
+            )
             r = run_episodes(name, lat, bc, progress=bar, model=model)
             bar.close()
             r["summary"] = summarise(r["per_env"])
@@ -542,12 +668,14 @@ def _train(a) -> int:
 
     if a.resume:
         allowed = {"resume", "iterations", "lattice", "quiet", "cmd", "_defaults"}
-        given = sorted(k for k, v in a._defaults.items()
-                       if k not in allowed and hasattr(a, k) and getattr(a, k) != v)
+        given = sorted(k for k, v in a._defaults.items() if k not in allowed and hasattr(a, k) and getattr(a, k) != v)
         if given:
-            raise UserError("--resume continues a run with its own config.json; only "
-                            "--iterations, --lattice and --quiet may be given (got "
-                            + ", ".join("--" + k.replace("_", "-") for k in given) + ")")
+            raise UserError(
+                "--resume continues a run with its own config.json; only "
+                "--iterations, --lattice and --quiet may be given (got "
+                + ", ".join("--" + k.replace("_", "-") for k in given)
+                + ")"
+            )
         from aerohrl.algorithms.run import Run
 
         run = Path(a.resume)
@@ -558,6 +686,7 @@ def _train(a) -> int:
         lat = get_lattice(a.lattice, cfg.env.kind)
         import json
         from dataclasses import asdict
+
         saved = opened.meta.get("lattice")
         if saved is not None and saved != json.loads(json.dumps(asdict(lat.config))):
             raise UserError(f"{run}: trained on another lattice (pass the same --lattice)")
@@ -571,9 +700,18 @@ def _train(a) -> int:
         from aerohrl.config import given_flags
 
         from .train_config import TrainConfig
-        cfg = preset(a.preset, n_envs=a.n_envs, seed=a.seed, threads=a.threads, teacher_depth=a.teacher_depth,
-                     adv_weights=a.adv_weights, recurrent=False if a.no_rnn else None,
-                     features=False if a.no_features else None, **given_flags(a, TrainConfig, skip=_train_skip()))
+
+        cfg = preset(
+            a.preset,
+            n_envs=a.n_envs,
+            seed=a.seed,
+            threads=a.threads,
+            teacher_depth=a.teacher_depth,
+            adv_weights=a.adv_weights,
+            recurrent=False if a.no_rnn else None,
+            features=False if a.no_features else None,
+            **given_flags(a, TrainConfig, skip=_train_skip()),
+        )
         cfg = replace(cfg, env=_env_config(a, a.start or "random"))
         # the shape of every command's run names (aerohrl.cli_common.run_name); two runs in one second differ
         run = Path(a.out) / (a.name or run_name("ipp", a.preset, "nornn" if a.no_rnn else None, seed=cfg.seed))
@@ -582,16 +720,19 @@ def _train(a) -> int:
         raise UserError(f"--threads must be >= 1, got {a.threads}")
     cfg.validate()
     from .factory import create_env
+
     create_env(cfg.env, lat)
     bar = tqdm(total=cfg.total_iterations, desc="train", file=sys.stderr, disable=a.quiet)
     try:  # a new run claims its folder exclusively; either holds the run's lock while it trains
         last = train(cfg, lat, run, progress=bar, resume=bool(a.resume))
     finally:
         bar.close()
-    print(f"trained {last['iteration']} iterations x {cfg.n_envs} envs "
-          f"({cfg.bc_iterations} DAgger + {cfg.iterations} PPO) in {last['time_s'] / 60:.1f} min: "
-          f"return {last['return']:.1f}, search eff. {last['search_efficiency']:.1f}% (train "
-          f"worlds) -> {run} (model.pt, checkpoint.pt, metrics.jsonl, learning_curve.png)")
+    print(
+        f"trained {last['iteration']} iterations x {cfg.n_envs} envs "
+        f"({cfg.bc_iterations} DAgger + {cfg.iterations} PPO) in {last['time_s'] / 60:.1f} min: "
+        f"return {last['return']:.1f}, search eff. {last['search_efficiency']:.1f}% (train "
+        f"worlds) -> {run} (model.pt, checkpoint.pt, metrics.jsonl, learning_curve.png)"
+    )
     return 0
 
 
@@ -607,14 +748,17 @@ def _compare(a) -> int:
         raise UserError(f"{a.bench_a} and {a.bench_b} ran different worlds under the same ids (same --seed and world flags?)")
     c = paired_comparison(va, vb)
     # p to 3 significant digits: a tiny p stays readable (1.2e-12), not "0.000"
-    print(f"{a.metric}: {pa} ({a.bench_a}) - {pb} ({a.bench_b}) = {c['diff']:+.2f} ± {c['se']:.2f} points "
-          f"(mean ± s.e. over {c['n']} worlds; better on {c['better']}, worse on {c['worse']}; "
-          f"paired t-test p = {c['p_t']:.3g}, Wilcoxon p = {c['p_wilcoxon']:.3g})")
+    print(
+        f"{a.metric}: {pa} ({a.bench_a}) - {pb} ({a.bench_b}) = {c['diff']:+.2f} ± {c['se']:.2f} points "
+        f"(mean ± s.e. over {c['n']} worlds; better on {c['better']}, worse on {c['worse']}; "
+        f"paired t-test p = {c['p_t']:.3g}, Wilcoxon p = {c['p_wilcoxon']:.3g})"
+    )
     return 0
 
 
 def _curve(a) -> int:
     from .curve import plot_learning_curve
+
     out = plot_learning_curve(a.run, a.out)
     print(f"learning curve -> {out}")
     return 0
@@ -626,8 +770,7 @@ def _show(a) -> int:
     from .lattice import get_lattice
 
     if a.planner not in PLANNERS + TEACHERS + ("rl",):
-        raise UserError(f"unknown planner {a.planner!r} "
-                        f"(choose from {', '.join(PLANNERS + TEACHERS)}, rl)")
+        raise UserError(f"unknown planner {a.planner!r} (choose from {', '.join(PLANNERS + TEACHERS)}, rl)")
     if a.env < 0:
         raise UserError("--env must be >= 0")
     env, pc = _configs(a)
@@ -635,29 +778,32 @@ def _show(a) -> int:
         raise UserError("show takes one --execution mode")
     if a.gif is not None and Path(a.gif).suffix.lower() != ".gif":
         raise UserError(f"--gif must end in .gif, got {a.gif}")
-    cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc,
-                      execution=a.execution[0])
+    cfg = BenchConfig(planners=(a.planner,), envs=1, seed=a.seed, batch=1, env=env, planner=pc, execution=a.execution[0])
     lat = get_lattice(a.lattice, env.kind)
-    key, model = next(iter(_load_models(a, env.kind).items())) if a.planner == "rl" \
-        else (a.planner, None)
+    key, model = next(iter(_load_models(a, env.kind).items())) if a.planner == "rl" else (a.planner, None)
     skill = None
     if cfg.execution == "skill":
         from .flown import load_skill
+
         skill, _ = load_skill(a.skill_run)
-    r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model,
-                     skill=skill)
+    r = run_episodes(a.planner, lat, cfg, env_ids=[a.env], keep_env=True, model=model, skill=skill)
     m = r["per_env"]
     from .policy import describe_policy
+
     label = describe_policy(model) if model is not None else THESIS_NAMES.get(key, key)
-    title = (f"{label} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
-             f"entropy red. {m['entropy_reduction'][0]:.0f}%, "
-             f"search eff. {m['search_efficiency'][0]:.0f}%")
+    title = (
+        f"{label} on test env {a.env}: coverage {m['coverage'][0]:.0f}%, "
+        f"entropy red. {m['entropy_reduction'][0]:.0f}%, "
+        f"search eff. {m['search_efficiency'][0]:.0f}%"
+    )
     out = render_episode(r["env"], 0, a.out, title)
     print(f"{title} -> {out}")
     if a.gif:
         from .bench import animate_episode
-        g = animate_episode(a.planner, lat, cfg, a.env, a.gif, model=model, skill=skill,
-                            title=f"{label}, test world {a.env} ({cfg.execution})")
+
+        g = animate_episode(
+            a.planner, lat, cfg, a.env, a.gif, model=model, skill=skill, title=f"{label}, test world {a.env} ({cfg.execution})"
+        )
         print(f"animation -> {g}")
     return 0
 

@@ -43,6 +43,7 @@ def plot_learning_curve(run_dir: str | Path, out: str | Path | None = None) -> P
     validation search efficiency where logged, per-term returns, and the BC/PPO
     boundary."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -81,8 +82,7 @@ def plot_learning_curve(run_dir: str | Path, out: str | Path | None = None) -> P
             ax.axvline(n_bc + 0.5, color="k", ls=":", lw=1)
     if split:
         axes[0].text(n_bc + 0.5, axes[0].get_ylim()[0], " BC | PPO", fontsize=8, va="bottom")
-    fig.suptitle(f"{Path(run_dir).name}: {len(rows)} iterations ({n_bc} DAgger), "
-                 f"{rows[-1].get('time_s', 0) / 60:.1f} min")
+    fig.suptitle(f"{Path(run_dir).name}: {len(rows)} iterations ({n_bc} DAgger), {rows[-1].get('time_s', 0) / 60:.1f} min")
     fig.tight_layout()
     path = Path(out) if out is not None else Path(run_dir) / "learning_curve.png"
     try:

@@ -38,15 +38,14 @@ from aerohrl.config import param, section, validate
 
 from .lattice import Lattice
 from .scoring import detect_prob, info_gain
-from .sensor import (SensorConfig, entropy_bits, hashed_uniform, logit,
-                     logodds_step, measure, sigmoid)
+from .sensor import SensorConfig, entropy_bits, hashed_uniform, logit, logodds_step, measure, sigmoid
 from .semantic import SemanticConfig
 from .world import WorldConfig, Worlds
 
 TERMS = ("entropy", "coverage", "target", "cost", "invalid")
 
-PAD_ORIG = 5     # the original code's padding per side: 30 x 30 inner map in a 40 x 40 world
-H_PAD = 0.0      # entropy (bits) of that padding ring there: belief 0 -> 0 bits
+PAD_ORIG = 5  # the original code's padding per side: 30 x 30 inner map in a 40 x 40 world
+H_PAD = 0.0  # entropy (bits) of that padding ring there: belief 0 -> 0 bits
 
 # Budgets in primitive-cost units (rho*T + int |jerk|^2 of our lattice). The default buys
 # the original code's *ground track*: its budget (paper-era commit 0d6a531, 10 x 10000 of
@@ -64,11 +63,11 @@ class EnvConfig:
     """Environment parameters; ``budget`` is in primitive-cost units."""
 
     map_size: int = param(30, "map side", unit="cells", ge=1, le=512)
-    budget: float = param(BUDGET_DEFAULT, "cost budget (sum of rho*T + int |jerk|^2 over the primitives flown)",
-                          unit="primitive-cost units", gt=0)
+    budget: float = param(
+        BUDGET_DEFAULT, "cost budget (sum of rho*T + int |jerk|^2 over the primitives flown)", unit="primitive-cost units", gt=0
+    )
     found_threshold: float = param(0.95, "a target is found when its cell's belief first reaches this", gt=0.5, lt=1)
-    start: str = param("center", "start cell: the centre, or a random valid, viable hover start",
-                       choices=("center", "random"))
+    start: str = param("center", "start cell: the centre, or a random valid, viable hover start", choices=("center", "random"))
     r_entropy: float = param(15.0, "reward for the whole map's entropy reduction", ge=0)
     r_coverage: float = param(10.0, "reward for covering the whole map", ge=0)
     r_target: float = param(20.0, "reward per target found", ge=0)
@@ -78,8 +77,9 @@ class EnvConfig:
     obs_scales: tuple[int, ...] = param((1, 2, 4), "pooling factor of each observation window", ge=1)
     sensor: SensorConfig = section(SensorConfig, "the downward camera's errors")
     world: WorldConfig = section(WorldConfig, "target worlds (kind targets)")
-    kind: str = param("targets", "target search (Table 2.1) or semantic feature detection (Table 2.2)",
-                      choices=("targets", "semantic"))
+    kind: str = param(
+        "targets", "target search (Table 2.1) or semantic feature detection (Table 2.2)", choices=("targets", "semantic")
+    )
     semantic: SemanticConfig = section(SemanticConfig, "semantic worlds (kind semantic)")
 
     def validate(self, lattice: Lattice) -> None:
@@ -89,11 +89,13 @@ class EnvConfig:
         differs from ``map_size``."""
         validate(self)
         if self.map_size < 2 * lattice.config.footprint_radius + 2:
-            raise ValueError(f"map size {self.map_size} is too small for the lattice "
-                            f"(needs >= {2 * lattice.config.footprint_radius + 2})")
+            raise ValueError(
+                f"map size {self.map_size} is too small for the lattice (needs >= {2 * lattice.config.footprint_radius + 2})"
+            )
         if self.budget < lattice.prim_cost.min():
-            raise ValueError(f"budget {self.budget:g} cannot pay for a single primitive "
-                            f"(cheapest costs {lattice.prim_cost.min():.1f})")
+            raise ValueError(
+                f"budget {self.budget:g} cannot pay for a single primitive (cheapest costs {lattice.prim_cost.min():.1f})"
+            )
         if self.kind == "targets" and self.world.map_size != self.map_size:
             raise ValueError("world.map_size must equal map_size")
         if self.kind == "semantic" and self.semantic.map_size != self.map_size:
@@ -107,8 +109,14 @@ def viability(lattice: Lattice, size: int) -> np.ndarray:
     (bounding box test) and its end state is viable. The viable set is the greatest
     fixed point of ``viable[v,y,x] = any_a ok[v,a,y,x]`` (vectorised over cells).
     """
-    return _viability(lattice.edges.tobytes(), lattice.edges.shape, lattice.prim_bbox.tobytes(),
-                      lattice.prim_disp.tobytes(), lattice.prim_to.tobytes(), size).copy()
+    return _viability(
+        lattice.edges.tobytes(),
+        lattice.edges.shape,
+        lattice.prim_bbox.tobytes(),
+        lattice.prim_disp.tobytes(),
+        lattice.prim_to.tobytes(),
+        size,
+    ).copy()
 
 
 @lru_cache(maxsize=8)
@@ -124,8 +132,12 @@ def _viability(edges_b, eshape, bbox_b, disp_b, to_b, size):
     e = np.maximum(edges, 0)
     exists = (edges >= 0)[:, :, None, None]
     bb = bbox[e]  # (V, A, 4)
-    inb = ((X + bb[..., 0, None, None] >= 0) & (X + bb[..., 1, None, None] < size)
-           & (Y + bb[..., 2, None, None] >= 0) & (Y + bb[..., 3, None, None] < size)) & exists
+    inb = (
+        (X + bb[..., 0, None, None] >= 0)
+        & (X + bb[..., 1, None, None] < size)
+        & (Y + bb[..., 2, None, None] >= 0)
+        & (Y + bb[..., 3, None, None] < size)
+    ) & exists
     ex = np.clip(X + disp[e][..., 0, None, None], 0, size - 1)
     ey = np.clip(Y + disp[e][..., 1, None, None], 0, size - 1)
     tv = np.broadcast_to(to[e][..., None, None], ex.shape)
@@ -154,7 +166,7 @@ class SearchEnv:
         self.err_levels = e
         self.lam_levels = logodds_step(e)
         inner = np.zeros((self.Hp, self.Hp), bool)
-        inner[self.pad:self.pad + S, self.pad:self.pad + S] = True
+        inner[self.pad : self.pad + S, self.pad : self.pad + S] = True
         self.inner = inner
         self.boundary = (~inner).astype(np.float32)
         self.n = 0
@@ -199,8 +211,14 @@ class SearchEnv:
         N, k = self.n, len(rows)
         for name, val in vars(fresh).items():
             cur = getattr(self, name, None)
-            if isinstance(val, np.ndarray) and isinstance(cur, np.ndarray) and val.ndim \
-                    and val.shape[0] == k and cur.shape[0] == N and cur.shape[1:] == val.shape[1:]:
+            if (
+                isinstance(val, np.ndarray)
+                and isinstance(cur, np.ndarray)
+                and val.ndim
+                and val.shape[0] == k
+                and cur.shape[0] == N
+                and cur.shape[1:] == val.shape[1:]
+            ):
                 cur[rows] = val
         w = self.worlds
         for f in ("density", "targets", "prior", "kl", "kl_sym", "seeds"):
@@ -238,14 +256,13 @@ class SearchEnv:
         self.trace_prim = []
         self.trace_budget = [self.remaining.copy()] if self.keep_trace else []
         self.version += 1
-        self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) \
-            + worlds.seeds[:, 1].astype(np.uint64)
+        self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) + worlds.seeds[:, 1].astype(np.uint64)
 
     # ---------------------------------------------------------------- queries
     def belief(self) -> np.ndarray:
         """(N, S, S) current belief on the inner map."""
         p, S = self.pad, self.S
-        return sigmoid(self.L[:, p:p + S, p:p + S])
+        return sigmoid(self.L[:, p : p + S, p : p + S])
 
     def _entropy(self) -> np.ndarray:
         return entropy_bits(self.belief()).reshape(self.n, -1).sum(1)
@@ -283,7 +300,7 @@ class SearchEnv:
           the budget bought (valid primitives executed).
         """
         p, S = self.pad, self.S
-        ncov = self.cov[:, p:p + S, p:p + S].reshape(self.n, -1).sum(1)
+        ncov = self.cov[:, p : p + S, p : p + S].reshape(self.n, -1).sum(1)
         nring = self.cov_ring.reshape(self.n, -1).sum(1)
         Sp = S + 2 * PAD_ORIG
         er = 100.0 * (1.0 - self.H / self.H0)
@@ -303,11 +320,11 @@ class SearchEnv:
     def action_features(self) -> np.ndarray:
         """(N, A, F) per-primitive look-ahead features (:mod:`.features`)."""
         from .features import action_features
+
         return action_features(self)
 
     # ------------------------------------------------------------------- step
-    def step(self, actions: np.ndarray) -> tuple[dict[str, np.ndarray] | None, np.ndarray, np.ndarray,
-                                                 np.ndarray]:
+    def step(self, actions: np.ndarray) -> tuple[dict[str, np.ndarray] | None, np.ndarray, np.ndarray, np.ndarray]:
         """Execute one primitive per environment. Returns (obs, reward, terms, done); ``obs``
         is None with ``lazy_obs``.
 
@@ -373,8 +390,7 @@ class SearchEnv:
         (N,) and the target reward (N,). Eq. 2.2 per touched cell, batched.
         """
         lat = self.lat
-        return self._apply_meas(idx, lat.meas_off[pr].astype(np.int64),
-                                lat.meas_level[pr].astype(np.int64))
+        return self._apply_meas(idx, lat.meas_off[pr].astype(np.int64), lat.meas_level[pr].astype(np.int64))
 
     def _apply_meas(self, idx: np.ndarray, off: np.ndarray, lev: np.ndarray):
         """:meth:`_apply` for explicit measurement lists: cell offsets ``off`` (k, M, 2)
@@ -387,8 +403,7 @@ class SearchEnv:
         use = (lev >= 0) & (x >= 0) & (x < self.S) & (y >= 0) & (y < self.S)
         # the original's 40 x 40 world: footprint cells in its 5-cell ring count as covered
         # for the padded denominator (never measured here: off the map)
-        ring = (lev >= 0) & ~use & (x >= -PAD_ORIG) & (x < self.S + PAD_ORIG) \
-            & (y >= -PAD_ORIG) & (y < self.S + PAD_ORIG)
+        ring = (lev >= 0) & ~use & (x >= -PAD_ORIG) & (x < self.S + PAD_ORIG) & (y >= -PAD_ORIG) & (y < self.S + PAD_ORIG)
         if ring.any():
             self.cov_ring.reshape(-1)[flat[ring]] = True
         levc = np.maximum(lev, 0)
@@ -411,8 +426,7 @@ class SearchEnv:
         cells, inv = np.unique(f, return_inverse=True)
         Lf = self.L.reshape(-1)
         old = Lf[cells]
-        new = np.clip(old + np.bincount(inv, weights=w, minlength=len(cells)),
-                      -cfg.sensor.logodds_clip, cfg.sensor.logodds_clip)
+        new = np.clip(old + np.bincount(inv, weights=w, minlength=len(cells)), -cfg.sensor.logodds_clip, cfg.sensor.logodds_clip)
         Lf[cells] = new
         env_of = cells // (self.Hp * self.Hp)
         dH = entropy_bits(sigmoid(new)) - entropy_bits(sigmoid(old))
@@ -426,8 +440,7 @@ class SearchEnv:
         pl[pidx] = sigmoid(new)
         pl[pidx + self.Hp * self.Hp] = 1.0
         foundf = self.found.reshape(-1)
-        hit = (new >= logit(cfg.found_threshold)) & self.truth.reshape(-1)[cells] \
-            & ~foundf[cells]
+        hit = (new >= logit(cfg.found_threshold)) & self.truth.reshape(-1)[cells] & ~foundf[cells]
         foundf[cells[hit]] = True
         nf = np.bincount(env_of[hit], minlength=self.n)
         return Hn, ncov, nf, cfg.r_target * nf
@@ -470,16 +483,14 @@ class SearchEnv:
         g = self.plan_detect(b, lp + lam) - self.plan_detect(b, lp)
         return np.where(self.plan_open(b), g, 0.0)
 
-    def plan_detect_gain_flat(self, gflat: np.ndarray, lp: np.ndarray,
-                              lam: np.ndarray) -> np.ndarray:
+    def plan_detect_gain_flat(self, gflat: np.ndarray, lp: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """:meth:`plan_detect_gain` at flat indices into the ``(N, Hp, Hp)`` maps; reads
         the log-odds directly (no ``logit``): the hot path of feature 14."""
         L = self.L.reshape(-1)[gflat]
         thr = logit(self.cfg.found_threshold)
         lt = lp + lam
         et, ep = sigmoid(-lt), sigmoid(-lp)
-        g = (1 - et) * (L + lt >= thr) + et * (L - lt >= thr) \
-            - (1 - ep) * (L + lp >= thr) - ep * (L - lp >= thr)
+        g = (1 - et) * (L + lt >= thr) + et * (L - lt >= thr) - (1 - ep) * (L + lp >= thr) - ep * (L - lp >= thr)
         return np.where(L < thr, sigmoid(L) * g, 0.0)
 
     # ----------------------------------------------------------- observations
@@ -502,15 +513,17 @@ class SearchEnv:
         x0 = self.pos[:, 0] + self.pad - half
         win = np.empty((self.n, C, 2 * half, 2 * half), np.float32)
         for n in range(self.n):
-            win[n] = self.planes[n, :, y0[n]:y0[n] + 2 * half, x0[n]:x0[n] + 2 * half]
+            win[n] = self.planes[n, :, y0[n] : y0[n] + 2 * half, x0[n] : x0[n] + 2 * half]
         outs = []
         for s in cfg.obs_scales:
             w = R * s
-            crop = win[:, :, half - w:half + w, half - w:half + w]
+            crop = win[:, :, half - w : half + w, half - w : half + w]
             k = s
             while k > 1 and k % 2 == 0:  # max-pool by 2 repeatedly (composes exactly)
-                crop = np.maximum(np.maximum(crop[:, :, 0::2, 0::2], crop[:, :, 1::2, 0::2]),
-                                  np.maximum(crop[:, :, 0::2, 1::2], crop[:, :, 1::2, 1::2]))
+                crop = np.maximum(
+                    np.maximum(crop[:, :, 0::2, 0::2], crop[:, :, 1::2, 0::2]),
+                    np.maximum(crop[:, :, 0::2, 1::2], crop[:, :, 1::2, 1::2]),
+                )
                 k //= 2
             if k > 1:
                 crop = crop.reshape(self.n, C, 2 * R, k, 2 * R, k).max(axis=5).max(axis=3)
@@ -529,16 +542,22 @@ class SearchEnv:
 SEMANTIC_BUDGET = 30000.0  # about 200 primitives: a third of the map by coverage
 
 
-def semantic_config(budget: float | None = None, raster: str | None = None,
-                    start: str = "center", map_size: int = 256) -> EnvConfig:
+def semantic_config(
+    budget: float | None = None, raster: str | None = None, start: str = "center", map_size: int = 256
+) -> EnvConfig:
     """The thesis's semantic setting (§2.5.2, §2.6.3): 256 x 256 cells of 4 m, C class
     maps; 48/96/192-cell egocentric windows pooled to 24 x 24 (scales 2, 4, 8); a
     15 x 15-cell (60 m) footprint whose label error grows 0.10 -> 0.45 from its centre
     to its edge (used with :data:`aerohrl.ipp.lattice.SEMANTIC_LATTICE`). The noise is
     high enough that one pass does not always identify a cell (revisits matter)."""
-    return EnvConfig(kind="semantic", map_size=map_size,
-                     budget=SEMANTIC_BUDGET if budget is None else budget, start=start,
-                     obs_radius=12, obs_scales=(2, 4, 8),
-                     sensor=SensorConfig(err0=0.1, err_slope=0.05),
-                     world=WorldConfig(map_size=map_size),
-                     semantic=SemanticConfig(map_size=map_size, raster=raster))
+    return EnvConfig(
+        kind="semantic",
+        map_size=map_size,
+        budget=SEMANTIC_BUDGET if budget is None else budget,
+        start=start,
+        obs_radius=12,
+        obs_scales=(2, 4, 8),
+        sensor=SensorConfig(err0=0.1, err_slope=0.05),
+        world=WorldConfig(map_size=map_size),
+        semantic=SemanticConfig(map_size=map_size, raster=raster),
+    )

@@ -36,8 +36,7 @@ def sample_for(cfg: EnvConfig, seed: int, indices: Sequence[int] | np.ndarray) -
     return sample_worlds(cfg.world, seed, indices)
 
 
-def make_env(cfg: EnvConfig, lattice: Lattice, seed: int,
-             indices: Sequence[int] | np.ndarray) -> tuple[SearchEnv, dict]:
+def make_env(cfg: EnvConfig, lattice: Lattice, seed: int, indices: Sequence[int] | np.ndarray) -> tuple[SearchEnv, dict]:
     """Convenience: an env reset on worlds ``indices`` of suite ``seed``."""
     env = create_env(cfg, lattice)
     obs = env.reset(sample_for(cfg, seed, indices))

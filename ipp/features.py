@@ -121,8 +121,7 @@ def _pair_geometry(lat, lamv: np.ndarray) -> dict:
     pi, ui = np.nonzero(has1)
     np.add.at(win, (pi, (off1[pi, ui, 1] + R) * W + off1[pi, ui, 0] + R), cnt[pi, ui] @ lamv)
     lp = win[np.arange(P)[:, None, None], (off2[..., 1] + R) * W + off2[..., 0] + R]
-    return {"off1": off1, "has1": has1, "lam1": lam1, "cnt": cnt, "p2": p2, "p2c": p2c,
-            "off2": off2, "has2": has2, "lp": lp}
+    return {"off1": off1, "has1": has1, "lam1": lam1, "cnt": cnt, "p2": p2, "p2c": p2c, "off2": off2, "has2": has2, "lp": lp}
 
 
 @lru_cache(maxsize=4)
@@ -166,8 +165,7 @@ def _two_step_detect(env, pr, valid, d1, fp, cmean):
         na = j // (A * U) + s * A  # n * A + a1
         t = pr.reshape(-1)[na] * (A * U) + j % (A * U)  # row of the pair table
         g = env.plan_detect_gain_flat(base[na // A] + rel[t], lp[t], lam2[t])
-        d2[s * A * A:sl.stop * A * A] = np.bincount(j // U, weights=g,
-                                                    minlength=(sl.stop - s) * A * A)
+        d2[s * A * A : sl.stop * A * A] = np.bincount(j // U, weights=g, minlength=(sl.stop - s) * A * A)
     d2 = d2.reshape(N, A, A)
     c1 = lat.prim_cost[pr] / cmean
     c2 = lat.prim_cost[np.maximum(p2[pr], 0)] / cmean
@@ -242,7 +240,7 @@ def action_features_reference(env: SearchEnv) -> np.ndarray:
     f[..., 7] = np.where(valid, f[..., 3] / c, 0)
     # distance to the nearest uncovered inner cell: one EDT per environment (a batched
     # EDT with a huge step on the batch axis is slower on these small maps)
-    unc = ~env.cov[:, p:p + S, p:p + S]
+    unc = ~env.cov[:, p : p + S, p : p + S]
     dist = np.full((N, S, S), 2.0 * S)  # fully covered map: capped distance
     for n in np.flatnonzero(unc.reshape(N, -1).any(1)):
         dist[n] = distance_transform_edt(~unc[n])
@@ -253,8 +251,7 @@ def action_features_reference(env: SearchEnv) -> np.ndarray:
     f[..., 9] = valid
     f[..., 11] = np.where(valid, f[..., 10] / c, 0)
     f[..., 12], f[..., 13] = _second_step(env, pr, valid, fp, cmean)
-    d1 = np.bincount(slot, weights=env.plan_detect_gain(b, np.zeros_like(lam), lam),
-                     minlength=N * A).reshape(N, A)
+    d1 = np.bincount(slot, weights=env.plan_detect_gain(b, np.zeros_like(lam), lam), minlength=N * A).reshape(N, A)
     f[..., 14] = _two_step_detect(env, pr, valid, d1, fp, cmean)
     top = np.where(valid, f[..., 14], 0).max(1, keepdims=True)
     f[..., 15] = np.where(valid, f[..., 14] / np.maximum(top, 1e-12), 0)
@@ -288,9 +285,9 @@ def action_features_reference(env: SearchEnv) -> np.ndarray:
 # depth-2, budget-aware score is feature 14, scaled), so features and teacher at one
 # state share one computation (cached on ``env.version`` and the agents' state).
 
-_K_FREQ = 24         # detection look-up breakpoints at the most frequent lam values ...
-_K_QUANT = 24        # ... and at quantiles (time/memory balance only; any choice is exact)
-_FAST_CHUNK = 16     # environments per sparse product (bounds the (K x window) maps)
+_K_FREQ = 24  # detection look-up breakpoints at the most frequent lam values ...
+_K_QUANT = 24  # ... and at quantiles (time/memory balance only; any choice is exact)
+_FAST_CHUNK = 16  # environments per sparse product (bounds the (K x window) maps)
 
 
 def fast_path_applies(env: SearchEnv) -> bool:
@@ -309,6 +306,7 @@ def _run_matrix(rows, xs, W, nrow):
     """Sparse (nrow, W*(W+1)) matrix summing a map over the cells ``(rows, xs)`` from its
     row-wise prefix sums: +1 after and -1 at the start of every horizontal run."""
     from scipy.sparse import csr_matrix
+
     y, x = xs // W, xs % W
     o = np.lexsort((x, y, rows))
     r, y, x = rows[o], y[o], x[o]
@@ -362,15 +360,21 @@ def _sem_tables(lat_id, lam_levels, n_classes):
         # H(z) - H(z | class); per element constants of H(z | class) = Hn
         e = 1.0 / (1.0 + np.exp(np.minimum(lf, LAM_CAP)) / (C - 1))
         q = e / (C - 1)
-        items.append({
-            "x": np.concatenate([x2, x2[ov], x1]), "lam": it_l,
-            "w": np.concatenate([np.ones(len(l1)), -np.ones(int(ov.sum())), np.ones(len(b1))])
-            * detect_success(it_l, C),
-            "row": np.concatenate([r2, r2[ov], AA + b1]),
-            "lin1": _run_matrix(b1, x1, W, A), "lin2": _run_matrix(r2, x2, W, AA),
-            "ig_x": x1, "ig_a": b1, "ig_q": q.astype(np.float32),
-            "ig_k": (1.0 - e - q).astype(np.float32),
-            "ig_hn": -(1 - e) * np.log1p(-e) - e * np.log(q)})
+        items.append(
+            {
+                "x": np.concatenate([x2, x2[ov], x1]),
+                "lam": it_l,
+                "w": np.concatenate([np.ones(len(l1)), -np.ones(int(ov.sum())), np.ones(len(b1))]) * detect_success(it_l, C),
+                "row": np.concatenate([r2, r2[ov], AA + b1]),
+                "lin1": _run_matrix(b1, x1, W, A),
+                "lin2": _run_matrix(r2, x2, W, AA),
+                "ig_x": x1,
+                "ig_a": b1,
+                "ig_q": q.astype(np.float32),
+                "ig_k": (1.0 - e - q).astype(np.float32),
+                "ig_hn": -(1 - e) * np.log1p(-e) - e * np.log(q),
+            }
+        )
     every = np.concatenate([it["lam"] for it in items])
     vals, counts = np.unique(every, return_counts=True)
     freq = vals[np.argsort(-counts, kind="stable")[:_K_FREQ]]
@@ -389,16 +393,24 @@ def _sem_tables(lat_id, lam_levels, n_classes):
         x, kk, lam, w, row = (a[rest] for a in (it["x"], k, it["lam"], it["w"], it["row"]))
         order = np.lexsort((lam, kk, x))
         key = x[order] * K + kk[order]
-        per_v.append({"det": det, "lin1": it["lin1"], "lin2": it["lin2"],
-                      "ptr": np.searchsorted(key, np.arange(WW * K + 1)),
-                      "r_lam": lam[order], "r_w": w[order], "r_row": row[order],
-                      **{k_: it[k_] for k_ in ("ig_x", "ig_a", "ig_q", "ig_k", "ig_hn")}})
+        per_v.append(
+            {
+                "det": det,
+                "lin1": it["lin1"],
+                "lin2": it["lin2"],
+                "ptr": np.searchsorted(key, np.arange(WW * K + 1)),
+                "r_lam": lam[order],
+                "r_w": w[order],
+                "r_row": row[order],
+                **{k_: it[k_] for k_ in ("ig_x", "ig_a", "ig_q", "ig_k", "ig_hn")},
+            }
+        )
     return {"Rw": Rw, "W": W, "Lam": Lam, "K": K, "nrow": nrow, "v": per_v}
 
 
 def _windows(arr, idx, y0, x0, W):
     """(len(idx), ..., W, W) copies of the W x W windows of ``arr[n, ..., y, x]``."""
-    return np.stack([arr[n, ..., y0[n]:y0[n] + W, x0[n]:x0[n] + W] for n in idx])
+    return np.stack([arr[n, ..., y0[n] : y0[n] + W, x0[n] : x0[n] + W] for n in idx])
 
 
 def _sem_sums(env, T, idx, v):
@@ -417,7 +429,7 @@ def _sem_sums(env, T, idx, v):
     pw = _windows(env.planes, idx, y0, x0, W)  # (G, C+2, W, W) float32
     feat = pw[:, 1:C].reshape(G, C - 1, WW)
     open_ = feat.max(1) < env.cfg.found_threshold  # plan_open
-    inner = np.stack([env.inner[y0[n]:y0[n] + W, x0[n]:x0[n] + W] for n in idx])  # (G, W, W)
+    inner = np.stack([env.inner[y0[n] : y0[n] + W, x0[n] : x0[n] + W] for n in idx])  # (G, W, W)
     cov = _windows(env.cov, idx, y0, x0, W)
     prio = 1.0 - pw[:, 0]  # plan_prio / prio_map (float32)
     new = (~cov & inner).astype(np.float32)
@@ -426,7 +438,7 @@ def _sem_sums(env, T, idx, v):
     np.cumsum(X, axis=-1, out=pfx[..., 1:])
     pfx = pfx.reshape(3, G, W * (W + 1)).transpose(2, 1, 0)  # (cells, G, 3)
     lin1 = (tv["lin1"] @ pfx.reshape(-1, G * 3)).reshape(A, G, 3).transpose(1, 0, 2)
-    lin2 = (tv["lin2"] @ np.ascontiguousarray(pfx[..., :2]).reshape(-1, G * 2))
+    lin2 = tv["lin2"] @ np.ascontiguousarray(pfx[..., :2]).reshape(-1, G * 2)
     lin2 = lin2.reshape(A * A, G, 2).transpose(1, 0, 2)
     # feature 0: H(z) - H(z | class) of the equivalent label, in-map cells only
     pz = tv["ig_q"] + tv["ig_k"] * pw[:, :C].reshape(G, C, WW)[:, :, tv["ig_x"]]
@@ -435,8 +447,7 @@ def _sem_sums(env, T, idx, v):
     for c in range(1, C):
         hz -= pz[:, c]
     ig = np.where(inner.reshape(G, WW)[:, tv["ig_x"]], hz - tv["ig_hn"], 0.0) / np.log(2.0)
-    IG = np.bincount((np.arange(G)[:, None] * A + tv["ig_a"]).ravel(), weights=ig.ravel(),
-                     minlength=G * A).reshape(G, A)
+    IG = np.bincount((np.arange(G)[:, None] * A + tv["ig_a"]).ravel(), weights=ig.ravel(), minlength=G * A).reshape(G, A)
     # detection: M_k maps (columns (bin, cell)) and the residual
     bb = np.where(open_[:, None, :], feat.astype(np.float64), 0.0)  # (G, C-1, WW)
     tau = crossing_lam(bb, env.cfg.found_threshold)
@@ -460,8 +471,7 @@ def _sem_sums(env, T, idx, v):
     pos = np.arange(int(ln.sum())) + np.repeat(st - (np.cumsum(ln) - ln), ln)
     hit = tv["r_lam"][pos] >= qt[rep]
     rep, pos = rep[hit], pos[hit]
-    D += np.bincount(qg[rep] * R + tv["r_row"][pos], weights=qb[rep] * tv["r_w"][pos],
-                     minlength=G * R).reshape(G, R)
+    D += np.bincount(qg[rep] * R + tv["r_row"][pos], weights=qb[rep] * tv["r_w"][pos], minlength=G * R).reshape(G, R)
     return D, lin1, lin2, IG
 
 
@@ -477,19 +487,25 @@ def _window_edt(env, live, ends, R):
         cx, cy = env.pos[n]
         xa, xb = max(cx - R, 0), min(cx + R + 1, S)
         ya, yb = max(cy - R, 0), min(cy + R + 1, S)
-        unc = ~env.cov[n, p + ya:p + yb, p + xa:p + xb]
+        unc = ~env.cov[n, p + ya : p + yb, p + xa : p + xb]
         ex, ey = np.clip(ends[n, :, 0], 0, S - 1), np.clip(ends[n, :, 1], 0, S - 1)
         inside = (ex >= xa) & (ex < xb) & (ey >= ya) & (ey < yb)
         if unc.any() and inside.all():
             d = distance_transform_edt(~unc)[ey - ya, ex - xa]
             # the nearest cell outside the window (sides that are not the map's edge)
             big = np.full(ex.shape, np.inf)
-            m = np.minimum.reduce([ex - xa + 1.0 if xa > 0 else big, xb - ex + 0.0 if xb < S else big,
-                                   ey - ya + 1.0 if ya > 0 else big, yb - ey + 0.0 if yb < S else big])
+            m = np.minimum.reduce(
+                [
+                    ex - xa + 1.0 if xa > 0 else big,
+                    xb - ex + 0.0 if xb < S else big,
+                    ey - ya + 1.0 if ya > 0 else big,
+                    yb - ey + 0.0 if yb < S else big,
+                ]
+            )
             if np.all(d <= m):
                 out[n] = d
                 continue
-        full = ~env.cov[n, p:p + S, p:p + S]
+        full = ~env.cov[n, p : p + S, p : p + S]
         dist = distance_transform_edt(~full) if full.any() else np.full((S, S), 2.0 * S)
         out[n] = dist[ey, ex]
     return out
@@ -500,8 +516,7 @@ def semantic_fast(env: SearchEnv) -> tuple[np.ndarray, np.ndarray]:
     scores are the ``detect`` tree's depth-2 budget-aware ``utility / cost`` of each
     first slot (-inf where invalid). Cached per state (``env.version`` and the agents'
     cells, vertices, budgets, done flags)."""
-    key = (env.version, env.pos.tobytes(), env.vert.tobytes(), env.remaining.tobytes(),
-           env.done.tobytes())
+    key = (env.version, env.pos.tobytes(), env.vert.tobytes(), env.remaining.tobytes(), env.done.tobytes())
     hit = getattr(env, "_fast_cache", None)
     if hit is not None and hit[0] == key:
         return hit[1]
@@ -520,7 +535,7 @@ def semantic_fast(env: SearchEnv) -> tuple[np.ndarray, np.ndarray]:
     for v in np.unique(env.vert[live]):
         at = live[env.vert[live] == v]
         for s in range(0, len(at), _FAST_CHUNK):
-            ch = at[s:s + _FAST_CHUNK]
+            ch = at[s : s + _FAST_CHUNK]
             D[ch], L1[ch], L2[ch], IG[ch] = _sem_sums(env, T, ch, int(v))
     f = np.zeros((N, A, N_FEAT), np.float64)
     d1 = np.where(valid, D[:, AA:], 0.0)

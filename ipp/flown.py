@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     from .world import Worlds
 
 EXECUTIONS = ("ideal", "flown", "skill")
-SKILL_SPACING = 1.0   # s: goals at most this far apart along a primitive (0.5-1 s apart)
+SKILL_SPACING = 1.0  # s: goals at most this far apart along a primitive (0.5-1 s apart)
 SKILL_TIMEOUT = (2.0, 1.0)  # a leg gives up after 2 x its duration + 1 s
 VEHICLE = "hummingbird"
 FPS = 100
@@ -61,6 +61,7 @@ class FlownEnv(SearchEnv):
         super().__init__(cfg, lattice)
         from aerohrl.datagen.expert import GeometricController
         from aerohrl.sim import get_preset
+
         self.params = get_preset(vehicle)
         self.ctrl = GeometricController(self.params)
         self.dt = 1.0 / FPS
@@ -73,6 +74,7 @@ class FlownEnv(SearchEnv):
         obs = super().reset(worlds, start)
         from aerohrl.envs.episodes import hover_states
         from aerohrl.sim import BatchedQuadrotor
+
         if self.sim is None or self.sim.num_vehicles != self.n:
             self.sim = BatchedQuadrotor(self.params, self.n, dt=self.dt, substeps=SUBSTEPS)
         s = hover_states(self.n)
@@ -83,12 +85,15 @@ class FlownEnv(SearchEnv):
         self.track_max = np.zeros(self.n)
         self.track_sq = np.zeros(self.n)
         self.track_steps = np.zeros(self.n, np.int64)
-        self.flown_trace = [[self.pos[i].astype(float)[None]] for i in range(self.n)] \
-            if self.keep_trace else None
+        self.flown_trace = [[self.pos[i].astype(float)[None]] for i in range(self.n)] if self.keep_trace else None
         return obs
 
-    def reset_rows(self, rows: np.ndarray, worlds: Worlds,  # pragma: no cover - not offered
-                   start: np.ndarray | None = None) -> None:
+    def reset_rows(
+        self,
+        rows: np.ndarray,
+        worlds: Worlds,  # pragma: no cover - not offered
+        start: np.ndarray | None = None,
+    ) -> None:
         """Not offered: a flown env restarts whole batches (:meth:`reset`)."""
         raise NotImplementedError("FlownEnv restarts whole batches (reset)")
 
@@ -127,8 +132,9 @@ class FlownEnv(SearchEnv):
         # after a primitive's end (the vehicle holds its end point until restored)
         tg = np.minimum(np.arange(kmax + 1)[None, :] * dt, T[:, None])
         after = (np.arange(kmax + 1)[None, :] >= nsteps[:, None])[:, None, :]
-        P = [origin[:, :, None] + poly_eval(coef, tg[:, None, :], 0)] + \
-            [np.where(after, 0.0, poly_eval(coef, tg[:, None, :], d)) for d in (1, 2, 3)]
+        P = [origin[:, :, None] + poly_eval(coef, tg[:, None, :], 0)] + [
+            np.where(after, 0.0, poly_eval(coef, tg[:, None, :], d)) for d in (1, 2, 3)
+        ]
         for step in range(1, kmax + 1):
             live = step <= nsteps
             ref_p[idx, :2] = P[0][:, :, step - 1]  # reference at the step's start
@@ -139,8 +145,7 @@ class FlownEnv(SearchEnv):
             st = self.sim.step(a)
             # error against the reference at the end of the step
             d = st[idx, 0:3]
-            err = np.sqrt((d[:, 0] - P[0][:, 0, step]) ** 2 + (d[:, 1] - P[0][:, 1, step]) ** 2
-                          + d[:, 2] ** 2)
+            err = np.sqrt((d[:, 0] - P[0][:, 0, step]) ** 2 + (d[:, 1] - P[0][:, 1, step]) ** 2 + d[:, 2] ** 2)
             emax = np.where(live, np.maximum(emax, err), emax)
             esq = esq + np.where(live, err * err, 0.0)
             if step % every == 0:
@@ -166,8 +171,7 @@ class FlownEnv(SearchEnv):
                 self.flown_trace[i].append(tr[r][np.isfinite(tr[r, :, 0])])
         return samples, sval, emax, rms
 
-    def flown_measurements(self, idx: np.ndarray, samples: np.ndarray,
-                           sval: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def flown_measurements(self, idx: np.ndarray, samples: np.ndarray, sval: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Measurement lists (offsets from the nominal start cells, levels) of the flown
         sample positions: distinct visited centre cells x the footprint (batched)."""
         r = self.lat.config.footprint_radius
@@ -187,8 +191,7 @@ class FlownEnv(SearchEnv):
         flev = np.maximum(np.abs(foot[:, 0]), np.abs(foot[:, 1]))
         rel = cells - self.pos[idx][:, None, :]  # offsets from the nominal start cell
         lim = self.pad - r - 1  # stay inside the padded arrays whatever the error
-        rel = np.clip(rel + self.pos[idx][:, None, :], -lim, self.S - 1 + lim) \
-            - self.pos[idx][:, None, :]
+        rel = np.clip(rel + self.pos[idx][:, None, :], -lim, self.S - 1 + lim) - self.pos[idx][:, None, :]
         off = (rel[:, :, None, :] + foot[None, None]).reshape(len(idx), -1, 2)
         lev = np.where(keep[:, :, None], flev[None, None], -1).reshape(len(idx), -1)
         return off, lev
@@ -297,7 +300,7 @@ class SkillEnv(FlownEnv):
             in_leg += flying
             steps += flying
             d = np.sqrt(((sub[:, 0:2, None] - path) ** 2).sum(1)).min(1)
-            d = np.sqrt(d ** 2 + sub[:, 2] ** 2)
+            d = np.sqrt(d**2 + sub[:, 2] ** 2)
             emax = np.where(flying, np.maximum(emax, d), emax)
             esq += np.where(flying, d * d, 0.0)
             if step % every == 0:
@@ -356,9 +359,11 @@ def load_skill(run: str | Path | None) -> tuple:
     from pathlib import Path
 
     from aerohrl.errors import UserError
+
     if run is None:
         raise UserError("--execution skill needs --skill-run <chapter-3 policy run directory>")
     from aerohrl.algorithms.run import Run
+
     p, skill_run = Path(run), None
     if p.is_dir():
         skill_run = Run(p)  # a copied run folder may lack its config.json: the checkpoints suffice
@@ -372,6 +377,7 @@ def load_skill(run: str | Path | None) -> tuple:
 
     from aerohrl.algorithms.base import load_policy
     from aerohrl.envs.rollout import PolicyFn
+
     torch.set_num_threads(1)
     algo, ck = load_policy(p, run=skill_run)
     return PolicyFn(algo), f"{p.parent.parent.name}/{p.name}"
@@ -382,6 +388,7 @@ def create_flown_env(cfg: EnvConfig, lattice: Lattice, execution: str, skill: Po
     controller) or :class:`SkillEnv` (``skill``, the policy ``skill`` of
     :func:`load_skill`); target search only."""
     from aerohrl.errors import UserError
+
     if execution not in EXECUTIONS:
         raise UserError(f"unknown execution mode {execution!r} (choose from {', '.join(EXECUTIONS)})")
     if execution == "ideal":

@@ -46,6 +46,7 @@ def _config(budget, start, map_size) -> EnvConfig:
     from dataclasses import replace
 
     from .world import WorldConfig
+
     b = BUDGETS.get(budget, budget) if isinstance(budget, str) else budget
     try:
         b = float(b)
@@ -53,8 +54,7 @@ def _config(budget, start, map_size) -> EnvConfig:
         raise ValueError(f"budget must be a number or one of {sorted(BUDGETS)}, got {budget!r}") from None
     if not np.isfinite(b) or b <= 0:
         raise ValueError(f"budget must be > 0, got {budget!r}")
-    return replace(EnvConfig(), budget=b, start=start, map_size=map_size,
-                   world=WorldConfig(map_size=map_size))
+    return replace(EnvConfig(), budget=b, start=start, map_size=map_size, world=WorldConfig(map_size=map_size))
 
 
 class IPPSearchVectorEnv(VectorEnv):
@@ -62,10 +62,18 @@ class IPPSearchVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int = 1, *, budget: float | str = "default",
-                 start: str = "random", map_size: int = 30, world_seed: int = TRAIN_SEED,
-                 lattice: Lattice | str | None = None, autoreset: bool = True,
-                 render_mode=None):
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        budget: float | str = "default",
+        start: str = "random",
+        map_size: int = 30,
+        world_seed: int = TRAIN_SEED,
+        lattice: Lattice | str | None = None,
+        autoreset: bool = True,
+        render_mode=None,
+    ):
         if int(num_envs) < 1:
             raise ValueError("num_envs must be >= 1")
         self.lat = lattice if isinstance(lattice, Lattice) else get_lattice(lattice)
@@ -77,14 +85,15 @@ class IPPSearchVectorEnv(VectorEnv):
         self.world_seed = int(world_seed)
         self.render_mode = render_mode
         self.autoreset = bool(autoreset)
-        self.metadata = {**self.metadata, "autoreset_mode": AutoresetMode.NEXT_STEP
-                         if autoreset else AutoresetMode.DISABLED}
+        self.metadata = {**self.metadata, "autoreset_mode": AutoresetMode.NEXT_STEP if autoreset else AutoresetMode.DISABLED}
         R, sc = self.cfg.obs_radius, self.cfg.obs_scales
         A, V = self.lat.n_actions, self.lat.n_vertices
-        self.single_observation_space = spaces.Dict({
-            "maps": spaces.Box(0.0, 1.0, (3 * len(sc), 2 * R, 2 * R), np.float32),
-            "vec": spaces.Box(0.0, 1.0, (2 + A + 1 + V + 1,), np.float32),
-        })
+        self.single_observation_space = spaces.Dict(
+            {
+                "maps": spaces.Box(0.0, 1.0, (3 * len(sc), 2 * R, 2 * R), np.float32),
+                "vec": spaces.Box(0.0, 1.0, (2 + A + 1 + V + 1,), np.float32),
+            }
+        )
         self.single_action_space = spaces.Discrete(A)
         self.observation_space = batch_space(self.single_observation_space, n)
         self.action_space = batch_space(self.single_action_space, n)
@@ -100,8 +109,7 @@ class IPPSearchVectorEnv(VectorEnv):
         return {"maps": o["maps"], "vec": o["vec"]}
 
     def _info(self) -> dict:
-        return {"action_mask": self.env.valid_mask().astype(np.int8),
-                "world": self._world_idx.copy()}
+        return {"action_mask": self.env.valid_mask().astype(np.int8), "world": self._world_idx.copy()}
 
     def action_masks(self) -> np.ndarray:
         """(num_envs, A) bool valid primitive slots (sb3-contrib's MaskablePPO hook)."""
@@ -114,8 +122,7 @@ class IPPSearchVectorEnv(VectorEnv):
         super().reset(seed=seed)
         options = options or {}
         idx = options.get("worlds")
-        idx = self._draw(self.num_envs) if idx is None else \
-            np.asarray(idx, np.int64).reshape(self.num_envs)
+        idx = self._draw(self.num_envs) if idx is None else np.asarray(idx, np.int64).reshape(self.num_envs)
         self._world_idx[:] = idx
         self.env.reset(sample_worlds(self.cfg.world, self.world_seed, idx))
         self._needs_reset[:] = False
@@ -141,8 +148,7 @@ class IPPSearchVectorEnv(VectorEnv):
         info["terms"] = terms
         if ended.any():
             m = env.metrics()
-            info["metrics"] = {k: np.where(ended, v, np.nan) for k, v in m.items()
-                               if k not in ("kl",)}
+            info["metrics"] = {k: np.where(ended, v, np.nan) for k, v in m.items() if k not in ("kl",)}
             info["_metrics"] = ended
         terminated = ended.copy()
         truncated = np.zeros(n, bool)
@@ -196,8 +202,7 @@ class IPPSearchEnv(gym.Env):
     def step(self, action: int) -> tuple[dict, float, bool, bool, dict]:
         """Execute one primitive (action slot); ``(obs, reward, terminated, truncated, info)``."""
         obs, r, te, tr, info = self._vec.step(np.asarray([int(action)]))
-        out = {"action_mask": info["action_mask"][0], "world": int(info["world"][0]),
-               "terms": info["terms"][0]}
+        out = {"action_mask": info["action_mask"][0], "world": int(info["world"][0]), "terms": info["terms"][0]}
         if "metrics" in info:
             out["metrics"] = {k: float(v[0]) for k, v in info["metrics"].items()}
         return self._one(obs), float(r[0]), bool(te[0]), bool(tr[0]), out

@@ -89,8 +89,7 @@ class LatticeConfig:
     t_max: float = param(5.0, "longest primitive duration", unit="s", gt=0)
     t_step: float = param(0.1, "step of the duration grid", unit="s", gt=0)
     tau: float = param(1.0, "velocity weight in the edge-dispersion metric", unit="s", gt=0)
-    hover_moves: tuple[int, ...] = param((1, 5), "cardinal hover->hover moves always kept (1..reach)",
-                                         unit="cells", ge=1)
+    hover_moves: tuple[int, ...] = param((1, 5), "cardinal hover->hover moves always kept (1..reach)", unit="cells", ge=1)
     footprint_radius: int = param(2, "sensor footprint (2r+1)^2: r", unit="cells", ge=0)
     sense_dt: float = param(0.1, "sampling of the trajectory for sensing", unit="s", gt=0)
     velocity_samples: float = param(0.1, "grid spacing of the dispersion sample X", unit="m/s", gt=0)
@@ -157,21 +156,20 @@ def select_vertices(cfg: LatticeConfig) -> tuple[np.ndarray, np.ndarray]:
     """
     X = velocity_samples(cfg.vertex_speed * cfg.v_max, cfg.velocity_samples)
     verts = [np.zeros(2)]
-    near = np.maximum(transfer_cost(X, verts[0], cfg.rho, cfg.a_max),
-                      transfer_cost(verts[0], X, cfg.rho, cfg.a_max))
+    near = np.maximum(transfer_cost(X, verts[0], cfg.rho, cfg.a_max), transfer_cost(verts[0], X, cfg.rho, cfg.a_max))
     disp = [float(near.max())]
     for _ in range(1, cfg.n_vertices):
         k = int(np.argmax(near))
         verts.append(X[k].copy())
-        dk = np.maximum(transfer_cost(X, X[k], cfg.rho, cfg.a_max),
-                        transfer_cost(X[k], X, cfg.rho, cfg.a_max))
+        dk = np.maximum(transfer_cost(X, X[k], cfg.rho, cfg.a_max), transfer_cost(X[k], X, cfg.rho, cfg.a_max))
         near = np.minimum(near, dk)
         disp.append(float(near.max()))
     return np.array(verts), np.array(disp)
 
 
-def quintic_coefficients(p0: float | np.ndarray, v0: float | np.ndarray, p1: float | np.ndarray,
-                         v1: float | np.ndarray, T: float | np.ndarray) -> np.ndarray:
+def quintic_coefficients(
+    p0: float | np.ndarray, v0: float | np.ndarray, p1: float | np.ndarray, v1: float | np.ndarray, T: float | np.ndarray
+) -> np.ndarray:
     """Minimum-jerk quintic with zero boundary accelerations, batched.
 
     ``p0, v0, p1, v1``: (..., 2); ``T``: (...). Returns (..., 2, 6) with
@@ -215,8 +213,7 @@ def jerk_cost(coef: np.ndarray, T: np.ndarray) -> np.ndarray:
     """``int_0^T |jerk|^2 dt`` summed over axes, closed form. coef (..., 2, 6), T (...)."""
     j0, j1, j2 = 6 * coef[..., 3], 24 * coef[..., 4], 60 * coef[..., 5]
     T = np.asarray(T, float)[..., None]
-    val = (j0**2 * T + j0 * j1 * T**2 + (j1**2 + 2 * j0 * j2) * T**3 / 3
-           + j1 * j2 * T**4 / 2 + j2**2 * T**5 / 5)
+    val = j0**2 * T + j0 * j1 * T**2 + (j1**2 + 2 * j0 * j2) * T**3 / 3 + j1 * j2 * T**4 / 2 + j2**2 * T**5 / 5
     return val.sum(-1)
 
 
@@ -288,8 +285,7 @@ class Lattice:
     def sensed_cells(self, prim: int, origin: tuple[int, int] | np.ndarray = (0, 0)) -> tuple[np.ndarray, np.ndarray]:
         """Tiled measurements of ``prim`` at ``origin``: cells (m, 2) and levels (m,)."""
         keep = self.meas_level[prim] >= 0
-        return self.meas_off[prim][keep].astype(int) + np.asarray(origin, int), \
-            self.meas_level[prim][keep].astype(int)
+        return self.meas_off[prim][keep].astype(int) + np.asarray(origin, int), self.meas_level[prim][keep].astype(int)
 
 
 def _candidates(cfg: LatticeConfig, verts: np.ndarray):
@@ -410,18 +406,41 @@ def build_lattice(cfg: LatticeConfig | None = None) -> Lattice:
     for v in range(V):
         ids = np.flatnonzero(I == v)
         edges[v, : len(ids)] = ids
-    return Lattice(cfg, verts, disp, edges, I.astype(np.int32), J.astype(np.int32),
-                   D.astype(np.int32), T, C, coef, bbox, meas_off, meas_level,
-                   cell_off, cell_count)
+    return Lattice(
+        cfg,
+        verts,
+        disp,
+        edges,
+        I.astype(np.int32),
+        J.astype(np.int32),
+        D.astype(np.int32),
+        T,
+        C,
+        coef,
+        bbox,
+        meas_off,
+        meas_level,
+        cell_off,
+        cell_count,
+    )
 
 
 # ------------------------------------------------------------------------ file I/O
 _ARRAYS = {  # name: (dtype kind, ndim)
-    "vertices": ("f", 2), "dispersion": ("f", 1), "edges": ("i", 2),
-    "prim_from": ("i", 1), "prim_to": ("i", 1), "prim_disp": ("i", 2),
-    "prim_T": ("f", 1), "prim_cost": ("f", 1), "prim_coef": ("f", 3),
-    "prim_bbox": ("i", 2), "meas_off": ("i", 3), "meas_level": ("i", 2),
-    "cell_off": ("i", 3), "cell_count": ("i", 3),
+    "vertices": ("f", 2),
+    "dispersion": ("f", 1),
+    "edges": ("i", 2),
+    "prim_from": ("i", 1),
+    "prim_to": ("i", 1),
+    "prim_disp": ("i", 2),
+    "prim_T": ("f", 1),
+    "prim_cost": ("f", 1),
+    "prim_coef": ("f", 3),
+    "prim_bbox": ("i", 2),
+    "meas_off": ("i", 3),
+    "meas_level": ("i", 2),
+    "cell_off": ("i", 3),
+    "cell_count": ("i", 3),
 }
 
 
@@ -431,8 +450,7 @@ def save_lattice(lat: Lattice, path: str | os.PathLike) -> Path:
     meta = {"format": FORMAT, "version": VERSION, "config": asdict(lat.config)}
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            np.savez_compressed(f, meta=np.array(json.dumps(meta)),
-                                **{k: getattr(lat, k) for k in _ARRAYS})
+            np.savez_compressed(f, meta=np.array(json.dumps(meta)), **{k: getattr(lat, k) for k in _ARRAYS})
     return path
 
 
@@ -453,8 +471,7 @@ def load_lattice(path: str | os.PathLike) -> Lattice:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise ValueError(f"{path}: not a {FORMAT} file")
     if meta.get("version") != VERSION:
-        raise ValueError(f"{path}: lattice format version {meta.get('version')} "
-                        f"is not supported (expected {VERSION})")
+        raise ValueError(f"{path}: lattice format version {meta.get('version')} is not supported (expected {VERSION})")
     for k, (kind, nd) in _ARRAYS.items():
         if k not in data:
             raise ValueError(f"{path}: lattice file lacks array '{k}'")
@@ -473,21 +490,44 @@ def load_lattice(path: str | os.PathLike) -> Lattice:
     checks = [
         (data["vertices"].shape[1] == 2, "vertices must be (V, 2)"),
         (len(data["dispersion"]) == V, "dispersion must have one entry per vertex"),
-        (e.shape[0] == V and e.min(initial=-1) >= -1 and e.max(initial=-1) < P,
-         "edges index outside the primitive table"),
-        (all(len(data[k]) == P for k in ("prim_from", "prim_to", "prim_disp", "prim_cost",
-                                          "prim_coef", "prim_bbox", "meas_off",
-                                          "meas_level", "cell_off", "cell_count")),
-         "primitive arrays disagree in length"),
-        (P == 0 or (data["prim_from"].min() >= 0 and data["prim_from"].max() < V
-                    and data["prim_to"].min() >= 0 and data["prim_to"].max() < V),
-         "primitive vertex index out of range"),
+        (e.shape[0] == V and e.min(initial=-1) >= -1 and e.max(initial=-1) < P, "edges index outside the primitive table"),
+        (
+            all(
+                len(data[k]) == P
+                for k in (
+                    "prim_from",
+                    "prim_to",
+                    "prim_disp",
+                    "prim_cost",
+                    "prim_coef",
+                    "prim_bbox",
+                    "meas_off",
+                    "meas_level",
+                    "cell_off",
+                    "cell_count",
+                )
+            ),
+            "primitive arrays disagree in length",
+        ),
+        (
+            P == 0
+            or (
+                data["prim_from"].min() >= 0
+                and data["prim_from"].max() < V
+                and data["prim_to"].min() >= 0
+                and data["prim_to"].max() < V
+            ),
+            "primitive vertex index out of range",
+        ),
         (data["prim_coef"].shape[1:] == (2, 6), "prim_coef must be (P, 2, 6)"),
-        (np.all(np.isfinite(data["prim_T"])) and np.all(data["prim_T"] > 0)
-         and np.all(np.isfinite(data["prim_cost"])) and np.all(data["prim_cost"] > 0),
-         "durations and costs must be positive and finite"),
-        (data["cell_count"].shape[2] == cfg.footprint_radius + 1,
-         "cell_count levels disagree with footprint_radius"),
+        (
+            np.all(np.isfinite(data["prim_T"]))
+            and np.all(data["prim_T"] > 0)
+            and np.all(np.isfinite(data["prim_cost"]))
+            and np.all(data["prim_cost"] > 0),
+            "durations and costs must be positive and finite",
+        ),
+        (data["cell_count"].shape[2] == cfg.footprint_radius + 1, "cell_count levels disagree with footprint_radius"),
         (P > 0, "lattice has no primitives"),
     ]
     for ok, msg in checks:
@@ -528,6 +568,7 @@ def get_lattice(path: str | os.PathLike | None, kind: str = "targets") -> Lattic
 def plot_lattice(lat: Lattice, path: str | os.PathLike) -> Path:
     """Figure: vertices in velocity space with d(V_k), and primitives per vertex."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -567,12 +608,10 @@ def plot_lattice(lat: Lattice, path: str | os.PathLike) -> Path:
         ax.set_xlabel("x (cells = m)", fontsize=7)
         ax.set_ylabel("y (cells = m)", fontsize=7)
         ax.tick_params(labelsize=7)
-        ax.set_title(f"vertex {v}: v=({lat.vertices[v, 0]:.1f},{lat.vertices[v, 1]:.1f})",
-                     fontsize=8)
+        ax.set_title(f"vertex {v}: v=({lat.vertices[v, 0]:.1f},{lat.vertices[v, 1]:.1f})", fontsize=8)
     fig.tight_layout()
     sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, max(V - 1, 1)))
-    fig.colorbar(sm, ax=axes.ravel().tolist(), shrink=0.4, pad=0.01,
-                 label="vertex index (end vertex of a primitive)")
+    fig.colorbar(sm, ax=axes.ravel().tolist(), shrink=0.4, pad=0.01, label="vertex index (end vertex of a primitive)")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)

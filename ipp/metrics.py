@@ -57,8 +57,7 @@ def thesis_table(kind: str = "targets") -> dict:
 
 def summarise(per_env: dict[str, np.ndarray]) -> dict[str, tuple[float, float]]:
     """(mean, std) of every metric present in ``per_env``."""
-    return {k: (float(np.mean(per_env[k])), float(np.std(per_env[k])))
-            for k in ALL_METRICS if k in per_env}
+    return {k: (float(np.mean(per_env[k])), float(np.std(per_env[k]))) for k in ALL_METRICS if k in per_env}
 
 
 def _ms(s, k):
@@ -73,31 +72,39 @@ def markdown_table(results: dict[str, dict], names: dict[str, str], kind: str = 
     one (its denominator), search efficiency beside the thesis's, and the flight bought
     (primitives, path cells, seconds). Semantic: Table 2.2 columns as before."""
     if kind == "semantic":
-        head = ("| planner | coverage % | entropy red. % | search eff. % | thesis cov / ent / eff "
-                "| ms/decision | envs |\n|---|---|---|---|---|---|---|\n")
+        head = (
+            "| planner | coverage % | entropy red. % | search eff. % | thesis cov / ent / eff "
+            "| ms/decision | envs |\n|---|---|---|---|---|---|---|\n"
+        )
         rows = []
         for p, r in results.items():
             s = r["summary"]
             th = thesis_table(kind).get(p)
             ths = " / ".join(f"{m:.1f}±{sd:.1f}" for m, sd in th) if th else "—"
-            rows.append(f"| {names.get(p, p)} | " + " | ".join(_ms(s, k) for k in METRICS)
-                        + f" | {ths} | {r['ms_per_decision']:.2f} | {r['n']} |")
+            rows.append(
+                f"| {names.get(p, p)} | "
+                + " | ".join(_ms(s, k) for k in METRICS)
+                + f" | {ths} | {r['ms_per_decision']:.2f} | {r['n']} |"
+            )
         return head + "\n".join(rows) + "\n"
-    head = ("| planner | coverage % (900) | coverage % (1600) | thesis cov (1600) "
-            "| entropy red. % (900) | entropy red. % (1600) | thesis ent (1600) "
-            "| search eff. % | thesis eff | primitives | path cells | flight s "
-            "| ms/decision | envs |\n|" + "---|" * 14 + "\n")
+    head = (
+        "| planner | coverage % (900) | coverage % (1600) | thesis cov (1600) "
+        "| entropy red. % (900) | entropy red. % (1600) | thesis ent (1600) "
+        "| search eff. % | thesis eff | primitives | path cells | flight s "
+        "| ms/decision | envs |\n|" + "---|" * 14 + "\n"
+    )
     rows = []
     for p, r in results.items():
         s = r["summary"]
         th = thesis_table(kind).get(p)
         t = [f"{m:.1f}±{sd:.1f}" for m, sd in th] if th else ["—"] * 3
         fl = [f"{s[k][0]:.1f}" if k in s else "—" for k in FLIGHT]
-        rows.append(f"| {names.get(p, p)} | {_ms(s, 'coverage')} | {_ms(s, 'coverage_padded')} "
-                    f"| {t[0]} | {_ms(s, 'entropy_reduction')} "
-                    f"| {_ms(s, 'entropy_reduction_padded')} | {t[1]} "
-                    f"| {_ms(s, 'search_efficiency')} | {t[2]} | " + " | ".join(fl)
-                    + f" | {r['ms_per_decision']:.2f} | {r['n']} |")
+        rows.append(
+            f"| {names.get(p, p)} | {_ms(s, 'coverage')} | {_ms(s, 'coverage_padded')} "
+            f"| {t[0]} | {_ms(s, 'entropy_reduction')} "
+            f"| {_ms(s, 'entropy_reduction_padded')} | {t[1]} "
+            f"| {_ms(s, 'search_efficiency')} | {t[2]} | " + " | ".join(fl) + f" | {r['ms_per_decision']:.2f} | {r['n']} |"
+        )
     return head + "\n".join(rows) + "\n"
 
 
@@ -111,9 +118,9 @@ def _best(results: dict[str, dict], rows: list[str], metric: str) -> str:
     return max(rows, key=lambda p: float(np.mean(results[p]["per_env"][metric])))
 
 
-def paired_differences(results: dict[str, dict], baselines: Collection[str],
-                       metric: str = "search_efficiency") -> tuple[dict[str, dict[str, tuple[float, float, int]]],
-                                                                   str | None]:
+def paired_differences(
+    results: dict[str, dict], baselines: Collection[str], metric: str = "search_efficiency"
+) -> tuple[dict[str, dict[str, tuple[float, float, int]]], str | None]:
     """Paired differences of ``metric`` between every non-baseline row and every baseline
     row, over the environments both ran: ``{row: {baseline: (mean, standard error, n)}}``
     plus the best baseline by mean. Rows must share their ``env_ids``."""
@@ -140,18 +147,28 @@ def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines: 
     if not diffs:
         return ""
     base = [p for p in results if p in baselines]
-    head = ("\nPaired search-efficiency difference (row − baseline, percentage points, mean ± "
-            "standard error over the same environments); best baseline: "
-            f"{names.get(best, best)}\n\n| planner | " + " | ".join(
-                names.get(q, q) + (" (best)" if q == best else "") for q in base)
-            + " |\n|---|" + "---|" * len(base) + "\n")
-    rows = [f"| {names.get(p, p)} | " + " | ".join(f"{d[q][0]:+.2f} ± {d[q][1]:.2f}" for q in base)
-            + " |" for p, d in diffs.items()]
+    head = (
+        "\nPaired search-efficiency difference (row − baseline, percentage points, mean ± "
+        "standard error over the same environments); best baseline: "
+        f"{names.get(best, best)}\n\n| planner | "
+        + " | ".join(names.get(q, q) + (" (best)" if q == best else "") for q in base)
+        + " |\n|---|"
+        + "---|" * len(base)
+        + "\n"
+    )
+    rows = [
+        f"| {names.get(p, p)} | " + " | ".join(f"{d[q][0]:+.2f} ± {d[q][1]:.2f}" for q in base) + " |" for p, d in diffs.items()
+    ]
     return head + "\n".join(rows) + "\n"
 
 
-def seeds_markdown(results: dict[str, dict], names: dict[str, str], groups: dict[str, list[str]],
-                   baselines: Collection[str], metric: str = "search_efficiency") -> str:
+def seeds_markdown(
+    results: dict[str, dict],
+    names: dict[str, str],
+    groups: dict[str, list[str]],
+    baselines: Collection[str],
+    metric: str = "search_efficiency",
+) -> str:
     """A learned recipe as a claim over seeds ('' if no group has 2 or more runs).
 
     ``groups`` maps a recipe's name to its rows in ``results`` (one trained run each).
@@ -166,12 +183,17 @@ def seeds_markdown(results: dict[str, dict], names: dict[str, str], groups: dict
         return ""
     best = _best(results, base, metric)
     ids = results[best]["env_ids"]
-    lines = ["\nOver seeds (search efficiency %; seed mean: per world, the mean over the "
-             "seeds' runs, paired with each baseline: mean ± s.e., worlds better / worse, "
-             "paired t-test p)\n",
-             "| recipe | seeds | per seed | mean ± std over seeds | per seed − best baseline ("
-             + names.get(best, best) + ") | " + " | ".join(f"seed mean − {names.get(q, q)}" for q in base)
-             + " |", "|---|---|---|---|---|" + "---|" * len(base)]
+    lines = [
+        "\nOver seeds (search efficiency %; seed mean: per world, the mean over the "
+        "seeds' runs, paired with each baseline: mean ± s.e., worlds better / worse, "
+        "paired t-test p)\n",
+        "| recipe | seeds | per seed | mean ± std over seeds | per seed − best baseline ("
+        + names.get(best, best)
+        + ") | "
+        + " | ".join(f"seed mean − {names.get(q, q)}" for q in base)
+        + " |",
+        "|---|---|---|---|---|" + "---|" * len(base),
+    ]
     for g, ks in groups.items():
         for k in ks:
             if not np.array_equal(results[k]["env_ids"], ids):
@@ -181,12 +203,17 @@ def seeds_markdown(results: dict[str, dict], names: dict[str, str], groups: dict
         cells = []
         for q in base:  # same env_ids (checked above): pair the arrays as they are
             c = _paired_stats(per.mean(0), results[q]["per_env"][metric])
-            cells.append(f"{c['diff']:+.2f} ± {c['se']:.2f} ({c['better']}/{c['worse']}, "
-                         f"p = {c['p_t']:.3g})")
+            cells.append(f"{c['diff']:+.2f} ± {c['se']:.2f} ({c['better']}/{c['worse']}, p = {c['p_t']:.3g})")
         d_best = means - float(np.mean(results[best]["per_env"][metric]))
-        lines.append(f"| {g} | {len(ks)} | " + " / ".join(f"{m:.1f}" for m in means)
-                     + f" | {means.mean():.1f} ± {means.std(ddof=1):.1f} | "
-                     + " / ".join(f"{d:+.2f}" for d in d_best) + " | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {g} | {len(ks)} | "
+            + " / ".join(f"{m:.1f}" for m in means)
+            + f" | {means.mean():.1f} ± {means.std(ddof=1):.1f} | "
+            + " / ".join(f"{d:+.2f}" for d in d_best)
+            + " | "
+            + " | ".join(cells)
+            + " |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -195,14 +222,20 @@ def summary_csv(results: dict[str, dict], kind: str = "targets") -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     keys = [k for k in ALL_METRICS if all(k in r["summary"] for r in results.values())]
-    w.writerow(["planner", "n_envs"] + [f"{k}_{s}" for k in keys for s in ("mean", "std")]
-               + [f"thesis_{k}{'_padded' if kind == 'targets' and k != 'search_efficiency' else ''}_{s}"
-                  for k in METRICS for s in ("mean", "std")] + ["ms_per_decision"])
+    w.writerow(
+        ["planner", "n_envs"]
+        + [f"{k}_{s}" for k in keys for s in ("mean", "std")]
+        + [
+            f"thesis_{k}{'_padded' if kind == 'targets' and k != 'search_efficiency' else ''}_{s}"
+            for k in METRICS
+            for s in ("mean", "std")
+        ]
+        + ["ms_per_decision"]
+    )
     for p, r in results.items():
         th = thesis_table(kind).get(p)
         thv = [v for m in th for v in m] if th else [""] * 6
-        w.writerow([p, r["n"]] + [f"{v:.4f}" for k in keys for v in r["summary"][k]]
-                   + thv + [f"{r['ms_per_decision']:.4f}"])
+        w.writerow([p, r["n"]] + [f"{v:.4f}" for k in keys for v in r["summary"][k]] + thv + [f"{r['ms_per_decision']:.4f}"])
     return buf.getvalue()
 
 
@@ -216,30 +249,35 @@ def per_env_csv(results: dict[str, dict]) -> str:
     for p, r in results.items():
         e = r["per_env"]
         for i in range(len(e["kl"])):
-            w.writerow([p, int(r["env_ids"][i]), f"{e['kl'][i]:.5f}"]
-                       + [f"{e[k][i]:.3f}" for k in keys] + [int(e["steps"][i])])
+            w.writerow([p, int(r["env_ids"][i]), f"{e['kl'][i]:.5f}"] + [f"{e[k][i]:.3f}" for k in keys] + [int(e["steps"][i])])
     return buf.getvalue()
 
 
 def budget_markdown(sweep: dict, names: dict[str, str], kind: str = "targets") -> str:
     """One row per (planner, budget) of a ``bench --budgets`` sweep: the metrics (both
     denominators on target search) and the flight each budget bought."""
-    order = ("coverage", "coverage_padded", "entropy_reduction", "entropy_reduction_padded",
-             "search_efficiency") + FLIGHT
+    order = ("coverage", "coverage_padded", "entropy_reduction", "entropy_reduction_padded", "search_efficiency") + FLIGHT
     keys = [k for k in order if all(k in r["summary"] for r in sweep.values())]
-    head = ("| planner | budget | " + " | ".join(_LABEL.get(k, k) for k in keys)
-            + " | envs |\n|" + "---|" * (len(keys) + 3) + "\n")
-    rows = [f"| {names.get(p, p)} | {b:g} | " + " | ".join(
-        f"{r['summary'][k][0]:.1f} ± {r['summary'][k][1]:.1f}" for k in keys) + f" | {r['n']} |"
-        for (p, b), r in sweep.items()]
+    head = "| planner | budget | " + " | ".join(_LABEL.get(k, k) for k in keys) + " | envs |\n|" + "---|" * (len(keys) + 3) + "\n"
+    rows = [
+        f"| {names.get(p, p)} | {b:g} | "
+        + " | ".join(f"{r['summary'][k][0]:.1f} ± {r['summary'][k][1]:.1f}" for k in keys)
+        + f" | {r['n']} |"
+        for (p, b), r in sweep.items()
+    ]
     return head + "\n".join(rows) + "\n"
 
 
-_LABEL = {"coverage": "coverage % (900)", "coverage_padded": "coverage % (1600)",
-          "entropy_reduction": "entropy red. % (900)",
-          "entropy_reduction_padded": "entropy red. % (1600)",
-          "search_efficiency": "search eff. %", "primitives": "primitives",
-          "path_cells": "path cells", "flight_s": "flight s"}
+_LABEL = {
+    "coverage": "coverage % (900)",
+    "coverage_padded": "coverage % (1600)",
+    "entropy_reduction": "entropy red. % (900)",
+    "entropy_reduction_padded": "entropy red. % (1600)",
+    "search_efficiency": "search eff. %",
+    "primitives": "primitives",
+    "path_cells": "path cells",
+    "flight_s": "flight s",
+}
 
 
 def budget_csv(sweep: dict) -> str:
@@ -258,14 +296,16 @@ def plot_budgets(sweep: dict, names: dict[str, str], path: str | Path, kind: str
     planner; the thesis's Table 2.1 value as a dotted line of the same colour on the
     panels of its denominator (padded coverage / entropy, search efficiency)."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = (["coverage", "coverage_padded", "entropy_reduction", "entropy_reduction_padded",
-               "search_efficiency", "flight_s"] if kind == "targets"
-              else ["coverage", "entropy_reduction", "search_efficiency", "flight_s"])
-    thesis_of = {"coverage_padded": 0, "entropy_reduction_padded": 1, "search_efficiency": 2} \
-        if kind == "targets" else {}
+    panels = (
+        ["coverage", "coverage_padded", "entropy_reduction", "entropy_reduction_padded", "search_efficiency", "flight_s"]
+        if kind == "targets"
+        else ["coverage", "entropy_reduction", "search_efficiency", "flight_s"]
+    )
+    thesis_of = {"coverage_padded": 0, "entropy_reduction_padded": 1, "search_efficiency": 2} if kind == "targets" else {}
     planners = list(dict.fromkeys(p for p, _ in sweep))
     fig, axes = plt.subplots(2, (len(panels) + 1) // 2, figsize=(4.2 * ((len(panels) + 1) // 2), 7))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -273,8 +313,7 @@ def plot_budgets(sweep: dict, names: dict[str, str], path: str | Path, kind: str
         for j, p in enumerate(planners):
             bs = sorted(b for q, b in sweep if q == p)
             mu = [float(np.mean(sweep[(p, b)]["per_env"][k])) for b in bs]
-            se = [float(np.std(sweep[(p, b)]["per_env"][k]) / np.sqrt(max(sweep[(p, b)]["n"], 1)))
-                  for b in bs]
+            se = [float(np.std(sweep[(p, b)]["per_env"][k]) / np.sqrt(max(sweep[(p, b)]["n"], 1))) for b in bs]
             c = colours[j % len(colours)]
             ax.errorbar(bs, mu, yerr=se, marker="o", ms=4, capsize=2, color=c, label=names.get(p, p))
             th = thesis_table(kind).get(p)
@@ -283,11 +322,12 @@ def plot_budgets(sweep: dict, names: dict[str, str], path: str | Path, kind: str
         ax.set_xlabel("budget (cost units: rho*T + int |jerk|^2)")
         ax.set_ylabel(_LABEL.get(k, k).replace("flight s", "flight time (s)"))
         ax.grid(alpha=0.3)
-    for ax in axes.ravel()[len(panels):]:
+    for ax in axes.ravel()[len(panels) :]:
         ax.axis("off")
     axes.ravel()[0].legend(fontsize=7)
-    fig.suptitle("Metric vs budget (dotted: thesis Table 2.1 at the original budget)"
-                 if kind == "targets" else "Metric vs budget")
+    fig.suptitle(
+        "Metric vs budget (dotted: thesis Table 2.1 at the original budget)" if kind == "targets" else "Metric vs budget"
+    )
     fig.tight_layout()
     path = Path(path)
     with atomic_path(path) as tmp:
@@ -302,9 +342,14 @@ def tracking_summary(tt: np.ndarray) -> dict[str, float]:
     of the per-primitive RMS error, in metres, and the number of primitives."""
     if len(tt) == 0:
         return {"n": 0}
-    return {"n": int(len(tt)), "max_mean": float(tt[:, 1].mean()),
-            "max_p95": float(np.percentile(tt[:, 1], 95)), "max_max": float(tt[:, 1].max()),
-            "rms_mean": float(tt[:, 2].mean()), "rms_max": float(tt[:, 2].max())}
+    return {
+        "n": int(len(tt)),
+        "max_mean": float(tt[:, 1].mean()),
+        "max_p95": float(np.percentile(tt[:, 1], 95)),
+        "max_max": float(tt[:, 1].max()),
+        "rms_mean": float(tt[:, 2].mean()),
+        "rms_max": float(tt[:, 2].max()),
+    }
 
 
 def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
@@ -315,19 +360,19 @@ def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
     modes = list(by_mode)
     base = modes[0]
     flown = [m for m in modes if m != "ideal"]
-    cols = ([f"{k} ({m})" for m in modes for k in ("cov. % (1600)", "ent. red. %", "search eff. %")]
-            + [f"{m} − {base} (search eff., paired)" for m in modes[1:]]
-            + [c for m in flown for c in (f"{m}: tracking max mm (mean / p95 / max)",
-                                          f"{m}: tracking RMS mm")]
-            + (["skill legs: near / strict success, s per leg"] if "skill" in modes else []))
+    cols = (
+        [f"{k} ({m})" for m in modes for k in ("cov. % (1600)", "ent. red. %", "search eff. %")]
+        + [f"{m} − {base} (search eff., paired)" for m in modes[1:]]
+        + [c for m in flown for c in (f"{m}: tracking max mm (mean / p95 / max)", f"{m}: tracking RMS mm")]
+        + (["skill legs: near / strict success, s per leg"] if "skill" in modes else [])
+    )
     head = "| planner | " + " | ".join(cols) + " |\n|" + "---|" * (len(cols) + 1) + "\n"
     rows = []
     for p in by_mode[base]:
         cells = []
         for m in modes:
             s = by_mode[m][p]["summary"]
-            cells += [_ms(s, "coverage_padded"), _ms(s, "entropy_reduction"),
-                      _ms(s, "search_efficiency")]
+            cells += [_ms(s, "coverage_padded"), _ms(s, "entropy_reduction"), _ms(s, "search_efficiency")]
         for m in modes[1:]:
             a, b = by_mode[m][p], by_mode[base][p]
             if not np.array_equal(a["env_ids"], b["env_ids"]):
@@ -339,15 +384,19 @@ def execution_markdown(by_mode: dict[str, dict], names: dict[str, str]) -> str:
             r = by_mode[m][p]
             if "tracking" in r:
                 t = tracking_summary(r["tracking"])
-                cells += [f"{1e3 * t['max_mean']:.1f} / {1e3 * t['max_p95']:.1f} / "
-                          f"{1e3 * t['max_max']:.1f} ({t['n']} primitives)",
-                          f"{1e3 * t['rms_mean']:.1f}"]
+                cells += [
+                    f"{1e3 * t['max_mean']:.1f} / {1e3 * t['max_p95']:.1f} / {1e3 * t['max_max']:.1f} ({t['n']} primitives)",
+                    f"{1e3 * t['rms_mean']:.1f}",
+                ]
             else:
                 cells += ["—", "—"]
         if "skill" in modes:
             lg = by_mode["skill"][p].get("legs", np.zeros((0, 3)))
-            cells.append(f"{100 * lg[:, 1].mean():.1f} % / {100 * lg[:, 0].mean():.1f} %, "
-                         f"{lg[:, 2].mean():.2f} s ({len(lg)} legs)" if len(lg) else "—")
+            cells.append(
+                f"{100 * lg[:, 1].mean():.1f} % / {100 * lg[:, 0].mean():.1f} %, {lg[:, 2].mean():.2f} s ({len(lg)} legs)"
+                if len(lg)
+                else "—"
+            )
         rows.append(f"| {names.get(p, p)} | " + " | ".join(cells) + " |")
     return head + "\n".join(rows) + "\n"
 
@@ -360,16 +409,21 @@ def write_atomic(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
-def plot_kl(results: dict[str, dict], names: dict[str, str], path: str | Path, bins: int = 5,
-            xlabel: str = "KL(truth || prior) (nats), quantile bins") -> Path:
+def plot_kl(
+    results: dict[str, dict],
+    names: dict[str, str],
+    path: str | Path,
+    bins: int = 5,
+    xlabel: str = "KL(truth || prior) (nats), quantile bins",
+) -> Path:
     """Fig. 2.4 analogue: search efficiency against KL(truth || prior), binned, per planner."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     kl = np.concatenate([r["per_env"]["kl"] for r in results.values()])
-    edges = np.quantile(kl, np.linspace(0, 1, bins + 1)) if len(kl) > bins else \
-        np.linspace(kl.min(), kl.max() + 1e-9, bins + 1)
+    edges = np.quantile(kl, np.linspace(0, 1, bins + 1)) if len(kl) > bins else np.linspace(kl.min(), kl.max() + 1e-9, bins + 1)
     edges[-1] += 1e-9
     fig, ax = plt.subplots(figsize=(6, 4))
     for j, (p, r) in enumerate(results.items()):
@@ -431,7 +485,12 @@ def _paired_stats(x: np.ndarray, y: np.ndarray) -> dict:
 
     d = x - y
     nz = d[d != 0]
-    return {"diff": float(d.mean()), "se": _standard_error(d), "n": len(d),
-            "better": int((d > 0).sum()), "worse": int((d < 0).sum()),
-            "p_t": float(stats.ttest_rel(x, y).pvalue) if d.std() > 0 else 1.0,
-            "p_wilcoxon": float(stats.wilcoxon(nz).pvalue) if len(nz) else 1.0}
+    return {
+        "diff": float(d.mean()),
+        "se": _standard_error(d),
+        "n": len(d),
+        "better": int((d > 0).sum()),
+        "worse": int((d < 0).sum()),
+        "p_t": float(stats.ttest_rel(x, y).pvalue) if d.std() > 0 else 1.0,
+        "p_wilcoxon": float(stats.wilcoxon(nz).pvalue) if len(nz) else 1.0,
+    }

@@ -35,15 +35,16 @@ from .train_config import PolicyConfig  # noqa: F401  (declared torch-free for t
 
 
 class ActorCritic(nn.Module):
-    def __init__(self, map_ch: int, map_hw: int, vec_dim: int, n_actions: int,
-                 cfg: PolicyConfig = PolicyConfig(), n_feat: int = 0):
+    def __init__(
+        self, map_ch: int, map_hw: int, vec_dim: int, n_actions: int, cfg: PolicyConfig = PolicyConfig(), n_feat: int = 0
+    ):
         super().__init__()
         self.cfg = cfg
         self.n_feat = n_feat
         h = cfg.hidden
         self.conv = nn.Sequential(
-            nn.Conv2d(map_ch, 32, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten())
+            nn.Conv2d(map_ch, 32, 3, padding=1), nn.ReLU(), nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(), nn.Flatten()
+        )
         conv_out = 64 * ((map_hw + 1) // 2) ** 2
         self.vec = nn.Sequential(nn.Linear(vec_dim, 64), nn.ReLU())
         fe = 0
@@ -52,10 +53,8 @@ class ActorCritic(nn.Module):
             self.feat = nn.Sequential(nn.Linear(n_feat, fe), nn.ReLU(), nn.Linear(fe, fe), nn.ReLU())
             self.ctx = nn.Linear(h, fe)
             self.score = nn.Linear(fe, 1)
-        self.fuse = nn.Sequential(nn.Linear(conv_out + 64 + 2 * fe, 2 * h), nn.ReLU(),
-                                  nn.Linear(2 * h, h), nn.ReLU())
-        self.core = nn.GRU(h, h, batch_first=False) if cfg.recurrent else \
-            nn.Sequential(nn.Linear(h, h), nn.ReLU())
+        self.fuse = nn.Sequential(nn.Linear(conv_out + 64 + 2 * fe, 2 * h), nn.ReLU(), nn.Linear(2 * h, h), nn.ReLU())
+        self.core = nn.GRU(h, h, batch_first=False) if cfg.recurrent else nn.Sequential(nn.Linear(h, h), nn.ReLU())
         self.pi = nn.Linear(h, n_actions)
         self.v = nn.Linear(h, len(TERMS))
         self.valid = nn.Linear(h, n_actions)
@@ -66,8 +65,9 @@ class ActorCritic(nn.Module):
         """The zero recurrent state (1, n, hidden) of ``n`` new episodes."""
         return torch.zeros(1, n, self.cfg.hidden)
 
-    def forward(self, maps: torch.Tensor, vec: torch.Tensor, h: torch.Tensor,
-                feat: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(
+        self, maps: torch.Tensor, vec: torch.Tensor, h: torch.Tensor, feat: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """maps (T, N, C, H, W), vec (T, N, D), h (1, N, hidden), feat (T, N, A, F)
         -> (policy logits, per-term values, valid logits, h) over (T, N)."""
         T, N = maps.shape[:2]
@@ -98,8 +98,7 @@ def valid_loss(phi_logits: torch.Tensor, valid: torch.Tensor, beta1: float = 1.0
 
 def save_policy(model: ActorCritic, dims: dict, path: str | Path, env_kind: str = "targets") -> None:
     """Atomically, with a SHA-256 sidecar (``model.pt.sha256``) checked by :func:`load_policy`."""
-    atomic.torch_save(path, {"state_dict": model.state_dict(), "dims": dims,
-                             "config": asdict(model.cfg), "env_kind": env_kind})
+    atomic.torch_save(path, {"state_dict": model.state_dict(), "dims": dims, "config": asdict(model.cfg), "env_kind": env_kind})
 
 
 def load_policy(path: str | Path) -> ActorCritic:
@@ -118,9 +117,9 @@ def load_policy(path: str | Path) -> ActorCritic:
     except Exception as e:
         raise UserError(f"{path}: not a policy checkpoint ({type(e).__name__})") from None
     from .features import N_FEAT
+
     if model.n_feat not in (0, N_FEAT):
-        raise UserError(f"{path}: policy reads {model.n_feat} primitive features, this version "
-                        f"computes {N_FEAT} (retrain it)")
+        raise UserError(f"{path}: policy reads {model.n_feat} primitive features, this version computes {N_FEAT} (retrain it)")
     model.train_info = _train_info(path.parent)
     model.eval()
     return model
@@ -130,6 +129,7 @@ def _train_info(run: Path) -> dict:
     """What trained the policy, from ``RUN/config.json`` (written by ``ipp train``):
     DAgger iterations, teacher, PPO iterations, training seed. Empty if the file is absent or unreadable."""
     from aerohrl.algorithms.run import Run
+
     try:
         cfg = Run.open(run).meta
     except UserError:
@@ -188,8 +188,7 @@ class RLPlanner(Planner):
         feat = None
         if self.model.n_feat:
             feat = torch.from_numpy(env.action_features())[None]
-        logits, _, _, h = self.model(torch.from_numpy(obs["maps"])[None],
-                                     torch.from_numpy(obs["vec"])[None], self.h, feat)
+        logits, _, _, h = self.model(torch.from_numpy(obs["maps"])[None], torch.from_numpy(obs["vec"])[None], self.h, feat)
         live = torch.from_numpy(~env.done)
         self.h = torch.where(live[None, :, None], h, self.h)
         logits = logits[0]

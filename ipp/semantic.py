@@ -64,8 +64,7 @@ from aerohrl.config import param
 
 CLASSES = ("background", "building", "road", "vegetation", "water")
 # RGB palette for PNG rasters (and the figures): one colour per class
-PALETTE = np.array([[255, 255, 255], [200, 60, 60], [90, 90, 90], [60, 160, 60],
-                    [50, 110, 220]], np.uint8)
+PALETTE = np.array([[255, 255, 255], [200, 60, 60], [90, 90, 90], [60, 160, 60], [50, 110, 220]], np.uint8)
 
 
 @dataclass(frozen=True)
@@ -98,8 +97,9 @@ def campus_map(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     k = int(rng.integers(40, 80))
     cx, cy = rng.uniform(0, S, k), rng.uniform(0, S, k)
     hw, hh = rng.uniform(3, 11, k), rng.uniform(3, 11, k)
-    bld = ((np.abs(X[None] - cx[:, None, None]) < hw[:, None, None])
-           & (np.abs(Y[None] - cy[:, None, None]) < hh[:, None, None])).any(0)
+    bld = (
+        (np.abs(X[None] - cx[:, None, None]) < hw[:, None, None]) & (np.abs(Y[None] - cy[:, None, None]) < hh[:, None, None])
+    ).any(0)
     # roads: jittered grid plus a diagonal avenue
     road = np.zeros((S, S), bool)
     for axis_coord in (X, Y):
@@ -149,6 +149,7 @@ def _resample(a: np.ndarray, size: int) -> np.ndarray:
 
 def _from_png(path: Path, n_classes: int) -> np.ndarray:
     import matplotlib.pyplot as plt
+
     try:
         img = plt.imread(path)
     except Exception as e:
@@ -168,14 +169,14 @@ def _from_png(path: Path, n_classes: int) -> np.ndarray:
         match = np.all(rgb[:, :, None, :] == PALETTE[None, None, :n_classes].astype(np.int64), -1)
         if not match.any(-1).all():
             bad = rgb[~match.any(-1)][0]
-            raise ValueError(f"{path}: colour {tuple(int(v) for v in bad)} is not in the class "
-                            f"palette (see aerohrl.ipp.semantic.PALETTE)")
+            raise ValueError(
+                f"{path}: colour {tuple(int(v) for v in bad)} is not in the class palette (see aerohrl.ipp.semantic.PALETTE)"
+            )
         return match.argmax(-1)
     raise ValueError(f"{path}: PNG must be greyscale or RGB(A), got shape {img8.shape}")
 
 
-def load_class_raster(path: str | os.PathLike, size: int = 256,
-                      n_classes: int = len(CLASSES)) -> np.ndarray:
+def load_class_raster(path: str | os.PathLike, size: int = 256, n_classes: int = len(CLASSES)) -> np.ndarray:
     """Read a class raster (``.npy``, ``.npz``, ``.png``; module docstring) -> (size, size) int8."""
     path = Path(path)
     if not path.is_file():
@@ -213,8 +214,9 @@ def load_class_raster(path: str | os.PathLike, size: int = 256,
         raise ValueError(f"{path}: class raster must hold integer class indices, got {a.dtype}")
     a = a.astype(np.int64)
     if a.min() < 0 or a.max() >= n_classes:
-        raise ValueError(f"{path}: class indices must lie in 0..{n_classes - 1} "
-                        f"({', '.join(CLASSES[:n_classes])}), found {a.min()}..{a.max()}")
+        raise ValueError(
+            f"{path}: class indices must lie in 0..{n_classes - 1} ({', '.join(CLASSES[:n_classes])}), found {a.min()}..{a.max()}"
+        )
     a = _resample(a, size).astype(np.int8)
     if not (a > 0).any():
         raise ValueError(f"{path}: the raster has no feature cells (all background)")
@@ -231,10 +233,10 @@ def _cached_raster(path: str, mtime: float, size: int, n_classes: int) -> np.nda
 class SemanticWorlds:
     """A batch of semantic worlds over the inner ``map_size`` square, indexed [n, y, x]."""
 
-    classes: np.ndarray   # (N, S, S) int8 true class
-    prior: np.ndarray     # (N, S, S, C) float32 prior class probabilities
-    kl: np.ndarray        # (N,) mean over cells of -log prior[true class], nats
-    seeds: np.ndarray     # (N, 2) int64 (suite seed, index)
+    classes: np.ndarray  # (N, S, S) int8 true class
+    prior: np.ndarray  # (N, S, S, C) float32 prior class probabilities
+    kl: np.ndarray  # (N,) mean over cells of -log prior[true class], nats
+    seeds: np.ndarray  # (N, 2) int64 (suite seed, index)
 
     def __len__(self) -> int:
         return len(self.kl)
@@ -293,8 +295,7 @@ def label_logratio(err: np.ndarray, n_classes: int) -> np.ndarray:
     return np.log1p(-err) + np.log(n_classes - 1) - np.log(err)
 
 
-def measure_labels(truth: np.ndarray, err: np.ndarray, u1: np.ndarray, u2: np.ndarray,
-                   n_classes: int) -> np.ndarray:
+def measure_labels(truth: np.ndarray, err: np.ndarray, u1: np.ndarray, u2: np.ndarray, n_classes: int) -> np.ndarray:
     """Labels: the true class, or (where ``u1 < err``) one of the other classes by ``u2``."""
     wrong = u1 < err
     k = np.minimum((u2 * (n_classes - 1)).astype(np.int64), n_classes - 2)
@@ -349,8 +350,7 @@ def _info_gain_cat_direct(p: np.ndarray, lam: np.ndarray) -> np.ndarray:
     """O(C^2) reference of :func:`info_gain_cat` (tests)."""
     C = p.shape[-1]
     e = 1.0 / (1.0 + np.exp(np.minimum(lam, 50.0)) / (C - 1))
-    lik = np.where(np.eye(C, dtype=bool), (1 - e)[..., None, None],
-                   (e / (C - 1))[..., None, None])  # (..., z, c)
+    lik = np.where(np.eye(C, dtype=bool), (1 - e)[..., None, None], (e / (C - 1))[..., None, None])  # (..., z, c)
     joint = lik * p[..., None, :]
     pz = joint.sum(-1)
     post = joint / np.maximum(pz[..., None], 1e-300)

@@ -25,8 +25,7 @@ import numpy as np
 from .env import SearchEnv
 from .scoring import LAM_CAP, crossing_lam, detect_success
 from .sensor import hashed_uniform
-from .semantic import (SemanticWorlds, entropy_cat_bits, info_gain_cat, label_logratio,
-                       measure_labels, softmax)
+from .semantic import SemanticWorlds, entropy_cat_bits, info_gain_cat, label_logratio, measure_labels, softmax
 
 
 class SemanticEnv(SearchEnv):
@@ -52,7 +51,7 @@ class SemanticEnv(SearchEnv):
         self.cov_ring = np.zeros((N, self.Hp, self.Hp), bool)
         self.found = np.zeros((N, self.Hp, self.Hp), bool)
         self.planes = np.zeros((N, C + 2, self.Hp, self.Hp), np.float32)
-        self.planes[:, :C][:, :, p:p + S, p:p + S] = np.moveaxis(worlds.prior, -1, 1)
+        self.planes[:, :C][:, :, p : p + S, p : p + S] = np.moveaxis(worlds.prior, -1, 1)
         self.planes[:, C + 1] = self.boundary
         cls = worlds.classes.reshape(N, -1).astype(np.int64)
         self.n_class = np.stack([np.bincount(c, minlength=C) for c in cls])  # (N, C)
@@ -64,7 +63,7 @@ class SemanticEnv(SearchEnv):
     def probs(self) -> np.ndarray:
         """(N, S, S, C) current class probabilities on the inner map."""
         p, S = self.pad, self.S
-        return softmax(self.L[:, p:p + S, p:p + S].astype(np.float64))
+        return softmax(self.L[:, p : p + S, p : p + S].astype(np.float64))
 
     def belief(self) -> np.ndarray:
         """(N, S, S) probability that a cell holds a feature (not background)."""
@@ -76,7 +75,7 @@ class SemanticEnv(SearchEnv):
     def detected_by_class(self) -> np.ndarray:
         """(N, C) detected cells per class (column 0, background, is never counted)."""
         p, S, C = self.pad, self.S, self.n_classes
-        f = self.found[:, p:p + S, p:p + S].reshape(self.n, -1)
+        f = self.found[:, p : p + S, p : p + S].reshape(self.n, -1)
         t = self.worlds.classes.reshape(self.n, -1).astype(np.int64)
         return np.stack([np.bincount(t[n][f[n]], minlength=C) for n in range(self.n)])
 
@@ -168,7 +167,8 @@ class SemanticEnv(SearchEnv):
         lam_e = np.minimum(lam, LAM_CAP)
         bf = np.asarray(b, np.float64)[..., 1:]
         return detect_success(lam_e, self.n_classes) * (
-            bf * (lam_e[..., None] >= crossing_lam(bf, self.cfg.found_threshold))).sum(-1)
+            bf * (lam_e[..., None] >= crossing_lam(bf, self.cfg.found_threshold))
+        ).sum(-1)
 
     def plan_detect_gain_flat(self, gflat: np.ndarray, lp: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """:meth:`plan_detect_gain` at flat indices into the ``(N, Hp, Hp)`` maps."""
@@ -178,7 +178,6 @@ class SemanticEnv(SearchEnv):
     def plan_open(self, b: np.ndarray) -> np.ndarray:
         """Cells whose most likely feature class is still below the threshold."""
         return b[..., 1:].max(-1) < self.cfg.found_threshold
-
 
 
 __all__ = ["SemanticEnv", "LAM_CAP", "detect_success", "crossing_lam"]

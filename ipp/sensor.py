@@ -72,9 +72,11 @@ def entropy_bits(b: np.ndarray) -> np.ndarray:
 def hashed_uniform(seed: np.ndarray, step: np.ndarray, slot: np.ndarray) -> np.ndarray:
     """Uniform [0,1) from splitmix64 of (seed, step, slot); arrays broadcast."""
     with np.errstate(over="ignore"):
-        x = (np.asarray(seed, np.uint64) * np.uint64(0x9E3779B97F4A7C15)
-             ^ np.asarray(step, np.uint64) * np.uint64(0xBF58476D1CE4E5B9)
-             ^ np.asarray(slot, np.uint64) * np.uint64(0x94D049BB133111EB))
+        x = (
+            np.asarray(seed, np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+            ^ np.asarray(step, np.uint64) * np.uint64(0xBF58476D1CE4E5B9)
+            ^ np.asarray(slot, np.uint64) * np.uint64(0x94D049BB133111EB)
+        )
         x = x + np.uint64(0x9E3779B97F4A7C15)
         x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)

@@ -65,8 +65,11 @@ from .factory import create_env, sample_for
 from .features import N_FEAT
 from .lattice import Lattice
 from .policy import ActorCritic, save_policy, valid_loss
-from .train_config import (TEACHER_PLANNERS, VAL_SEED, PolicyConfig, TrainConfig,  # noqa: F401  (re-exported)
-                           preset, preset_names)
+from .train_config import (
+    TrainConfig,
+    preset,
+    preset_names,
+)
 
 CHECKPOINT_VERSION = 1  # the format is the Run layout's (aerohrl.algorithms.run.LAYOUTS["ipp"])
 # every shipped preset, resolved (ipp/presets/NAME.toml over the TrainConfig defaults)
@@ -160,9 +163,12 @@ def _bc_update(model, opt, buffer, cfg, use_feat):
             b = buffer[bi]
             N = b["maps"].shape[1]
             for mb in torch.randperm(N).chunk(cfg.minibatches):
-                logits, v, phi, _ = model(b["maps"][:, mb].float(), b["vec"][:, mb],
-                                          model.initial_state(len(mb)),
-                                          b["feat"][:, mb] if use_feat else None)
+                logits, v, phi, _ = model(
+                    b["maps"][:, mb].float(),
+                    b["vec"][:, mb],
+                    model.initial_state(len(mb)),
+                    b["feat"][:, mb] if use_feat else None,
+                )
                 valid = b["valid"][:, mb]
                 w = b["alive"][:, mb]
                 nw = w.sum().clamp(min=1)
@@ -178,8 +184,7 @@ def _bc_update(model, opt, buffer, cfg, use_feat):
                 acc = ((lp.argmax(-1) == b["label"][:, mb]).float() * w).sum() / nw
                 stats.append([ce.item(), l_critic.item(), l_val.item(), acc.item()])
         order = torch.randperm(len(buffer))
-    return dict(zip(("loss_bc", "loss_critic", "loss_valid", "bc_accuracy"),
-                    np.mean(stats, 0).tolist()))
+    return dict(zip(("loss_bc", "loss_critic", "loss_valid", "bc_accuracy"), np.mean(stats, 0).tolist()))
 
 
 def _ppo_update(model, opt, ro, cfg, use_feat):
@@ -196,9 +201,9 @@ def _ppo_update(model, opt, ro, cfg, use_feat):
     for _ in range(cfg.epochs):
         perm = torch.randperm(N)
         for mb in perm.chunk(cfg.minibatches):
-            logits, v, phi, _ = model(ro["maps"][:, mb], ro["vec"][:, mb],
-                                      model.initial_state(len(mb)),
-                                      None if feats is None else feats[:, mb])
+            logits, v, phi, _ = model(
+                ro["maps"][:, mb], ro["vec"][:, mb], model.initial_state(len(mb)), None if feats is None else feats[:, mb]
+            )
             valid = ro["valid"][:, mb]
             dist = torch.distributions.Categorical(logits=_masked(logits, valid, cfg))
             lp = dist.log_prob(ro["act"][:, mb])
@@ -211,8 +216,7 @@ def _ppo_update(model, opt, ro, cfg, use_feat):
             l_critic = (((ret[:, mb] - v) ** 2).sum(-1) * w).sum() / nw
             l_ent = (dist.entropy() * w).sum() / nw
             l_val = valid_loss(phi[w.bool()], valid[w.bool()], *cfg.valid_beta)
-            loss = l_actor + cfg.value_coef * l_critic - cfg.entropy_coef * l_ent \
-                + cfg.valid_coef * l_val  # Eq. 2.8 (+ critic)
+            loss = l_actor + cfg.value_coef * l_critic - cfg.entropy_coef * l_ent + cfg.valid_coef * l_val  # Eq. 2.8 (+ critic)
             if cfg.bc_anchor > 0:  # stay close to the teacher where PPO has no signal
                 lab = ro["label"][:, mb]
                 ce = -(dist.log_prob(lab) * w).sum() / nw
@@ -222,14 +226,14 @@ def _ppo_update(model, opt, ro, cfg, use_feat):
             torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
             opt.step()
             stats.append([l_actor.item(), l_critic.item(), l_ent.item(), l_val.item()])
-    return dict(zip(("loss_actor", "loss_critic", "entropy", "loss_valid"),
-                    np.mean(stats, 0).tolist()))
+    return dict(zip(("loss_actor", "loss_critic", "entropy", "loss_valid"), np.mean(stats, 0).tolist()))
 
 
 def evaluate(model: ActorCritic, lattice: Lattice, env_cfg: EnvConfig, seed: int, n: int) -> dict:
     """Greedy policy on worlds ``0..n-1`` of suite ``seed`` from the centre start: mean
     Table 2.1 metrics (used for validation; never pass the test seed while training)."""
     from .policy import RLPlanner
+
     env = create_env(replace(env_cfg, start="center"), lattice)
     env.reset(sample_for(env_cfg, seed, range(n)))
     was = model.training
@@ -239,19 +243,21 @@ def evaluate(model: ActorCritic, lattice: Lattice, env_cfg: EnvConfig, seed: int
         env.step(pl.act())
     model.train(was)
     m = env.metrics()
-    return {k: float(m[k].mean()) for k in ("coverage", "entropy_reduction",
-                                            "search_efficiency")}
+    return {k: float(m[k].mean()) for k in ("coverage", "entropy_reduction", "search_efficiency")}
 
 
 # ------------------------------------------------------------------------ training
 def _dims(env, obs, cfg):
-    return {"map_ch": obs["maps"].shape[1], "map_hw": obs["maps"].shape[2],
-            "vec_dim": obs["vec"].shape[1], "n_actions": env.lat.n_actions,
-            "n_feat": N_FEAT if cfg.policy.features else 0}
+    return {
+        "map_ch": obs["maps"].shape[1],
+        "map_hw": obs["maps"].shape[2],
+        "vec_dim": obs["vec"].shape[1],
+        "n_actions": env.lat.n_actions,
+        "n_feat": N_FEAT if cfg.policy.features else 0,
+    }
 
 
-def train(cfg: TrainConfig, lattice: Lattice, run_dir: str | Path | Run, progress: Any = None,
-          resume: bool = False) -> dict:
+def train(cfg: TrainConfig, lattice: Lattice, run_dir: str | Path | Run, progress: Any = None, resume: bool = False) -> dict:
     """Train in the new folder ``run_dir`` (claimed exclusively), or with ``resume``
     continue the run there; returns the last iteration's log entry. The run is locked
     while it trains (a second trainer of it gets a one-line UserError). ``progress``: a
@@ -281,9 +287,9 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
     model = ActorCritic(**dims, cfg=cfg.policy)
     if cfg.init is not None and not resume:
         from .policy import load_policy
+
         src = load_policy(cfg.init)
-        if src.n_feat != dims["n_feat"] or src.cfg != cfg.policy or \
-                src.pi.out_features != dims["n_actions"]:
+        if src.n_feat != dims["n_feat"] or src.cfg != cfg.policy or src.pi.out_features != dims["n_actions"]:
             raise UserError(f"{cfg.init}: policy does not match this configuration")
         try:
             model.load_state_dict(src.state_dict())
@@ -304,8 +310,7 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
             raise UserError(f"{run_dir}: checkpoint does not match its config.json") from None
         start, buffer, best, elapsed0 = ck["iteration"], ck["buffer"], ck["best"], ck["elapsed"]
         if start > cfg.total_iterations:
-            raise UserError(f"{run_dir}: already has {start} iterations, more than the "
-                            f"{cfg.total_iterations} asked for")
+            raise UserError(f"{run_dir}: already has {start} iterations, more than the {cfg.total_iterations} asked for")
         set_rng_state({"torch": ck["torch_rng"], "numpy": ck["numpy_rng"]})
         if run.metrics_path.is_file() and run.metrics_path.read_text().strip():  # a damaged line: one-line error
             kept = [r for r in read_metrics(run_dir) if r["iteration"] <= start]
@@ -326,29 +331,31 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
             for g in opt.param_groups:
                 g["lr"] = cfg.bc_lr if bc else cfg.lr
             if bc:
-                beta = cfg.bc_beta0 * cfg.bc_beta_decay ** it
+                beta = cfg.bc_beta0 * cfg.bc_beta_decay**it
                 ro = _rollout(model, env, obs, cfg, use_feat, teacher, beta)
                 ro["ret"] = _discounted(ro["rew"], ro["alive"], cfg.gamma)
-                keep = {k: ro[k] for k in ("maps", "vec", "valid", "label", "alive", "ret")
-                        + (("feat",) if use_feat else ())}
+                keep = {k: ro[k] for k in ("maps", "vec", "valid", "label", "alive", "ret") + (("feat",) if use_feat else ())}
                 if cfg.env.kind == "semantic":  # half the buffer's memory (maps in [0, 1])
                     keep["maps"] = keep["maps"].half()
-                buffer = (buffer + [keep])[-cfg.bc_buffer:]
+                buffer = (buffer + [keep])[-cfg.bc_buffer :]
                 stats = {"beta": beta, **_bc_update(model, opt, buffer, cfg, use_feat)}
                 if it + 1 == cfg.bc_iterations:
                     buffer = []  # the warm start is over: keep checkpoints small
             else:
                 buffer = []  # not needed any more (and not stored in PPO checkpoints)
-                ro = _rollout(model, env, obs, cfg, use_feat,
-                              teacher if cfg.bc_anchor > 0 else None, 0.0)
+                ro = _rollout(model, env, obs, cfg, use_feat, teacher if cfg.bc_anchor > 0 else None, 0.0)
                 stats = _ppo_update(model, opt, ro, cfg, use_feat)
             m = env.metrics()
             tot = (ro["rew"].sum(0) / cfg.reward_scale).mean(0).tolist()
-            last = {"iteration": it + 1, "phase": "bc" if bc else "ppo",
-                    "time_s": round(elapsed0 + time.time() - t0, 1),
-                    "return": float(sum(tot)), **{f"r_{k}": v for k, v in zip(TERMS, tot)},
-                    **{k: float(m[k].mean()) for k in ("coverage", "entropy_reduction",
-                                                        "search_efficiency")}, **stats}
+            last = {
+                "iteration": it + 1,
+                "phase": "bc" if bc else "ppo",
+                "time_s": round(elapsed0 + time.time() - t0, 1),
+                "return": float(sum(tot)),
+                **{f"r_{k}": v for k, v in zip(TERMS, tot)},
+                **{k: float(m[k].mean()) for k in ("coverage", "entropy_reduction", "search_efficiency")},
+                **stats,
+            }
             if cfg.eval_every and ((it + 1) % cfg.eval_every == 0 or it + 1 == T_all):
                 ev = evaluate(model, lattice, cfg.env, cfg.eval_seed, cfg.eval_envs)
                 last.update({f"val_{k}": v for k, v in ev.items()})
@@ -359,10 +366,21 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
             if (it + 1) % cfg.log_every == 0 or it + 1 == T_all:
                 save_policy(model, dims, run_dir / "model.pt", cfg.env.kind)
                 rng = rng_state(tensors=True)  # loads with weights_only=True
-                run.save_checkpoint({"version": CHECKPOINT_VERSION, "iteration": it + 1, "model": model.state_dict(),
-                                     "opt": opt.state_dict(), "torch_rng": rng["torch"], "numpy_rng": rng["numpy"],
-                                     "buffer": buffer, "best": best, "elapsed": elapsed0 + time.time() - t0,
-                                     "dims": dims, "env_kind": cfg.env.kind})
+                run.save_checkpoint(
+                    {
+                        "version": CHECKPOINT_VERSION,
+                        "iteration": it + 1,
+                        "model": model.state_dict(),
+                        "opt": opt.state_dict(),
+                        "torch_rng": rng["torch"],
+                        "numpy_rng": rng["numpy"],
+                        "buffer": buffer,
+                        "best": best,
+                        "elapsed": elapsed0 + time.time() - t0,
+                        "dims": dims,
+                        "env_kind": cfg.env.kind,
+                    }
+                )
             if progress is not None:
                 progress.update(1)
                 progress.set_postfix(ret=f"{last['return']:.1f}", eff=f"{last['search_efficiency']:.0f}")

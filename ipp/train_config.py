@@ -60,8 +60,9 @@ class TrainConfig:
     valid_beta: tuple[float, float] = param((1.0, 0.2), "Eq. 2.7 beta1 (invalid), beta2 (valid)", ge=0)
     reward_scale: float = param(0.05, "rewards are multiplied by this (1/20: one target = 1)", gt=0)
     grad_clip: float = param(5.0, "gradient norm clip", gt=0)
-    adv_weights: tuple[float, ...] = param((1.0, 1.0, 1.0, 1.0, 1.0),
-                                           "per-term advantage weights: " + ",".join(TERMS) + " (thesis: all 1)")
+    adv_weights: tuple[float, ...] = param(
+        (1.0, 1.0, 1.0, 1.0, 1.0), "per-term advantage weights: " + ",".join(TERMS) + " (thesis: all 1)"
+    )
     seed: int = param(7, "random seed (training worlds: this suite seed)", ge=0)
     threads: int = param(1, "torch threads", ge=1)
     log_every: int = param(10, "checkpoint (and model.pt) every N iterations", ge=1)

@@ -31,8 +31,7 @@ class WorldConfig:
     n_targets: tuple[int, int] = param((10, 29), "inclusive range of targets (distinct cells)", ge=0)
     shift_max: float = param(8.0, "prior centre shift std ~ U[0, shift_max]", unit="cells", ge=0)
     n_spurious: tuple[int, int] = param((1, 4), "inclusive range of spurious prior components", ge=0)
-    spurious_var: tuple[float, float] = param((40.0, 50.0), "range of the spurious components' variances",
-                                              unit="cells^2", gt=0)
+    spurious_var: tuple[float, float] = param((40.0, 50.0), "range of the spurious components' variances", unit="cells^2", gt=0)
     prior_peak: float = param(0.8, "prior belief = floor + peak * mixture/max + noise: the peak", ge=0)
     prior_floor: float = param(0.02, "the prior belief's floor", ge=0)
     prior_noise: float = param(0.05, "std of the prior belief's noise", ge=0)
@@ -43,12 +42,12 @@ class WorldConfig:
 class Worlds:
     """A batch of worlds (arrays over the inner ``map_size`` square, indexed [n, y, x])."""
 
-    density: np.ndarray   # (N, H, W) true target distribution (sums to 1)
-    targets: np.ndarray   # (N, H, W) bool
-    prior: np.ndarray     # (N, H, W) prior belief P(target in cell)
-    kl: np.ndarray        # (N,) KL(truth || normalised prior), nats
-    kl_sym: np.ndarray    # (N,) KL(p||q) + KL(q||p)
-    seeds: np.ndarray     # (N, 2) int64 (suite seed, index)
+    density: np.ndarray  # (N, H, W) true target distribution (sums to 1)
+    targets: np.ndarray  # (N, H, W) bool
+    prior: np.ndarray  # (N, H, W) prior belief P(target in cell)
+    kl: np.ndarray  # (N,) KL(truth || normalised prior), nats
+    kl_sym: np.ndarray  # (N,) KL(p||q) + KL(q||p)
+    seeds: np.ndarray  # (N, 2) int64 (suite seed, index)
 
     def __len__(self) -> int:
         return len(self.kl)
@@ -99,12 +98,11 @@ def make_world(cfg: WorldConfig, seed: int, index: int) -> tuple[np.ndarray, np.
     mu_s = mu + rng.normal(0.0, shift, size=mu.shape) if shift > 0 else mu
     g1 = gmm_density(mu_s, cov, w, S)
     ks = int(rng.integers(cfg.n_spurious[0], cfg.n_spurious[1] + 1))
-    g2 = gmm_density(rng.uniform(0, S, size=(ks, 2)),
-                     _random_covs(rng, ks, cfg.spurious_var, cfg.max_cov),
-                     np.full(ks, 1.0 / ks), S)
+    g2 = gmm_density(
+        rng.uniform(0, S, size=(ks, 2)), _random_covs(rng, ks, cfg.spurious_var, cfg.max_cov), np.full(ks, 1.0 / ks), S
+    )
     mix = trust * g1 / g1.max() + (1 - trust) * g2 / g2.max()
-    prior = cfg.prior_floor + cfg.prior_peak * mix / mix.max() \
-        + cfg.prior_noise * np.abs(rng.normal(size=(S, S)))
+    prior = cfg.prior_floor + cfg.prior_peak * mix / mix.max() + cfg.prior_noise * np.abs(rng.normal(size=(S, S)))
     prior = np.clip(prior, *cfg.prior_clip)
     return dens, tg.reshape(S, S), prior
 

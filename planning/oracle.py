@@ -61,9 +61,20 @@ def roc_auc(score: np.ndarray, label: np.ndarray) -> float:
     return float((r[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
 
 
-def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidates: int = 150, seed: int = 0,
-                  leg_horizon: int = 500, alpha: float = 1.0, chunk: int = 4096, sim: dict | None = None,
-                  progress: bool = False, cand: Candidates | None = None) -> dict:
+def oracle_single(
+    algo: Algorithm,
+    data: Dataset,
+    goals: np.ndarray,
+    *,
+    candidates: int = 150,
+    seed: int = 0,
+    leg_horizon: int = 500,
+    alpha: float = 1.0,
+    chunk: int = 4096,
+    sim: dict | None = None,
+    progress: bool = False,
+    cand: Candidates | None = None,
+) -> dict:
     """Fly every first and second leg of the single-goal planner (see the module docstring).
     ``cand`` (:class:`~aerohrl.planning.planner.Candidates`) replaces the dataset's achieved
     goals, e.g. :func:`synthetic_candidates`."""
@@ -84,8 +95,8 @@ def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidat
     succ = np.zeros(E * C, bool)
     near = np.zeros(E * C, bool)
     for i in tqdm(range(0, E * C, chunk), desc="second legs", disable=None if progress else True, leave=False):
-        r = rollout(algo, _flights(pairs_s[i:i + chunk], pairs_g[i:i + chunk], leg_horizon), **sim)
-        succ[i:i + chunk], near[i:i + chunk] = r["success"], r["near_success"]
+        r = rollout(algo, _flights(pairs_s[i : i + chunk], pairs_g[i : i + chunk], leg_horizon), **sim)
+        succ[i : i + chunk], near[i : i + chunk] = r["success"], r["near_success"]
     succ, near = succ.reshape(E, C), near.reshape(E, C)
     dev = next(algo.parameters()).device
     f32 = dict(dtype=torch.float32, device=dev)
@@ -99,7 +110,11 @@ def oracle_single(algo: Algorithm, data: Dataset, goals: np.ndarray, *, candidat
     for lo in range(0, int(np.ceil(dist.max())) + 1):
         m = (dist >= lo) & (dist < lo + 1)
         if m.any():
-            by_dist[f"{lo}-{lo + 1} m"] = {"pairs": int(m.sum()), "success": float(succ[m].mean()), "near_success": float(near[m].mean())}
+            by_dist[f"{lo}-{lo + 1} m"] = {
+                "pairs": int(m.sum()),
+                "success": float(succ[m].mean()),
+                "near_success": float(near[m].mean()),
+            }
     return {
         "goals": E,
         "candidates": C,
@@ -141,8 +156,11 @@ def format_report(r: dict) -> str:
         f"oracle (best candidate, both legs): success {100 * r['oracle']:.1f} %, near {100 * r['oracle_near']:.1f} %",
         f"Eq. 3.7 choice, same composition:   success {100 * r['planner']:.1f} %, near {100 * r['planner_near']:.1f} %",
         f"critics' second-leg value, ROC AUC: success {r['auc_second_leg_value']:.3f}, near {r['auc_second_leg_value_near']:.3f}",
-        "second legs by distance |G - p_g|: " + ", ".join(
-            f"{k}: {100 * v['success']:.1f}/{100 * v['near_success']:.1f} % ({v['pairs']})" for k, v in r["second_leg_by_distance"].items()),
+        "second legs by distance |G - p_g|: "
+        + ", ".join(
+            f"{k}: {100 * v['success']:.1f}/{100 * v['near_success']:.1f} % ({v['pairs']})"
+            for k, v in r["second_leg_by_distance"].items()
+        ),
     ]
     return "\n".join(lines)
 

@@ -106,7 +106,7 @@ def leg_values(algo: Algorithm, states: torch.Tensor, goals: torch.Tensor, chunk
     """``Q_j(s, pi(s, g), g)`` for every critic j: (m, M) from states (M, 18), goals (M, 15)."""
     out = []
     for i in range(0, len(states), chunk):
-        s, g = states[i:i + chunk], goals[i:i + chunk]
+        s, g = states[i : i + chunk], goals[i : i + chunk]
         out.append(algo.critics(s, g, algo.act(s, g)))
     if not out:
         return torch.zeros(getattr(algo.cfg, "num_critics", 5), 0)
@@ -142,8 +142,17 @@ class Plan:
 class Planner:
     """Eq. 3.7 (``n = 1``) / Eq. 3.6 by beam search (``n > 1``) over :class:`Candidates`."""
 
-    def __init__(self, algo, candidates: Candidates, *, n: int = 1, alpha: float = DEFAULT_ALPHA, beam: int = 8,
-                 chunk: int = DEFAULT_CHUNK, min_leg: float = 0.0):
+    def __init__(
+        self,
+        algo,
+        candidates: Candidates,
+        *,
+        n: int = 1,
+        alpha: float = DEFAULT_ALPHA,
+        beam: int = 8,
+        chunk: int = DEFAULT_CHUNK,
+        min_leg: float = 0.0,
+    ):
         if len(candidates) == 0:
             raise ValueError("the planner's candidate set is empty")
         if n < 1:
@@ -152,7 +161,14 @@ class Planner:
             raise ValueError(f"beam width must be >= 1, got {beam}")
         if not min_leg >= 0:
             raise ValueError(f"the shortest first leg must be >= 0 m, got {min_leg}")
-        self.algo, self.cand, self.n, self.alpha, self.beam, self.chunk = algo, candidates, int(n), float(alpha), int(beam), int(chunk)
+        self.algo, self.cand, self.n, self.alpha, self.beam, self.chunk = (
+            algo,
+            candidates,
+            int(n),
+            float(alpha),
+            int(beam),
+            int(chunk),
+        )
         # candidates closer than this to the start are no intermediate goals (0: every candidate)
         self.min_leg = float(min_leg)
         dev = next(algo.parameters()).device
@@ -231,8 +247,9 @@ class Planner:
     def _result(self, seq: torch.Tensor, score: torch.Tensor, direct_score: torch.Tensor) -> Plan:
         seq = seq.cpu()
         goals = self.cand.goals[seq].double().numpy()
-        return Plan(goals, seq.numpy(), self.cand.frame[seq.numpy()], score.double().cpu().numpy(),
-                    direct_score.double().cpu().numpy())
+        return Plan(
+            goals, seq.numpy(), self.cand.frame[seq.numpy()], score.double().cpu().numpy(), direct_score.double().cpu().numpy()
+        )
 
 
 MAX_CHAIN = 12  # chain_length's bound on the number of intermediate goals
@@ -264,9 +281,16 @@ class Offsets:
         return torch.where(self.toward[:, None], biased, self.pos.expand(biased.shape))
 
 
-def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_range: tuple[float, float] = (-2.5, 2.5),
-                      acc_range: tuple[float, float] = (-5.0, 5.0), toward: float = 0.5,
-                      toward_range: tuple[float, float] = (1.0, 2.0)) -> Offsets:
+def synthetic_offsets(
+    C: int = 256,
+    seed: int = 0,
+    *,
+    pos_hi: float = 2.0,
+    vel_range: tuple[float, float] = (-2.5, 2.5),
+    acc_range: tuple[float, float] = (-5.0, 5.0),
+    toward: float = 0.5,
+    toward_range: tuple[float, float] = (1.0, 2.0),
+) -> Offsets:
     """C seeded offsets (module docstring): the first ``round(toward * C)`` biased toward G
     (position magnitude ``U(toward_range)`` per axis, signed at planning time), the rest
     ``dp ~ U(-pos_hi, pos_hi)``; all with ``v ~ U(vel_range)``, ``R = flat_attitude(a ~ U(acc_range))``."""
@@ -296,9 +320,14 @@ def synthetic_offsets(C: int = 256, seed: int = 0, *, pos_hi: float = 2.0, vel_r
 def offsets_from_spec(spec: dict | None, C: int = 256, seed: int = 0, **kw: Any) -> Offsets:
     """:func:`synthetic_offsets` with the ranges of a dataset spec (``pos_range`` hi, ``vel_range``, ``acc_range``)."""
     spec = spec or {}
-    return synthetic_offsets(C, seed, pos_hi=float((spec.get("pos_range") or (1.0, 2.0))[1]),
-                             vel_range=tuple(spec.get("vel_range") or (-2.5, 2.5)),
-                             acc_range=tuple(spec.get("acc_range") or (-5.0, 5.0)), **kw)
+    return synthetic_offsets(
+        C,
+        seed,
+        pos_hi=float((spec.get("pos_range") or (1.0, 2.0))[1]),
+        vel_range=tuple(spec.get("vel_range") or (-2.5, 2.5)),
+        acc_range=tuple(spec.get("acc_range") or (-5.0, 5.0)),
+        **kw,
+    )
 
 
 def chain_length(s0: np.ndarray, G: np.ndarray, step: float = 2.0, max_n: int = MAX_CHAIN) -> np.ndarray:
@@ -320,8 +349,9 @@ class ChainPlanner:
     ``Plan.index`` holds the offset index of each goal (-1 for a repeat), ``Plan.frame``
     -1 (no dataset frame), ``Plan.depth`` the number of distinct goals."""
 
-    def __init__(self, algo, offsets: Offsets, *, n: int = 1, alpha: float = DEFAULT_ALPHA, beam: int = 8,
-                 chunk: int = DEFAULT_CHUNK):
+    def __init__(
+        self, algo, offsets: Offsets, *, n: int = 1, alpha: float = DEFAULT_ALPHA, beam: int = 8, chunk: int = DEFAULT_CHUNK
+    ):
         if len(offsets) == 0:
             raise ValueError("the chain planner's offset set is empty")
         if n < 1:
@@ -353,10 +383,16 @@ class ChainPlanner:
         k = self.beam
         per_episode = k * C * (4 * m + 2 * task.STATE_DIM + 2 * task.GOAL_DIM)  # floats of one episode's depth step
         block = max(1, BEAM_FLOATS // per_episode)
-        parts = [self._search(s0[i:i + block], G[i:i + block], n) for i in range(0, E, block)]
+        parts = [self._search(s0[i : i + block], G[i : i + block], n) for i in range(0, E, block)]
         goals, index, score, depth = (torch.cat(x) for x in zip(*parts))
-        return Plan(goals.double().cpu().numpy(), index.cpu().numpy(), np.full((E, n), -1, np.int64),
-                    score.double().cpu().numpy(), direct_score.double().cpu().numpy(), depth.cpu().numpy())
+        return Plan(
+            goals.double().cpu().numpy(),
+            index.cpu().numpy(),
+            np.full((E, n), -1, np.int64),
+            score.double().cpu().numpy(),
+            direct_score.double().cpu().numpy(),
+            depth.cpu().numpy(),
+        )
 
     def _search(self, s0: torch.Tensor, G: torch.Tensor, n: int):
         """Beam search of Eq. 3.6 over chains for a block of episodes; the best completed chain of depth 1..n."""
@@ -401,5 +437,16 @@ class ChainPlanner:
         return best_goals, best_index, best_score, best_depth
 
 
-__all__ = ["Candidates", "candidates_from_dataset", "leg_values", "Planner", "Plan", "DEFAULT_ALPHA",
-           "ChainPlanner", "Offsets", "synthetic_offsets", "offsets_from_spec", "chain_length"]
+__all__ = [
+    "Candidates",
+    "candidates_from_dataset",
+    "leg_values",
+    "Planner",
+    "Plan",
+    "DEFAULT_ALPHA",
+    "ChainPlanner",
+    "Offsets",
+    "synthetic_offsets",
+    "offsets_from_spec",
+    "chain_length",
+]

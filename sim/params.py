@@ -90,12 +90,14 @@ class QuadrotorParams:
         Mz = sum dir_i (k_m / k_eta) f_i. Same construction as RotorPy's ``f_to_TM``.
         """
         r = self.rotor_positions
-        return np.vstack([
-            np.ones(4),
-            r[:, 1],
-            -r[:, 0],
-            (self.k_m / self.k_eta) * np.asarray(self.rotor_directions, dtype=np.float64),
-        ])
+        return np.vstack(
+            [
+                np.ones(4),
+                r[:, 1],
+                -r[:, 0],
+                (self.k_m / self.k_eta) * np.asarray(self.rotor_directions, dtype=np.float64),
+            ]
+        )
 
     @property
     def hover_rotor_speed(self) -> float:

@@ -83,7 +83,7 @@ _STEP = {b"c": "step_ctbr", b"s": "step_speeds"}
 def _shared_arrays(buf, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Views ``X0, X1, u, cmd`` over a shared block of ``(2 NX + 8) n`` float64."""
     a = np.ndarray((2 * dyn.NX + 8, n), dtype=np.float64, buffer=buf)
-    return a[: dyn.NX], a[dyn.NX: 2 * dyn.NX], a[2 * dyn.NX: 2 * dyn.NX + 4], a[2 * dyn.NX + 4:]
+    return a[: dyn.NX], a[dyn.NX : 2 * dyn.NX], a[2 * dyn.NX : 2 * dyn.NX + 4], a[2 * dyn.NX + 4 :]
 
 
 def _worker(conn, shm_name: str, model: dyn.Model, n: int, h: float, substeps: int) -> None:
@@ -135,8 +135,9 @@ class _ProcChunk:
         # forkserver, not fork: the parent may hold torch/OpenMP threads, which fork copies badly
         ctx = get_context("forkserver")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_worker, args=(child, self._shm.name, model, n, h, substeps),
-                                 daemon=True, name="aerohrl-sim")
+        self._proc = ctx.Process(
+            target=_worker, args=(child, self._shm.name, model, n, h, substeps), daemon=True, name="aerohrl-sim"
+        )
         self._proc.start()
         child.close()
         self._finalizer = weakref.finalize(self, _shutdown, self._proc, self._conn, self._shm)
@@ -172,8 +173,16 @@ class BatchedQuadrotor:
     :meth:`close` (or when the simulator is garbage collected / the program exits).
     """
 
-    def __init__(self, params: QuadrotorParams, num_vehicles: int, *, dt: float = 0.01, substeps: int = 5,
-                 threads: int = 1, processes: int = 1):
+    def __init__(
+        self,
+        params: QuadrotorParams,
+        num_vehicles: int,
+        *,
+        dt: float = 0.01,
+        substeps: int = 5,
+        threads: int = 1,
+        processes: int = 1,
+    ):
         if int(num_vehicles) < 1:
             raise ValueError(f"num_vehicles must be >= 1, got {num_vehicles}")
         if not dt > 0 or int(substeps) < 1:
@@ -191,9 +200,10 @@ class BatchedQuadrotor:
         parts = max(threads, processes)
         bounds = np.linspace(0, n, parts + 1).round().astype(int)
         self._slices = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
-        self._chunks = [(_ProcChunk if i > 0 and processes > 1 else _Chunk)(self.model, sl.stop - sl.start, self.h,
-                                                                           self.substeps)
-                        for i, sl in enumerate(self._slices)]
+        self._chunks = [
+            (_ProcChunk if i > 0 and processes > 1 else _Chunk)(self.model, sl.stop - sl.start, self.h, self.substeps)
+            for i, sl in enumerate(self._slices)
+        ]
         self.threads = threads
         self.processes = processes
         self.t = 0.0
@@ -240,8 +250,9 @@ class BatchedQuadrotor:
             err = np.abs(R @ np.swapaxes(R, 1, 2) - np.eye(3)).max(axis=(1, 2))
             if (err > 1e-3).any() or (np.linalg.det(R) < 0).any():
                 bad = int(np.argmax(err))
-                raise ValueError(f"state {bad}: R (entries 6:15, row-major) is not a rotation matrix "
-                                 f"(|R R^T - I| = {err[bad]:.2g})")
+                raise ValueError(
+                    f"state {bad}: R (entries 6:15, row-major) is not a rotation matrix (|R R^T - I| = {err[bad]:.2g})"
+                )
         om = None if rotor_speeds is None else self._check(rotor_speeds, 4, "rotor_speeds")
         for sl, c in zip(self._slices, self._chunks):
             X = c.X
@@ -314,5 +325,7 @@ class BatchedQuadrotor:
         self.close()
 
     def __repr__(self) -> str:
-        return (f"BatchedQuadrotor({self.params.name!r}, num_vehicles={self.num_vehicles}, dt={self.dt}, "
-                f"substeps={self.substeps}, threads={self.threads}, processes={self.processes})")
+        return (
+            f"BatchedQuadrotor({self.params.name!r}, num_vehicles={self.num_vehicles}, dt={self.dt}, "
+            f"substeps={self.substeps}, threads={self.threads}, processes={self.processes})"
+        )

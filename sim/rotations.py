@@ -14,8 +14,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "hat", "vee", "orthonormalize", "geodesic_angle",
-    "from_quat", "to_quat", "from_euler",
+    "hat",
+    "vee",
+    "orthonormalize",
+    "geodesic_angle",
+    "from_quat",
+    "to_quat",
+    "from_euler",
 ]
 
 
@@ -24,11 +29,14 @@ def hat(w: np.ndarray) -> np.ndarray:
     w = np.asarray(w, dtype=np.float64)
     z = np.zeros(w.shape[:-1])
     x, y, zz = w[..., 0], w[..., 1], w[..., 2]
-    return np.stack([
-        np.stack([z, -zz, y], -1),
-        np.stack([zz, z, -x], -1),
-        np.stack([-y, x, z], -1),
-    ], -2)
+    return np.stack(
+        [
+            np.stack([z, -zz, y], -1),
+            np.stack([zz, z, -x], -1),
+            np.stack([-y, x, z], -1),
+        ],
+        -2,
+    )
 
 
 def vee(S: np.ndarray) -> np.ndarray:

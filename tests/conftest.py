@@ -111,8 +111,10 @@ def dead_pid() -> int:
 def small_disk(tmp_path, monkeypatch):
     mnt = tmp_path / "small-disk"
     mnt.mkdir()
-    real = os.geteuid() == 0 and subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
-                                               capture_output=True).returncode == 0
+    real = (
+        os.geteuid() == 0
+        and subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)], capture_output=True).returncode == 0
+    )
     try:
         yield SmallDisk(mnt, real, monkeypatch)
     finally:

@@ -13,8 +13,7 @@ from aerohrl.algorithms.trainer import start_run
 from aerohrl.errors import UserError
 
 warnings.filterwarnings("ignore", category=UserWarning)
-TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=64, steps=40, log_every=10, checkpoint_every=40,
-            eval_every=0)
+TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=64, steps=40, log_every=10, checkpoint_every=40, eval_every=0)
 
 
 @pytest.fixture(scope="module")
@@ -62,21 +61,27 @@ def test_cql_lagrange_scales_the_penalty_and_ascends_on_it():
     """Kumar et al.'s form: the critics get α' ∇P (a penalty at any α'), α' grows while the
     gap exceeds τ and shrinks below it; no gradient crosses between the two."""
     from aerohrl.algorithms.cql import lagrange_terms
+
     for gap, grows in ((8.0, True), (2.0, False)):
-        loss_cql = torch.tensor(2 * gap, requires_grad=True)   # mean(P1 + P2)
+        loss_cql = torch.tensor(2 * gap, requires_grad=True)  # mean(P1 + P2)
         log_ap = torch.tensor(float(torch.log(torch.tensor(3.0))), requires_grad=True)  # α' = 3 > 2
         critics, dual, ap, mean_gap = lagrange_terms(loss_cql, log_ap, thresh=5.0)
         critics.backward()
         assert loss_cql.grad.item() == pytest.approx(3.0) and log_ap.grad is None
         assert mean_gap.item() == pytest.approx(gap) and ap.item() == pytest.approx(3.0)
         dual.backward()
-        assert loss_cql.grad.item() == pytest.approx(3.0)      # unchanged by the dual loss
-        assert (log_ap.grad.item() < 0) == grows                # gradient descent on -α'(P̄ - τ)
+        assert loss_cql.grad.item() == pytest.approx(3.0)  # unchanged by the dual loss
+        assert (log_ap.grad.item() < 0) == grows  # gradient descent on -α'(P̄ - τ)
 
 
-@pytest.mark.parametrize("kw, msg", [({"alpha_schedule": "cosine"}, "alpha_schedule must be one of constant, linear"),
-                                     ({"awr_normalize": "max"}, "awr_normalize must be one of std, none"),
-                                     ({"cql_lagrange_thresh": -1.0}, "cql_lagrange_thresh must be >= 0")])
+@pytest.mark.parametrize(
+    "kw, msg",
+    [
+        ({"alpha_schedule": "cosine"}, "alpha_schedule must be one of constant, linear"),
+        ({"awr_normalize": "max"}, "awr_normalize must be one of std, none"),
+        ({"cql_lagrange_thresh": -1.0}, "cql_lagrange_thresh must be >= 0"),
+    ],
+)
 def test_bad_options_are_one_line_errors(ds, kw, msg):
     with pytest.raises(UserError, match=msg):
         make_config("cpu", algo="td3bc", dataset=str(ds), **kw)

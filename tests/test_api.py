@@ -47,8 +47,11 @@ def test_readme_example_runs(tmp_path):
     n_lines = len(code.strip().splitlines())
     assert 10 <= n_lines <= 20, n_lines
     small = code
-    for old, new in (("goals=250", "goals=12"), ('"steps": 3000', '"steps": 40, "hidden": (32, 32), "batch_size": 64'),
-                     ("episodes=250", "episodes=12")):
+    for old, new in (
+        ("goals=250", "goals=12"),
+        ('"steps": 3000', '"steps": 40, "hidden": (32, 32), "batch_size": 64'),
+        ("episodes=250", "episodes=12"),
+    ):
         assert old in small, f"the README example no longer says {old}: update this test"
         small = small.replace(old, new)
     p = _run(small, tmp_path)
@@ -63,22 +66,32 @@ def test_readme_example_runs(tmp_path):
 
 
 def test_import_aerohrl_is_light():
-    p = _run("import sys, aerohrl; print(sorted(m for m in ('numpy', 'torch', 'gymnasium', 'lerobot', 'torchrl') if m in sys.modules))", ROOT)
+    p = _run(
+        "import sys, aerohrl; print(sorted(m for m in ('numpy', 'torch', 'gymnasium', 'lerobot', 'torchrl') if m in sys.modules))",
+        ROOT,
+    )
     assert p.returncode == 0 and p.stdout.strip() == "[]", (p.stdout, p.stderr)
     p = _run("import aerohrl; print(aerohrl.train.__module__, aerohrl.Run.__name__, 'load_policy' in dir(aerohrl))", ROOT)
     assert p.stdout.split() == ["aerohrl.api", "Run", "True"], p.stderr
 
 
-@pytest.mark.parametrize("code", [
-    "import aerohrl\nimport gymnasium as gym\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
-    "import gymnasium as gym\nimport aerohrl\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
-    "import gymnasium as gym\nenv = gym.make('aerohrl:aerohrl/QuadrotorReach-v0')",
-    "import gymnasium as gym\nenv = gym.make_vec('aerohrl:aerohrl/QuadrotorReach-v0', num_envs=3, vectorization_mode='vector_entry_point')",
-    # torchrl asks importlib.util.find_spec("gymnasium") before anyone imports it
-    "import aerohrl, importlib.util\nimportlib.util.find_spec('gymnasium')\nimport torchrl\nimport gymnasium as gym\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
-], ids=["aerohrl-first", "gymnasium-first", "module-prefix", "vector", "find-spec-first"])
+@pytest.mark.parametrize(
+    "code",
+    [
+        "import aerohrl\nimport gymnasium as gym\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
+        "import gymnasium as gym\nimport aerohrl\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
+        "import gymnasium as gym\nenv = gym.make('aerohrl:aerohrl/QuadrotorReach-v0')",
+        "import gymnasium as gym\nenv = gym.make_vec('aerohrl:aerohrl/QuadrotorReach-v0', num_envs=3, vectorization_mode='vector_entry_point')",
+        # torchrl asks importlib.util.find_spec("gymnasium") before anyone imports it
+        "import aerohrl, importlib.util\nimportlib.util.find_spec('gymnasium')\nimport torchrl\nimport gymnasium as gym\nenv = gym.make('aerohrl/QuadrotorReach-v0')",
+    ],
+    ids=["aerohrl-first", "gymnasium-first", "module-prefix", "vector", "find-spec-first"],
+)
 def test_gymnasium_make_without_importing_the_env_module(code):
-    p = _run(code + "\nimport sys\nobs, _ = env.reset(seed=0)\nprint(obs['desired_goal'].shape, 'aerohrl.envs.reach' in sys.modules)", ROOT)
+    p = _run(
+        code + "\nimport sys\nobs, _ = env.reset(seed=0)\nprint(obs['desired_goal'].shape, 'aerohrl.envs.reach' in sys.modules)",
+        ROOT,
+    )
     assert p.returncode == 0, p.stderr[-2000:]
     assert p.stdout.split()[-1] == "True" and ("(15,)" in p.stdout or "(3, 15)" in p.stdout), p.stdout
 

@@ -97,8 +97,14 @@ def test_sampler_reflects_the_whole_transition():
     assert 0.6 < flips.float().mean().item() < 0.9  # 3 of 4 reflections flip something
     torch.testing.assert_close(b["state"].double(), mirror_state(st, m), atol=1e-6, rtol=0)
     torch.testing.assert_close(b["next_state"].double(), mirror_state(nx, m), atol=1e-6, rtol=0)
-    torch.testing.assert_close(norm.action_from_unit(b["action"]).double(), mirror_action(data.action[idx].double(), m), atol=1e-4, rtol=0)
+    torch.testing.assert_close(
+        norm.action_from_unit(b["action"]).double(), mirror_action(data.action[idx].double(), m), atol=1e-4, rtol=0
+    )
     # rewards follow the reflected transition's own goal test
-    torch.testing.assert_close(b["next", "reward"].squeeze(-1), task.goal_reached(b["next_state"][:, :15], b["goal"]).to(b["next", "reward"].dtype))
+    torch.testing.assert_close(
+        b["next", "reward"].squeeze(-1), task.goal_reached(b["next_state"][:, :15], b["goal"]).to(b["next", "reward"].dtype)
+    )
     # with augmentation off the batch is the plain one
-    assert torch.equal(plain.sample()["index"], GoalBatchSampler(data, norm, 512, 0.5, torch.Generator().manual_seed(0)).sample()["index"])
+    assert torch.equal(
+        plain.sample()["index"], GoalBatchSampler(data, norm, 512, 0.5, torch.Generator().manual_seed(0)).sample()["index"]
+    )

@@ -194,11 +194,20 @@ def test_continuation_episodes_are_not_reach_desired_goals(tmp_path):
     assert read_manifest(res.path)["continuations"]["episodes"] == 12
 
 
-@pytest.mark.parametrize("kw,msg", [
-    ({"continuations": -1}, "continuations must be >= 0"), ({"seed": -1}, "seed must be >= 0"),
-    ({"goals": 0}, "goals must be >= 1"), ({"goals": -4}, "goals must be >= 1"), ({"goals": 2.5}, "goals must be an integer"), ({"pos_range": (2.0, 1.0)}, "inverted"),
-    ({"vel_range": (1.0, 1.0)}, "empty"), ({"solver": "cvx"}, "solver"), ({"degree": 7}, "closed-form"),
-])
+@pytest.mark.parametrize(
+    "kw,msg",
+    [
+        ({"continuations": -1}, "continuations must be >= 0"),
+        ({"seed": -1}, "seed must be >= 0"),
+        ({"goals": 0}, "goals must be >= 1"),
+        ({"goals": -4}, "goals must be >= 1"),
+        ({"goals": 2.5}, "goals must be an integer"),
+        ({"pos_range": (2.0, 1.0)}, "inverted"),
+        ({"vel_range": (1.0, 1.0)}, "empty"),
+        ({"solver": "cvx"}, "solver"),
+        ({"degree": 7}, "closed-form"),
+    ],
+)
 def test_bad_specs_are_one_line_errors(kw, msg):
     with pytest.raises(UserError, match=msg) as e:
         DatasetSpec(**kw)

@@ -21,38 +21,47 @@ from aerohrl.cli_common import COMMON, run_name
 
 def _train():
     from aerohrl.algorithms.cli import parser
+
     return parser(), []
 
 
 def _datagen(*sub):
     def make():
         from aerohrl.datagen.cli import parser
+
         return parser(), list(sub)
+
     return make
 
 
 def _eval(sub=None):
     def make():
         from aerohrl.eval import cli
+
         p = {None: cli._eval_parser, "table": cli._table_parser, "plot": cli._plot_parser, "oracle": cli._oracle_parser}[sub]()
         return p, []
+
     return make
 
 
 def _runs():
     from aerohrl.runs import parser
+
     return parser(), ["show", "runs/r"]
 
 
 def _ipp(*sub):
     def make():
         from aerohrl.ipp.cli import _parser
+
         return _parser(), list(sub)
+
     return make
 
 
 def _sweep():
     from aerohrl.sweep import parser
+
     return parser(), []
 
 
@@ -75,8 +84,13 @@ COMMANDS = {
     "aerohrl ipp lattice build": (_ipp("lattice", "build"), [], {"out"}),
     "aerohrl sweep": (_sweep, [], {"out", "device"}),
 }
-VALUES = {"out": ["--out", "x/y"], "quiet": ["--quiet"], "threads": ["--threads", "3"], "seed": ["--seed", "5"],
-          "device": ["--device", "cpu"]}
+VALUES = {
+    "out": ["--out", "x/y"],
+    "quiet": ["--quiet"],
+    "threads": ["--threads", "3"],
+    "seed": ["--seed", "5"],
+    "device": ["--device", "cpu"],
+}
 EXPECTED = {"out": "x/y", "quiet": True, "threads": 3, "seed": 5, "device": "cpu"}
 
 
@@ -192,8 +206,9 @@ def test_every_flag_has_help():
             if sp is None or sub not in sp.choices:
                 break
             p = sp.choices[sub]
-        undocumented += [f"{name} {a.option_strings[-1]}" for a in p._actions
-                         if a.option_strings and a.help is None and a.dest != "help"]
+        undocumented += [
+            f"{name} {a.option_strings[-1]}" for a in p._actions if a.option_strings and a.help is None and a.dest != "help"
+        ]
     assert not undocumented, undocumented
 
 
@@ -225,9 +240,11 @@ def test_eval_family_choices_match_the_families():
 def test_help_imports_no_torch(argv):
     """--help loads neither torch nor lerobot (lazy imports: the help is fast)."""
     entry = {"train": "aerohrl.algorithms.cli", "datagen": "aerohrl.datagen.cli", "aerohrl": "aerohrl.cli"}[argv[0]]
-    code = (f"import sys\nfrom {entry} import main\ntry:\n    main({argv[1:] + ['--help']!r})\nexcept SystemExit:\n    pass\n"
-            "heavy = sorted(m for m in ('torch', 'lerobot', 'scipy.ndimage', 'torchrl') if m in sys.modules)\n"
-            "print('HEAVY', heavy)")
+    code = (
+        f"import sys\nfrom {entry} import main\ntry:\n    main({argv[1:] + ['--help']!r})\nexcept SystemExit:\n    pass\n"
+        "heavy = sorted(m for m in ('torch', 'lerobot', 'scipy.ndimage', 'torchrl') if m in sys.modules)\n"
+        "print('HEAVY', heavy)"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().splitlines()[-1] == "HEAVY []", r.stdout[-300:]
@@ -261,8 +278,17 @@ def test_config_round_trip(tmp_path):
     """save -> load -> the same config; flags override the file's values."""
     from aerohrl.algorithms import config as C
 
-    cfg = C.make_config("thesis", algo="td3bc", dataset="/data/ds", seed=3, hidden=(64, 32), critic_hidden=(),
-                        amp="bf16", lr_actor=2.5e-4, mc_lower_bound=True)
+    cfg = C.make_config(
+        "thesis",
+        algo="td3bc",
+        dataset="/data/ds",
+        seed=3,
+        hidden=(64, 32),
+        critic_hidden=(),
+        amp="bf16",
+        lr_actor=2.5e-4,
+        mc_lower_bound=True,
+    )
     f = tmp_path / C.TOML_NAME
     f.write_text(C.to_toml(cfg))
     assert _cfg(["--config", str(f)]) == cfg
@@ -281,13 +307,16 @@ def test_config_file_may_be_partial(tmp_path):
     assert isinstance(cfg.relabel_mean_offset, float)
 
 
-@pytest.mark.parametrize("text,match", [
-    ('algo = "gcsl"\nlearning_rate = 1e-3\n', "unknown key(s) learning_rate"),
-    ('steps = "many"\n', "steps must be an integer"),
-    ('hidden = [64, "x"]\n', "hidden must be a list of integers"),
-    ('algo = "gcsl"\nsteps = \n', "is not valid TOML"),
-    ('algo = "sac"\ndataset = "d"\n', "algo must be one of gcsl, td3bc, td3awbc, cql, got 'sac'"),
-])
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ('algo = "gcsl"\nlearning_rate = 1e-3\n', "unknown key(s) learning_rate"),
+        ('steps = "many"\n', "steps must be an integer"),
+        ('hidden = [64, "x"]\n', "hidden must be a list of integers"),
+        ('algo = "gcsl"\nsteps = \n', "is not valid TOML"),
+        ('algo = "sac"\ndataset = "d"\n', "algo must be one of gcsl, td3bc, td3awbc, cql, got 'sac'"),
+    ],
+)
 def test_bad_config_file_is_one_line(tmp_path, capsys, text, match):
     from aerohrl.algorithms.cli import main
 

@@ -31,10 +31,15 @@ class Cfg:
 
 def test_defaults_validate_and_each_bound_is_one_line():
     K.validate(Cfg())
-    for values, match in (({"steps": 0}, "steps must be >= 1, got 0"), ({"lr": 0.0}, "lr must be > 0"),
-                          ({"expectile": 1.0}, "expectile must be < 1"), ({"hidden": [8, 0]}, "hidden must be >= 1"),
-                          ({"alpha": -1.0}, "alpha must be >= 0"), ({"schedule": "cosine"}, "schedule must be one of constant, linear"),
-                          ({"lr": math.nan}, "lr must be a finite number")):
+    for values, match in (
+        ({"steps": 0}, "steps must be >= 1, got 0"),
+        ({"lr": 0.0}, "lr must be > 0"),
+        ({"expectile": 1.0}, "expectile must be < 1"),
+        ({"hidden": [8, 0]}, "hidden must be >= 1"),
+        ({"alpha": -1.0}, "alpha must be >= 0"),
+        ({"schedule": "cosine"}, "schedule must be one of constant, linear"),
+        ({"lr": math.nan}, "lr must be a finite number"),
+    ):
         with pytest.raises(K.ConfigError, match=match) as e:
             K.from_mapping(Cfg, values, where="f.toml")
         assert "\n" not in str(e.value) and isinstance(e.value, ValueError)
@@ -46,8 +51,12 @@ def test_mappings_coerce_nest_and_refuse_unknown_keys():
     assert K.from_mapping(Cfg, {"actor": {"schedule": "constant"}}).actor.schedule == "constant"  # a section as a sub-table
     with pytest.raises(K.ConfigError, match=r"f.toml: unknown key\(s\) stesp \(did you mean steps\?\)"):
         K.from_mapping(Cfg, {"stesp": 5}, where="f.toml")
-    for bad, what in (({"steps": 1.5}, "an integer"), ({"ema": 1}, "true or false"), ({"hidden": [1.5]}, "a list of integers"),
-                      ({"schedule": 3}, "a string")):
+    for bad, what in (
+        ({"steps": 1.5}, "an integer"),
+        ({"ema": 1}, "true or false"),
+        ({"hidden": [1.5]}, "a list of integers"),
+        ({"schedule": 3}, "a string"),
+    ):
         with pytest.raises(K.ConfigError, match=what):
             K.from_mapping(Cfg, bad)
 
@@ -74,8 +83,12 @@ def test_flags_come_from_the_fields(capsys):
     assert "learning rate (1/step) [cpu: 0.001]" in " ".join(text.split())
     a = p.parse_args(["--steps", "3", "--hidden", "4", "4", "--schedule", "constant", "--no-ema"])
     assert K.given_flags(a, Cfg) == {"steps": 3, "hidden": (4, 4), "ema": False, "schedule": "constant"}
-    for argv, match in ((["--steps", "0"], "must be >= 1, got 0"), (["--expectile", "1"], "must be < 1"),
-                        (["--lr", "nan"], "finite"), (["--schedule", "x"], "invalid choice")):
+    for argv, match in (
+        (["--steps", "0"], "must be >= 1, got 0"),
+        (["--expectile", "1"], "must be < 1"),
+        (["--lr", "nan"], "finite"),
+        (["--schedule", "x"], "invalid choice"),
+    ):
         with pytest.raises(SystemExit) as e:
             p.parse_args(argv)
         err = capsys.readouterr().err.strip().splitlines()

@@ -60,15 +60,19 @@ def test_core_commands_without_the_optional_packages(tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     assert "CORE-OK []" in p.stdout, p.stdout
     # what needs an extra says so in one line, exit 2, nothing created
-    for argv, extra in ((["train", "--algo", "gcsl", "--dataset", "ds/quadrotor-reach", "--out", "runs"], "train"),
-                        (["eval", "--task", "reach-desired", "--run", "runs/x"], "train")):
+    for argv, extra in (
+        (["train", "--algo", "gcsl", "--dataset", "ds/quadrotor-reach", "--out", "runs"], "train"),
+        (["eval", "--task", "reach-desired", "--run", "runs/x"], "train"),
+    ):
         p = _py(HIDE + f"from aerohrl.cli import main\nraise SystemExit(main({argv!r}))", tmp_path)
         assert p.returncode == 2 and p.stderr.count("\n") == 1 and f"pip install 'aerohrl[{extra}]'" in p.stderr, p.stderr
     # `runs show` reads a run folder without torch (checksums, metrics, the plot): a missing run is the error
     p = _py(HIDE + "from aerohrl.cli import main\nraise SystemExit(main(['runs', 'show', 'runs/x']))", tmp_path)
     assert p.returncode == 2 and p.stderr == "aerohrl runs: error: no run at runs/x (no config.json)\n", p.stderr
     assert not (tmp_path / "runs").exists()
-    p = _py(HIDE + "import aerohrl\naerohrl.load_dataset(__import__('glob').glob('ds/quadrotor-reach/*')[0], as_='lerobot')", tmp_path)
+    p = _py(
+        HIDE + "import aerohrl\naerohrl.load_dataset(__import__('glob').glob('ds/quadrotor-reach/*')[0], as_='lerobot')", tmp_path
+    )
     assert p.returncode != 0 and "pip install 'aerohrl[lerobot]'" in p.stderr
 
 
@@ -87,11 +91,24 @@ def test_core_only_venv_builds_and_validates(tmp_path):
     env_dir = tmp_path / "venv"
     venv.EnvBuilder(with_pip=True).create(env_dir)
     py = str(env_dir / "bin" / "python")
-    pip = subprocess.run([py, "-m", "pip", "install", "-q", "-c", str(ROOT / "constraints.txt"), str(src)],
-                         capture_output=True, text=True, timeout=900, env={**os.environ, "PIP_DISABLE_PIP_VERSION_CHECK": "1"})
+    pip = subprocess.run(
+        [py, "-m", "pip", "install", "-q", "-c", str(ROOT / "constraints.txt"), str(src)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env={**os.environ, "PIP_DISABLE_PIP_VERSION_CHECK": "1"},
+    )
     if pip.returncode != 0:
-        if any(s in pip.stderr for s in ("No matching distribution", "Could not find a version", "NewConnectionError",
-                                         "Network is unreachable", "Temporary failure in name resolution")):
+        if any(
+            s in pip.stderr
+            for s in (
+                "No matching distribution",
+                "Could not find a version",
+                "NewConnectionError",
+                "Network is unreachable",
+                "Temporary failure in name resolution",
+            )
+        ):
             pytest.skip(f"pip could not fetch the core dependencies: {pip.stderr.strip().splitlines()[-1]}")
         raise AssertionError(pip.stderr[-3000:])
     listed = subprocess.run([py, "-m", "pip", "list", "--format=freeze"], capture_output=True, text=True).stdout.lower()
@@ -105,7 +122,9 @@ def test_core_only_venv_builds_and_validates(tmp_path):
     for cmd in (["datagen", "validate", *map(str, (work / "ds" / "quadrotor-reach").iterdir())], ["aerohrl", "--version"]):
         q = subprocess.run([str(env_dir / "bin" / cmd[0]), *cmd[1:]], capture_output=True, text=True, cwd=work)
         assert q.returncode == 0, q.stderr
-    q = subprocess.run([str(env_dir / "bin" / "train"), "--algo", "gcsl", "--dataset", "x"], capture_output=True, text=True, cwd=work)
+    q = subprocess.run(
+        [str(env_dir / "bin" / "train"), "--algo", "gcsl", "--dataset", "x"], capture_output=True, text=True, cwd=work
+    )
     assert q.returncode == 2 and "pip install 'aerohrl[train]'" in q.stderr and "Traceback" not in q.stderr, q.stderr
     sizes = sum(f.stat().st_size for f in env_dir.rglob("*") if f.is_file())
     assert sizes < 800e6, f"core venv is {sizes / 1e6:.0f} MB"  # 613 MB measured (the full one: 5.7 GB)

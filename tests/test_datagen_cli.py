@@ -19,11 +19,25 @@ def assert_one_line_error(p):
     assert len(lines) == 1 and "error" in lines[0], p.stderr
 
 
-@pytest.mark.parametrize("flags", [
-    ["--goals", "0"], ["--goals", "-3"], ["--goals", "many"], ["--pos-range", "2", "1"], ["--vel-range", "1", "1"],
-    ["--acc-range", "5", "-5"], ["--solver", "magic"], ["--vehicle", "blimp"], ["--spec", "/nonexistent.toml"],
-    ["--seed", "-1"], ["--fps", "0"], ["--a-max", "-1"], ["--t-max", "nan"], ["--continuations", "-2"],
-])
+@pytest.mark.parametrize(
+    "flags",
+    [
+        ["--goals", "0"],
+        ["--goals", "-3"],
+        ["--goals", "many"],
+        ["--pos-range", "2", "1"],
+        ["--vel-range", "1", "1"],
+        ["--acc-range", "5", "-5"],
+        ["--solver", "magic"],
+        ["--vehicle", "blimp"],
+        ["--spec", "/nonexistent.toml"],
+        ["--seed", "-1"],
+        ["--fps", "0"],
+        ["--a-max", "-1"],
+        ["--t-max", "nan"],
+        ["--continuations", "-2"],
+    ],
+)
 def test_build_bad_input(flags, tmp_path):
     assert_one_line_error(run("aerohrl.datagen.cli", "build", "--out", str(tmp_path), *flags))
 
@@ -37,7 +51,9 @@ def test_build_unwritable_output(tmp_path):
     assert_one_line_error(p)
 
 
-@pytest.mark.parametrize("cmd", [["validate"], ["info"], ["plot", "-o", "x.png"], ["export-mcap", "--episode", "0", "-o", "x.mcap"]])
+@pytest.mark.parametrize(
+    "cmd", [["validate"], ["info"], ["plot", "-o", "x.png"], ["export-mcap", "--episode", "0", "-o", "x.mcap"]]
+)
 def test_missing_dataset(cmd, tmp_path):
     assert_one_line_error(run("aerohrl.datagen.cli", cmd[0], str(tmp_path / "nope"), *cmd[1:], cwd=tmp_path))
 
@@ -76,16 +92,26 @@ def test_reading_commands_warn_on_a_damaged_dataset(tmp_path, capsys):
     from aerohrl.datagen.spec import DatasetSpec
 
     path = build(DatasetSpec(goals=3, seed=4), tmp_path, progress=False, log=lambda *a: None).path
-    for cmd in (["info"], ["plot", "-o", str(tmp_path / "g.png")], ["export-mcap", "--episode", "0", "-o", str(tmp_path / "e.mcap")]):
+    for cmd in (
+        ["info"],
+        ["plot", "-o", str(tmp_path / "g.png")],
+        ["export-mcap", "--episode", "0", "-o", str(tmp_path / "e.mcap")],
+    ):
         assert main([cmd[0], str(path), *cmd[1:]]) == 0
         assert "warning" not in capsys.readouterr().err
     card = path / "README.md"
     card.write_bytes(card.read_bytes().replace(b"Expert", b"expert", 1))
-    for cmd in (["info"], ["plot", "-o", str(tmp_path / "g.png")], ["export-mcap", "--episode", "0", "-o", str(tmp_path / "e.mcap")]):
+    for cmd in (
+        ["info"],
+        ["plot", "-o", str(tmp_path / "g.png")],
+        ["export-mcap", "--episode", "0", "-o", str(tmp_path / "e.mcap")],
+    ):
         assert main([cmd[0], str(path), *cmd[1:]]) == 0, cmd
         err = capsys.readouterr().err.strip()
-        assert err == f"datagen: warning: dataset {path} is damaged: checksum mismatch: README.md; " \
-                      f"`datagen validate {path}` lists every problem; what follows may be wrong", cmd
+        assert (
+            err == f"datagen: warning: dataset {path} is damaged: checksum mismatch: README.md; "
+            f"`datagen validate {path}` lists every problem; what follows may be wrong"
+        ), cmd
 
 
 def test_umbrella_unknown_command():
@@ -100,8 +126,12 @@ def test_demo_pipeline_end_to_end(tmp_path):
     rate = float(p.stdout.split("expert success rate:")[1].split("%")[0])
     assert rate >= 98.0, p.stdout
     path = p.stdout.strip().splitlines()[-1]
-    for args in (["validate", path], ["info", path], ["plot", path, "-o", str(tmp_path / "g.png")],
-                 ["export-mcap", path, "--episode", "3", "-o", str(tmp_path / "ep3.mcap")]):
+    for args in (
+        ["validate", path],
+        ["info", path],
+        ["plot", path, "-o", str(tmp_path / "g.png")],
+        ["export-mcap", path, "--episode", "3", "-o", str(tmp_path / "ep3.mcap")],
+    ):
         q = run("aerohrl.datagen.cli", *args)
         assert q.returncode == 0, (args, q.stderr)
     assert (tmp_path / "g.png").stat().st_size > 10_000 and (tmp_path / "ep3.mcap").stat().st_size > 1_000

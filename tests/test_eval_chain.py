@@ -133,7 +133,7 @@ def test_chains_stop_early_and_grow_with_the_distance():
     G[:, 0] = [1.0, 4.4, 5.9]  # 1, 2 and 3 goals of +1.5 m before the last leg of <= 2 m
     plan = ChainPlanner(algo, off, n=6, alpha=1.0, beam=3).plan(s0, G)
     assert plan.depth.tolist() == [1, 2, 3]
-    np.testing.assert_allclose(plan.score, [0.9 ** 2, 0.9 ** 3, 0.9 ** 4], atol=1e-5)
+    np.testing.assert_allclose(plan.score, [0.9**2, 0.9**3, 0.9**4], atol=1e-5)
     assert plan.index[2].tolist() == [0, 0, 0, -1, -1, -1]
     np.testing.assert_allclose(plan.goals[2, :, 0], [1.5, 3.0, 4.5, 4.5, 4.5, 4.5], atol=1e-6)
     short = ChainPlanner(algo, off, n=1, alpha=1.0, beam=3).plan(s0, G)  # too few legs for the far goals
@@ -213,8 +213,9 @@ def test_rollout_flies_a_chain_with_replanning():
     algo = StubAlgo(free=2.0, base=0.9)
     G = hover_states(2)[:, :15]
     G[:, 0] = [4.4, 7.4]
-    eps = EpisodeSet("ood", hover_states(2), G, np.full(2, 30), -np.ones(2, int), -np.ones(2, int), np.zeros(2, int),
-                     meta={"leg_horizon": 10})
+    eps = EpisodeSet(
+        "ood", hover_states(2), G, np.full(2, 30), -np.ones(2, int), -np.ones(2, int), np.zeros(2, int), meta={"leg_horizon": 10}
+    )
     planner = ChainPlanner(algo, _line_offsets(), n=3, beam=3)
     r = rollout(algo, eps, planner=planner, n_waypoints=3)
     assert r["planned_waypoints"].shape == (2, 3, 15) and (r["planned_frame"] == -1).all()

@@ -17,8 +17,17 @@ from aerohrl.cli import main
 from aerohrl.errors import UserError
 
 warnings.filterwarnings("ignore", category=UserWarning)
-TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20,
-            eval_every=20, eval_episodes=2, eval_horizon=20)
+TINY = dict(
+    hidden=(16, 16),
+    critic_hidden=(16, 16),
+    batch_size=32,
+    steps=40,
+    log_every=10,
+    checkpoint_every=20,
+    eval_every=20,
+    eval_episodes=2,
+    eval_horizon=20,
+)
 
 
 @pytest.fixture(scope="module")
@@ -110,8 +119,9 @@ def test_beyond_hover_rate_is_success_on_the_episodes_the_hover_floor_misses(set
         assert ck_hover["success_beyond_hover"] == 0.0  # hover misses them all, by construction
 
 
-@pytest.mark.parametrize("case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals",
-                                  "more-than-goals", "bad-seed"])
+@pytest.mark.parametrize(
+    "case", ["task", "no-ckpt", "no-run", "mismatch", "empty-goals", "planner-task", "no-evals", "more-than-goals", "bad-seed"]
+)
 def test_bad_input_is_one_line(setup, capsys, case):
     run, empty = str(setup["run"]), str(setup["empty"])
     argv, match = {
@@ -122,8 +132,10 @@ def test_bad_input_is_one_line(setup, capsys, case):
         "empty-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "0"], "--episodes: must be >= 1"),
         "planner-task": (["eval", "--task", "reach-desired", "--run", run, "--planner", "single"], "ood only"),
         "no-evals": (["eval", "table", empty], "none of the runs has evaluation results"),
-        "more-than-goals": (["eval", "--task", "reach-desired", "--run", run, "--episodes", "5"],
-                            "--episodes 5 exceeds the 4 desired goals of dataset"),
+        "more-than-goals": (
+            ["eval", "--task", "reach-desired", "--run", run, "--episodes", "5"],
+            "--episodes 5 exceeds the 4 desired goals of dataset",
+        ),
         "bad-seed": (["eval", "--task", "ood", "--run", run, "--seed", "-1"], "--seed: must be >= 0"),
     }[case]
     code, err = _err(capsys, argv)
@@ -147,8 +159,7 @@ def test_results_page_is_dated_and_opens_with_its_command(tmp_path):
 
     fig = tmp_path / "curves.png"
     fig.write_bytes(b"png")
-    p = write_results_page(tmp_path / "pages", "chapter3-tables", "make results", "new table\n", figures=[fig],
-                           date="2026-12-02")
+    p = write_results_page(tmp_path / "pages", "chapter3-tables", "make results", "new table\n", figures=[fig], date="2026-12-02")
     assert p == tmp_path / "pages" / "2026-12-02-chapter3-tables.md"
     text = p.read_text()
     assert text.index("```\nmake results\n```") < text.index("new table")
@@ -171,11 +182,42 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     from pathlib import Path
 
     pages = tmp_path / "pages"
-    p = subprocess.run([sys.executable, "experiments/reproduce.py", "--steps", "60", "--episodes", "6", "--checkpoints", "2",
-                        "--algos", "gcsl", "td3bc", "--seeds", "0", "1", "--continuations", "20", "--oracle-goals", "3", "--oracle-candidates", "8", "--datasets", str(tmp_path / "ds"), "--runs", str(tmp_path / "runs"),
-                        "--out", str(tmp_path / "res"), "--results-dir", str(pages)], capture_output=True, text=True,
-                       cwd=Path(__file__).resolve().parent.parent,
-                       timeout=1800)  # minutes on an idle 2-core machine; 15+ at a load of 7 (Ray start-up included)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "experiments/reproduce.py",
+            "--steps",
+            "60",
+            "--episodes",
+            "6",
+            "--checkpoints",
+            "2",
+            "--algos",
+            "gcsl",
+            "td3bc",
+            "--seeds",
+            "0",
+            "1",
+            "--continuations",
+            "20",
+            "--oracle-goals",
+            "3",
+            "--oracle-candidates",
+            "8",
+            "--datasets",
+            str(tmp_path / "ds"),
+            "--runs",
+            str(tmp_path / "runs"),
+            "--out",
+            str(tmp_path / "res"),
+            "--results-dir",
+            str(pages),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parent.parent,
+        timeout=1800,
+    )  # minutes on an idle 2-core machine; 15+ at a load of 7 (Ray start-up included)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     (page,) = pages.glob("*-chapter3-tables.md")
     text = page.read_text()
@@ -228,7 +270,8 @@ def test_planner_is_compared_with_flying_straight_pairwise(tmp_path):
             d = run / "eval" / name
             d.mkdir(parents=True, exist_ok=True)
             (d / f"episodes-step-{step:09d}.csv").write_text(
-                "episode,success,near_success\n" + "".join(f"{i},{int(x)},1\n" for i, x in enumerate(s)))
+                "episode,success,near_success\n" + "".join(f"{i},{int(x)},1\n" for i, x in enumerate(s))
+            )
     (run / "eval" / "ood-single" / "episodes-step-000000040.csv").write_text("episode,success\n0,1\n")  # no partner
     pv = paired_vs_none(run, "ood-single")
     assert pv["checkpoints"] == 3 and pv["only_planner"] == won["planner"] and pv["only_none"] == won["none"]

@@ -104,18 +104,21 @@ def test_runup_waypoints_behind_goal():
     np.testing.assert_allclose(W[0, 2], xf[0, :, 0] - 2 * d0 * vhat)
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(horizon_steps=0), "horizon_steps"),
-    (dict(horizon_steps=1.5), "horizon_steps"),
-    (dict(vehicle="nope"), "vehicle"),
-    (dict(a_max=-1.0), "a_max"),
-    (dict(runup="some"), "runup"),
-    (dict(fps=0), "fps"),
-    (dict(factors=(1.0, -2.0)), "factors"),
-    (dict(record_every=-1), "record_every"),
-    (dict(stretch=(1.5, 2.0)), "stretch"),
-    (dict(lateral=()), "lateral"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(horizon_steps=0), "horizon_steps"),
+        (dict(horizon_steps=1.5), "horizon_steps"),
+        (dict(vehicle="nope"), "vehicle"),
+        (dict(a_max=-1.0), "a_max"),
+        (dict(runup="some"), "runup"),
+        (dict(fps=0), "fps"),
+        (dict(factors=(1.0, -2.0)), "factors"),
+        (dict(record_every=-1), "record_every"),
+        (dict(stretch=(1.5, 2.0)), "stretch"),
+        (dict(lateral=()), "lateral"),
+    ],
+)
 def test_bad_arguments(kwargs, match):
     args = dict(goals=_goals(*IN_RHO), horizon_steps=100) | kwargs
     with pytest.raises(ValueError, match=match):

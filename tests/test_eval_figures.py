@@ -15,8 +15,9 @@ from aerohrl.eval import plots
 def _run(root: Path, seed: int, curve: list[tuple[int, float]]) -> Path:
     rd = root / f"gcsl-s{seed}"
     rd.mkdir(parents=True)
-    (rd / "config.json").write_text(json.dumps({"config": {"algo": "gcsl", "preset": "cpu", "seed": seed, "steps": 300},
-                                                "dataset": {"version": "n250-s0-x"}}))
+    (rd / "config.json").write_text(
+        json.dumps({"config": {"algo": "gcsl", "preset": "cpu", "seed": seed, "steps": 300}, "dataset": {"version": "n250-s0-x"}})
+    )
     (rd / "metrics.jsonl").write_text("".join(json.dumps({"step": s, "eval/reach_desired/success": v}) + "\n" for s, v in curve))
     return rd
 
@@ -36,7 +37,11 @@ def test_learning_curves_draw_one_band_per_experiment(tmp_path, monkeypatch):
     (other / "config.json").write_text(json.dumps(cfg))
     bands, lines = [], []
     real_fill, real_plot = Axes.fill_between, Axes.plot
-    monkeypatch.setattr(Axes, "fill_between", lambda self, x, y1, y2, **kw: bands.append((list(x), list(y1), list(y2))) or real_fill(self, x, y1, y2, **kw))
+    monkeypatch.setattr(
+        Axes,
+        "fill_between",
+        lambda self, x, y1, y2, **kw: bands.append((list(x), list(y1), list(y2))) or real_fill(self, x, y1, y2, **kw),
+    )
     monkeypatch.setattr(Axes, "plot", lambda self, *a, **kw: lines.append(kw.get("label")) or real_plot(self, *a, **kw))
     out = plots.plot_learning_curves([*runs, other], tmp_path / "c.png")
     assert out.stat().st_size > 5000
@@ -54,8 +59,14 @@ def test_trajectory_goals_have_their_flights_colour(tmp_path, monkeypatch):
     goals = np.zeros((n, 15))
     goals[:, :3] = rng.uniform(-2, 2, (n, 3))
     pos = np.linspace(0, 1, T)[None, :, None] * goals[:, None, :3]
-    np.savez(d / "trajectories-step-000000100.npz", positions=pos, goals=goals, start_states=np.zeros((n, 18)),
-             steps=np.full(n, T - 1), success=np.arange(n) % 2 == 0)
+    np.savez(
+        d / "trajectories-step-000000100.npz",
+        positions=pos,
+        goals=goals,
+        start_states=np.zeros((n, 18)),
+        steps=np.full(n, T - 1),
+        success=np.arange(n) % 2 == 0,
+    )
     paths, stars = [], []
     real_plot, real_scatter = Axes3D.plot, Axes3D.scatter
 

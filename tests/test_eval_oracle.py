@@ -22,8 +22,13 @@ def test_oracle_with_a_hovering_policy():
     pts = np.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [0, 0, -1.0]])
     nxt = hover_states(4)
     nxt[:, :3] = pts
-    cols = {"observation.state": hover_states(4), "action": np.tile([9.81, 0, 0, 0], (4, 1)),
-            "observation.desired_goal": nxt[:, :15], "next.observation.state": nxt, "episode_index": np.zeros(4, np.int64)}
+    cols = {
+        "observation.state": hover_states(4),
+        "action": np.tile([9.81, 0, 0, 0], (4, 1)),
+        "observation.desired_goal": nxt[:, :15],
+        "next.observation.state": nxt,
+        "episode_index": np.zeros(4, np.int64),
+    }
     data = load_dataset(cols)
     G = nxt[[0, 1, 2], :15].copy()  # goals: hover at the origin, at (1,0,0), at (0,1,0)
     r = oracle_single(FakeAlgo(), data, G, candidates=0, leg_horizon=20)

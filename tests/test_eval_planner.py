@@ -112,7 +112,8 @@ def test_two_goals_beam_is_exhaustive_eq_3_6_when_wide():
     P = _q(cp[:, None], cp[None])  # (m, C, C)
     B = _q(cp[None], G[:, None, :3])  # (m, E, C)
     full = (A[:, :, :, None] * P[:, None] * B[:, :, None, :]).mean(0) - alpha * (
-        A.var(0)[:, :, None] + P.var(0)[None] + B.var(0)[:, None, :])
+        A.var(0)[:, :, None] + P.var(0)[None] + B.var(0)[:, None, :]
+    )
     best = full.reshape(4, -1).argmax(1)
     assert np.array_equal(plan.index, np.stack([best // C, best % C], 1))
     assert np.allclose(plan.score, full.reshape(4, -1).max(1), atol=1e-5)
@@ -133,8 +134,9 @@ def test_rollout_outcomes_and_records():
     n = 5
     G = hover_states(n)[:, :15]
     G[1, 0], G[2, 2], G[3, 0], G[4, 0] = 0.1, 3.0, 0.3, 1.0  # reached, far, near only, far
-    eps = EpisodeSet("reach-desired", hover_states(n), G, np.array([50, 50, 50, 50, 30]), -np.ones(n, int),
-                     np.zeros(n, int), np.zeros(n, int))
+    eps = EpisodeSet(
+        "reach-desired", hover_states(n), G, np.array([50, 50, 50, 50, 30]), -np.ones(n, int), np.zeros(n, int), np.zeros(n, int)
+    )
     r = rollout(algo, eps, record=True)
     assert r["success"].tolist() == [True, True, False, False, False]
     assert r["near_success"].tolist() == [True, True, False, True, False]
@@ -152,8 +154,9 @@ def test_rollout_flies_to_the_intermediate_goal_then_to_the_goal():
     cand.states[3] = torch.as_tensor(hover_states(1)[0], dtype=torch.float32)
     G = hover_states(3)[:, :15]
     G[:, 2] = [0.05, 3.0, 3.0]
-    eps = EpisodeSet("ood", hover_states(3), G, np.full(3, 40), -np.ones(3, int), -np.ones(3, int), np.zeros(3, int),
-                     meta={"leg_horizon": 20})
+    eps = EpisodeSet(
+        "ood", hover_states(3), G, np.full(3, 40), -np.ones(3, int), -np.ones(3, int), np.zeros(3, int), meta={"leg_horizon": 20}
+    )
     r = rollout(algo, eps, planner=Planner(algo, cand, n=1, alpha=0.0), n_waypoints=1)
     assert r["waypoint_frame"][:, 0].tolist() == [103, 103, 103]  # the origin: Q = 1 to reach it
     # episode 0 reaches G (0.05 m away) at step 1, before its intermediate goal counts
@@ -198,8 +201,9 @@ def test_a_planner_that_declines_flies_straight_where_its_plan_is_no_better():
     cand = _cands(rng, 10)
     G = hover_states(4)[:, :15]
     G[:, 2] = [0.05, 3.0, 0.5, 2.0]
-    eps = EpisodeSet("ood", hover_states(4), G, np.full(4, 40), -np.ones(4, int), -np.ones(4, int), np.zeros(4, int),
-                     meta={"leg_horizon": 20})
+    eps = EpisodeSet(
+        "ood", hover_states(4), G, np.full(4, 40), -np.ones(4, int), -np.ones(4, int), np.zeros(4, int), meta={"leg_horizon": 20}
+    )
     planner = Planner(algo, cand, n=1, alpha=0.0)
     plan = planner.plan(eps.start_states, G)
     straight = rollout(algo, eps)

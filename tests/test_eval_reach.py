@@ -23,8 +23,17 @@ from aerohrl.eval.tasks import ood_goals
 from conftest import load_experiment
 
 warnings.filterwarnings("ignore", category=UserWarning)
-TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20,
-            eval_every=0, eval_episodes=2, eval_horizon=20)
+TINY = dict(
+    hidden=(16, 16),
+    critic_hidden=(16, 16),
+    batch_size=32,
+    steps=40,
+    log_every=10,
+    checkpoint_every=20,
+    eval_every=0,
+    eval_episodes=2,
+    eval_horizon=20,
+)
 
 
 def test_position_ring_1_is_the_thesis_ood_set():
@@ -67,10 +76,18 @@ def test_horizons_scale_with_distance_and_streams_differ():
     assert not np.allclose(a, b) and not np.allclose(a, c)
 
 
-@pytest.mark.parametrize("family, ring, msg", [
-    ("speed", "1", "unknown goal family"), ("velocity", "4", "rings 1..3"), ("velocity", "0", "rings 1..3"),
-    ("velocity", "x", "step 1..3 or a range"), ("velocity", "5:3", "LO < HI"), ("velocity", "1:99", "beyond what"),
-    ("combined", "1:2", "fixed rings only")])
+@pytest.mark.parametrize(
+    "family, ring, msg",
+    [
+        ("speed", "1", "unknown goal family"),
+        ("velocity", "4", "rings 1..3"),
+        ("velocity", "0", "rings 1..3"),
+        ("velocity", "x", "step 1..3 or a range"),
+        ("velocity", "5:3", "LO < HI"),
+        ("velocity", "1:99", "beyond what"),
+        ("combined", "1:2", "fixed rings only"),
+    ],
+)
 def test_bad_rings_are_one_line_errors(family, ring, msg):
     with pytest.raises(UserError, match=msg):
         F.parse_ring(family, ring)
@@ -89,13 +106,17 @@ def test_decline_and_margin_choice():
     assert reach.decline_success(s, p, d, 0.1).tolist() == [False, True, True, False]
     assert reach.decline_success(s, p, d, math.inf).tolist() == s.tolist()
     # ring A: the planner helps where its margin is large; ring B: it hurts where it is small
-    pairs = {"A": [(np.array([0, 0], bool), np.array([1, 1], bool), np.array([0.4, 0.3]))],
-             "B": [(np.array([1, 1], bool), np.array([0, 0], bool), np.array([0.01, 0.02]))]}
+    pairs = {
+        "A": [(np.array([0, 0], bool), np.array([1, 1], bool), np.array([0.4, 0.3]))],
+        "B": [(np.array([1, 1], bool), np.array([0, 0], bool), np.array([0.01, 0.02]))],
+    }
     m, table = reach.choose_margin(pairs)
     assert 0.02 <= m < 0.3 and table[m]["worst"] == 0.0 and table[m]["mean"] == 0.5
     # a margin that loses under a point on one ring but gains a lot on another is taken
-    pairs_c = {"A": [(np.zeros(2, bool), np.ones(2, bool), np.array([0.004, 0.004]))],
-               "C": [(np.ones(200, bool), np.r_[np.zeros(1, bool), np.ones(199, bool)], np.full(200, 0.002))]}
+    pairs_c = {
+        "A": [(np.zeros(2, bool), np.ones(2, bool), np.array([0.004, 0.004]))],
+        "C": [(np.ones(200, bool), np.r_[np.zeros(1, bool), np.ones(199, bool)], np.full(200, 0.002))],
+    }
     m, table = reach.choose_margin(pairs_c)
     assert m == 0.0 and table[m]["worst"] == pytest.approx(-0.005) and table[m]["mean"] == pytest.approx(0.4975)
     m, _ = reach.choose_margin(pairs_c, max_loss=0.0)  # no loss allowed: decline where it would cost
@@ -123,9 +144,28 @@ def _success(d):
 def test_reach_study_end_to_end(run, tmp_path, capsys):
     study = load_experiment("reach_study")
     pages = tmp_path / "pages"
-    argv = ["--runs", str(run), "--families", "velocity", "--episodes", "5", "--heldout", "4", "--variants", "straight",
-            "single", "single-decline", "chain", "--candidates", "64", "--out", str(tmp_path / "out"), "--results-dir",
-            str(pages), "--fly-declines"]
+    argv = [
+        "--runs",
+        str(run),
+        "--families",
+        "velocity",
+        "--episodes",
+        "5",
+        "--heldout",
+        "4",
+        "--variants",
+        "straight",
+        "single",
+        "single-decline",
+        "chain",
+        "--candidates",
+        "64",
+        "--out",
+        str(tmp_path / "out"),
+        "--results-dir",
+        str(pages),
+        "--fly-declines",
+    ]
     assert study.main(argv) == 0
     (page,) = pages.glob("*-reach-families.md")
     text = page.read_text()
@@ -140,8 +180,29 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
     ring_dir = reach.eval_root(run, 5) / "ood-velocity-3.5-5-none"
     assert json.loads((ring_dir / "summary.json").read_text())["episodes"] == 5
     solo = tmp_path / "solo"
-    assert main(["eval", "--task", "ood", "--family", "velocity", "--ring", "2", "--run", str(run), "--episodes", "5",
-                 "--checkpoints", "1", "--out", str(solo), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--task",
+                "ood",
+                "--family",
+                "velocity",
+                "--ring",
+                "2",
+                "--run",
+                str(run),
+                "--episodes",
+                "5",
+                "--checkpoints",
+                "1",
+                "--out",
+                str(solo),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert _success(solo) == _success(ring_dir)
     # held-out goals are other goals
     held = reach.eval_root(run, 5) / "heldout" / "ood-velocity-3.5-5-none"
@@ -153,19 +214,23 @@ def test_reach_study_end_to_end(run, tmp_path, capsys):
         dec = reach.eval_root(run, 5) / f"ood-velocity-3.5-5-single-decline{m:g}"
         e_s, e_p, e_d = (reach.episode_outcomes(x) for x in (ring_dir, single, dec))
         for k in e_d:
-            assert np.array_equal(e_d[k]["success"], reach.decline_success(e_s[k]["success"], e_p[k]["success"],
-                                                                           e_p[k]["diff"], m))
+            assert np.array_equal(
+                e_d[k]["success"], reach.decline_success(e_s[k]["success"], e_p[k]["success"], e_p[k]["diff"], m)
+            )
     assert (tmp_path / "out" / "reach_curves.png").stat().st_size > 0
     # resumable: a second pass flies nothing new and writes the same table
     mtime = ring_dir.joinpath("summary.json").stat().st_mtime
     assert study.main(argv) == 0 and ring_dir.joinpath("summary.json").stat().st_mtime == mtime
 
 
-@pytest.mark.parametrize("args, msg", [
-    (["--family", "speed"], "invalid choice: 'speed'"),
-    (["--family", "velocity", "--ring", "9"], "rings 1..3"),
-    (["--ring", "2"], "--ring needs --family"),
-])
+@pytest.mark.parametrize(
+    "args, msg",
+    [
+        (["--family", "speed"], "invalid choice: 'speed'"),
+        (["--family", "velocity", "--ring", "9"], "rings 1..3"),
+        (["--ring", "2"], "--ring needs --family"),
+    ],
+)
 def test_eval_cli_family_errors(run, capsys, args, msg):
     try:
         code = main(["eval", "--task", "ood", "--run", str(run), "--quiet", *args])
@@ -179,9 +244,32 @@ def test_eval_cli_family_errors(run, capsys, args, msg):
 
 def test_oracle_on_a_family_ring_with_synthetic_candidates(run, tmp_path, capsys):
     out = tmp_path / "oracle"
-    assert main(["eval", "oracle", "--run", str(run), "--family", "velocity", "--ring", "2", "--candidate-source",
-                 "synthetic", "--goals", "3", "--candidates", "4", "--leg-horizon", "20", "--out", str(out),
-                 "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "oracle",
+                "--run",
+                str(run),
+                "--family",
+                "velocity",
+                "--ring",
+                "2",
+                "--candidate-source",
+                "synthetic",
+                "--goals",
+                "3",
+                "--candidates",
+                "4",
+                "--leg-horizon",
+                "20",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     r = json.loads((out / "oracle.json").read_text())
     assert r["task"] == "ood-velocity-3.5-5-synth" and r["candidates"] == 4 and r["goals"] == 3
     assert 0.0 <= r["oracle"] <= 1.0 and r["planner"] <= r["oracle"]

@@ -12,17 +12,40 @@ from aerohrl.eval import results
 def _run(root, name, seed, rd_rates, *, algo="gcsl", lr=1e-3, ood=None, floors=None):
     rd = root / name
     (rd / "eval").mkdir(parents=True)
-    (rd / "config.json").write_text(json.dumps({"config": {"algo": algo, "seed": seed, "lr_actor": lr, "dataset": f"/x/{name}"},
-                                                "dataset": {"version": "n250-s0-dbb240c0"}}))
+    (rd / "config.json").write_text(
+        json.dumps(
+            {
+                "config": {"algo": algo, "seed": seed, "lr_actor": lr, "dataset": f"/x/{name}"},
+                "dataset": {"version": "n250-s0-dbb240c0"},
+            }
+        )
+    )
 
     def summary(name, rates, planner="none", far=None, beyond=None):
         d = rd / "eval" / name
         d.mkdir()
-        ck = [{"success": r, "near_success": min(1.0, r + 0.05), **({"success_intermediate_far": far} if far is not None else {}),
-               **({"success_beyond_hover": beyond} if beyond is not None else {})} for r in rates]
-        (d / "summary.json").write_text(json.dumps({"checkpoints": ck, "success_mean": float(np.mean(rates)),
-                                                   "success_std": float(np.std(rates)), "near_success_mean": float(np.mean(rates)) + 0.05,
-                                                   "near_success_std": 0.0, "episodes": 250, "planner": planner}))
+        ck = [
+            {
+                "success": r,
+                "near_success": min(1.0, r + 0.05),
+                **({"success_intermediate_far": far} if far is not None else {}),
+                **({"success_beyond_hover": beyond} if beyond is not None else {}),
+            }
+            for r in rates
+        ]
+        (d / "summary.json").write_text(
+            json.dumps(
+                {
+                    "checkpoints": ck,
+                    "success_mean": float(np.mean(rates)),
+                    "success_std": float(np.std(rates)),
+                    "near_success_mean": float(np.mean(rates)) + 0.05,
+                    "near_success_std": 0.0,
+                    "episodes": 250,
+                    "planner": planner,
+                }
+            )
+        )
 
     summary("reach-desired", rd_rates)
     summary("reach-intermediate", [0.8, 0.8], far=0.6, beyond=0.1 + 0.1 * seed)
@@ -74,8 +97,18 @@ def test_planner_comparison_is_pooled_over_seeds(tmp_path):
 
 
 def test_ood_floors_and_tolerance_variants_are_labelled_not_compared_as_planners(tmp_path):
-    a = _run(tmp_path, "a", 0, [0.9], ood={"none": [[1, 1, 0, 0]], "none-goaltol0.5": [[1, 0, 0, 0]],
-                                           "none-floor-hover": [[0, 0, 0, 0]], "single": [[1, 1, 1, 0]]})
+    a = _run(
+        tmp_path,
+        "a",
+        0,
+        [0.9],
+        ood={
+            "none": [[1, 1, 0, 0]],
+            "none-goaltol0.5": [[1, 0, 0, 0]],
+            "none-floor-hover": [[0, 0, 0, 0]],
+            "single": [[1, 1, 1, 0]],
+        },
+    )
     b = _run(tmp_path, "b", 1, [0.9], ood={"none": [[1, 0, 0, 0]], "single": [[1, 0, 0, 0]]})
     head, rows = results.tables([a, b])["t32"]
     by = {(r[0], r[2]): dict(zip(head, r)) for r in rows}
@@ -93,8 +126,16 @@ def test_kind_rates_split_intermediate_goals_by_steps_ahead_and_by_what_hover_mi
 
     n = 6
     steps_ahead = np.array([0, 0, 2, 12, 30, 40])
-    eps = EpisodeSet("reach-intermediate", np.zeros((n, 18)), np.zeros((n, 15)), np.full(n, 100), np.zeros(n, np.int64),
-                     np.zeros(n, np.int64), steps_ahead, 0)
+    eps = EpisodeSet(
+        "reach-intermediate",
+        np.zeros((n, 18)),
+        np.zeros((n, 15)),
+        np.full(n, 100),
+        np.zeros(n, np.int64),
+        np.zeros(n, np.int64),
+        steps_ahead,
+        0,
+    )
     r = {"success": np.array([1, 0, 1, 1, 0, 1], bool)}
     hover = np.array([0, 0, 1, 1, 0, 0], bool)  # hover meets the goals 2 and 12 steps ahead
     out = results.kind_rates(eps, r, hover)

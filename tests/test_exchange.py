@@ -21,8 +21,9 @@ NOISE = (1.0, 0.5, 0.5, 0.5)
 
 @pytest.fixture(scope="module")
 def ds(tmp_path_factory):
-    return build(DatasetSpec(goals=6, seed=5, action_noise=NOISE), tmp_path_factory.mktemp("x"), progress=False,
-                 log=lambda m: None).path
+    return build(
+        DatasetSpec(goals=6, seed=5, action_noise=NOISE), tmp_path_factory.mktemp("x"), progress=False, log=lambda m: None
+    ).path
 
 
 def _episodes(cols):
@@ -84,10 +85,12 @@ def test_minari_dataset_loads_and_recovers_our_env(ds, tmp_path, monkeypatch, ca
 
 
 def test_export_bad_input_is_one_line(ds, tmp_path, capsys):
-    for argv, msg in ((["--format", "ogbench", "-o", str(tmp_path / "x.txt")], ".npz"),
-                      (["--format", "mcap"], "--episode"),
-                      (["--format", "ogbench", "--episode", "1"], "mcap only"),
-                      (["--format", "parquet"], "invalid choice")):
+    for argv, msg in (
+        (["--format", "ogbench", "-o", str(tmp_path / "x.txt")], ".npz"),
+        (["--format", "mcap"], "--episode"),
+        (["--format", "ogbench", "--episode", "1"], "mcap only"),
+        (["--format", "parquet"], "invalid choice"),
+    ):
         with pytest.raises(SystemExit) if msg == "invalid choice" else _nothing():
             rc = cli.main(["export", str(ds), *argv])
             assert rc == 2
@@ -128,8 +131,11 @@ def test_push_stages_card_licence_and_metadata_unchanged(ds, tmp_path, capsys):
     # the staged copy is a LeRobot dataset our reader opens
     np.testing.assert_array_equal(read_columns(staging)["action"], read_columns(ds)["action"])
     # a non-empty staging folder, a bad repo id, --dry-run without --staging: one line, exit 2, nothing uploaded
-    for argv in (["--repo-id", "someone/q", "--staging", str(staging), "--dry-run"], ["--repo-id", "noslash", "--dry-run"],
-                 ["--repo-id", "someone/q", "--dry-run"]):
+    for argv in (
+        ["--repo-id", "someone/q", "--staging", str(staging), "--dry-run"],
+        ["--repo-id", "noslash", "--dry-run"],
+        ["--repo-id", "someone/q", "--dry-run"],
+    ):
         assert cli.main(["push", str(ds), *argv]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err, err
@@ -139,7 +145,12 @@ def test_push_without_network_is_one_line(ds, tmp_path):
     """No network here: the upload fails in one line (exit 2) after staging."""
     pytest.importorskip("huggingface_hub")
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_TOKEN": "hf_invalid"}
-    p = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", "push", str(ds), "--repo-id", "someone/quadrotor"],
-                       capture_output=True, text=True, env=env, timeout=300)
+    p = subprocess.run(
+        [sys.executable, "-m", "aerohrl.datagen.cli", "push", str(ds), "--repo-id", "someone/quadrotor"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert p.returncode == 2 and "staged" in p.stdout, (p.stdout, p.stderr)
     assert p.stderr.startswith("datagen: error: upload to someone/quadrotor failed") and "Traceback" not in p.stderr, p.stderr

@@ -29,13 +29,35 @@ def test_runs_are_named_by_preset_and_seed():
 
 def test_train_resume_and_bench_over_seeds(study, tmp_path):
     m, calls = study
-    argv = ["--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "bench"), "--presets", "cpu", "--seeds", "7", "8",
-            "--envs", "2", "--results-dir", str(tmp_path / "pages")]
+    argv = [
+        "--runs",
+        str(tmp_path / "runs"),
+        "--out",
+        str(tmp_path / "bench"),
+        "--presets",
+        "cpu",
+        "--seeds",
+        "7",
+        "8",
+        "--envs",
+        "2",
+        "--results-dir",
+        str(tmp_path / "pages"),
+    ]
     assert m.main(argv) == 0
     assert [c[:2] for c in calls] == [["train", "--preset"], ["train", "--preset"], ["bench", "--all"]]
     runs = [str(tmp_path / "runs" / n) for n in ("ipp-cpu-b9250", "ipp-cpu-b9250-s8")]
-    assert calls[-1][calls[-1].index("-o") + 2:] == ["--run", runs[0], "--run", runs[1], "--run", runs[0] + "/best.pt",
-                                                     "--run", runs[1] + "/best.pt", "--quiet"]
+    assert calls[-1][calls[-1].index("-o") + 2 :] == [
+        "--run",
+        runs[0],
+        "--run",
+        runs[1],
+        "--run",
+        runs[0] + "/best.pt",
+        "--run",
+        runs[1] + "/best.pt",
+        "--quiet",
+    ]
     (page,) = (tmp_path / "pages").glob("*-ipp-learned-targets.md")
     text = page.read_text()
     assert text.index("```\npython experiments/ipp_learned_targets.py --runs") < text.index("| planner |")

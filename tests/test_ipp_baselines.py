@@ -54,8 +54,7 @@ def test_coverage_planner_beats_random(lat):
     env, _ = make_env(EnvConfig(budget=3000.0), lat, 21, range(4))
     rng = np.random.default_rng(0)
     while not env.done.all():
-        env.step(np.array([rng.choice(np.flatnonzero(m)) if m.any() else 0
-                           for m in env.valid_mask()]))
+        env.step(np.array([rng.choice(np.flatnonzero(m)) if m.any() else 0 for m in env.valid_mask()]))
     assert cov > env.metrics()["coverage"].mean()
 
 
@@ -79,6 +78,7 @@ def test_prio_coverage_revisits_covered_belief_mass(lat):
     """Prioritised coverage keeps scoring belief mass on covered cells (the
     original), so a likely target is revisited; --no-prio-revisit scores new cells only."""
     from aerohrl.ipp.baselines import TreePlanner
+
     env, _ = make_env(EnvConfig(), lat, 21, [0])
     b = np.array([0.8, 0.8, 0.3])
     c = np.array([True, False, True])
@@ -94,8 +94,7 @@ def test_prio_coverage_revisits_covered_belief_mass(lat):
 
 def test_prio_revisit_changes_the_route(lat):
     m_on = _run("prio_coverage", lat, n=4, budget=3000.0).metrics()
-    m_off = _run("prio_coverage", lat, n=4, budget=3000.0,
-                 cfg=PlannerConfig(prio_revisit=False)).metrics()
+    m_off = _run("prio_coverage", lat, n=4, budget=3000.0, cfg=PlannerConfig(prio_revisit=False)).metrics()
     # without revisits every primitive must reach new ground: it covers at least as much
     assert m_off["coverage"].mean() >= m_on["coverage"].mean()
     assert not np.array_equal(m_on["coverage"], m_off["coverage"])
@@ -103,11 +102,11 @@ def test_prio_revisit_changes_the_route(lat):
 
 def test_additive_scoring():
     from aerohrl.ipp.baselines import sequence_score
+
     u, c = np.array([2.0, 3.0]), np.array([1.0, 3.0])
     np.testing.assert_allclose(sequence_score(u, c, PlannerConfig()), [2.0, 1.0])
     np.testing.assert_allclose(sequence_score(u, c, PlannerConfig(scoring="additive")), [2.0, 3.0])
-    np.testing.assert_allclose(
-        sequence_score(u, c, PlannerConfig(scoring="additive", cost_weight=1.0)), [1.0, 0.0])
+    np.testing.assert_allclose(sequence_score(u, c, PlannerConfig(scoring="additive", cost_weight=1.0)), [1.0, 0.0])
     with pytest.raises(ValueError, match="scoring"):
         PlannerConfig(scoring="bogus").validate()
 
@@ -133,14 +132,14 @@ def test_detect_info_weight_adds_information_gain(lat):
     """--info-weight: the detect tree's cell utility is new detections + w x information
     gain, exactly; w = 0 is the teacher; a negative or NaN weight is refused."""
     from aerohrl.ipp.baselines import TreePlanner
+
     env, _ = make_env(EnvConfig(budget=1500.0), lat, 21, range(2))
     b = np.array([0.02, 0.3, 0.6, 0.97])
     lp, lam = np.array([0.0, 1.3, 0.0, 0.0]), np.array([4.6, 2.1, 1.3, 4.6])
     plain = TreePlanner(env, PlannerConfig(), "detect")
     mixed = TreePlanner(env, PlannerConfig(info_weight=0.5), "detect")
     ig = info_gain(b, lp + lam) - np.where(lp > 0, info_gain(b, lp), 0.0)
-    np.testing.assert_allclose(mixed._util(b, None, lp, lam),
-                               plain._util(b, None, lp, lam) + 0.5 * ig, atol=1e-12)
+    np.testing.assert_allclose(mixed._util(b, None, lp, lam), plain._util(b, None, lp, lam) + 0.5 * ig, atol=1e-12)
     assert ig[0] > 0 and plain._util(b, None, lp, lam)[0] < 1e-3  # a low-belief look: IG only
     for w in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="info.weight"):

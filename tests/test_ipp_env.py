@@ -7,8 +7,7 @@ import aerohrl.ipp.env as envmod
 from aerohrl.ipp.env import EnvConfig, SearchEnv, TERMS
 from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import default_lattice
-from aerohrl.ipp.sensor import (SensorConfig, logit, logodds_step, logodds_update,
-                                sigmoid)
+from aerohrl.ipp.sensor import SensorConfig, logit, logodds_step, logodds_update, sigmoid
 from aerohrl.ipp.world import WorldConfig, kl_divergence, sample_worlds
 
 
@@ -32,8 +31,7 @@ def test_eq_2_2_single_measurement():
 
 @pytest.mark.parametrize("u,flip", [(0.999, False), (0.0, True)])
 def test_belief_update_equals_hand_computation(lat, monkeypatch, u, flip):
-    monkeypatch.setattr(envmod, "hashed_uniform", lambda *a: np.full(np.broadcast_shapes(
-        *[np.shape(x) for x in a]), u))
+    monkeypatch.setattr(envmod, "hashed_uniform", lambda *a: np.full(np.broadcast_shapes(*[np.shape(x) for x in a]), u))
     env, _ = make_env(EnvConfig(), lat, 3, [4])
     prior = env.worlds.prior[0]
     truth = env.worlds.targets[0]
@@ -145,9 +143,9 @@ def test_observation_layout(lat):
     ref_planes = np.stack([b, env.cov[0], env.boundary])
     for j, sc in enumerate((1, 2, 4)):
         w = 4 * sc
-        win = ref_planes[:, y - w:y + w, x - w:x + w]
+        win = ref_planes[:, y - w : y + w, x - w : x + w]
         ref = win.reshape(3, 8, sc, 8, sc).max(axis=(2, 4))
-        np.testing.assert_allclose(obs["maps"][0, 3 * j:3 * j + 3], ref, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(obs["maps"][0, 3 * j : 3 * j + 3], ref, rtol=1e-6, atol=1e-7)
 
 
 def test_batch_independence(lat):
@@ -171,8 +169,9 @@ def test_worlds_seeded_and_kl():
     assert np.allclose(a.density.sum((1, 2)), 1.0)
     n = a.targets.sum((1, 2))
     assert np.all((n >= 10) & (n <= 29))
-    assert kl_divergence(a.density, a.density) == pytest.approx(0.0, abs=1e-12) or \
-        np.allclose(kl_divergence(a.density, a.density), 0.0)
+    assert kl_divergence(a.density, a.density) == pytest.approx(0.0, abs=1e-12) or np.allclose(
+        kl_divergence(a.density, a.density), 0.0
+    )
 
 
 def test_bad_configs(lat):
@@ -186,6 +185,7 @@ def test_bad_configs(lat):
 
 def test_viability_kernel_is_closed(lat):
     from aerohrl.ipp.env import viability
+
     S = 30
     ok = viability(lat, S)
     V, A = lat.edges.shape

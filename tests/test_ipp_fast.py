@@ -64,8 +64,7 @@ def test_fast_path_is_the_default_and_reads_no_truth(slat, monkeypatch):
     env.truth[:] = np.random.default_rng(0).integers(0, 5, env.truth.shape)
     env.found[:] = ~env.found
     env._fast_cache = None
-    monkeypatch.setattr(F, "action_features_reference",
-                        lambda e: (_ for _ in ()).throw(AssertionError("slow path")))
+    monkeypatch.setattr(F, "action_features_reference", lambda e: (_ for _ in ()).throw(AssertionError("slow path")))
     np.testing.assert_array_equal(env.action_features(), f)
     assert not F.fast_path_applies(make_env(EnvConfig(), default_lattice(), 1, [0])[0])
 
@@ -96,6 +95,7 @@ def test_fast_teacher_equals_the_tree_search(slat):
     assert n > 20
     # the non-default variants keep the tree search
     from aerohrl.ipp.baselines import PlannerConfig
+
     assert not make_planner("detect", env, PlannerConfig(depth=3))._fast()
     assert not make_planner("detect", env, PlannerConfig(budget_aware=False))._fast()
 
@@ -118,15 +118,15 @@ def test_window_edt_equals_the_full_transform(slat):
     rng = np.random.default_rng(2)
     # covered blocks around the agents: near cells, far cells, nothing left, a corner
     env.pos[:] = [[48, 48], [40, 50], [5, 6], [90, 3]]
-    env.cov[0, p + 20:p + 76, p + 20:p + 76] = True           # nearest outside the window
-    env.cov[1, p:p + S, p:p + S] = rng.random((S, S)) < 0.9   # near ones
-    env.cov[2, p:p + S, p:p + S] = True                       # fully covered: capped
-    env.cov[3, p:p + 30, p + 60:p + S] = True
+    env.cov[0, p + 20 : p + 76, p + 20 : p + 76] = True  # nearest outside the window
+    env.cov[1, p : p + S, p : p + S] = rng.random((S, S)) < 0.9  # near ones
+    env.cov[2, p : p + S, p : p + S] = True  # fully covered: capped
+    env.cov[3, p : p + 30, p + 60 : p + S] = True
     ends = env.pos[:, None, :] + slat.prim_disp[np.maximum(slat.edges[0], 0)]
     ends = np.clip(ends, 0, S - 1)
     got = F._window_edt(env, np.arange(4), ends, 32)
     for n in range(4):
-        unc = ~env.cov[n, p:p + S, p:p + S]
+        unc = ~env.cov[n, p : p + S, p : p + S]
         d = distance_transform_edt(~unc) if unc.any() else np.full((S, S), 2.0 * S)
         np.testing.assert_array_equal(got[n], d[ends[n, :, 1], ends[n, :, 0]])
 
@@ -143,7 +143,7 @@ def _observe_by_gather(env):
     outs = []
     for s in cfg.obs_scales:
         w = R * s
-        crop = win[:, half - w:half + w, half - w:half + w]
+        crop = win[:, half - w : half + w, half - w : half + w]
         outs.append(crop.reshape(env.n, 2 * R, s, 2 * R, s, C).max(axis=4).max(axis=2))
     return np.concatenate(outs, 3).transpose(0, 3, 1, 2)
 
@@ -162,33 +162,74 @@ def test_semantic_policy_trains_and_acts_on_valid_primitives(slat, tmp_path, mon
     from aerohrl.ipp.policy import load_policy
     from test_ipp_policy import fly_valid
     from aerohrl.ipp.train import preset, train
+
     cfg = preset("test", env=semantic_config(budget=1200.0, map_size=SMALL, start="random"))
     train(cfg, slat, tmp_path / "run")
     model = load_policy(tmp_path / "run")
     assert model.env_kind == "semantic"
     env, _ = make_env(_cfg(1200.0), slat, 1000, range(2))
-    monkeypatch.setattr(F, "action_features_reference",
-                        lambda e: (_ for _ in ()).throw(AssertionError("slow path")))
+    monkeypatch.setattr(F, "action_features_reference", lambda e: (_ for _ in ()).throw(AssertionError("slow path")))
     fly_valid(env, model)
 
 
 def test_cli_semantic_train_preset_and_bench(tmp_path, capsys):
     run = tmp_path / "sem"
-    assert main(["train", "--world", "semantic", "--map-size", str(SMALL), "--budget", "800",
-                 "--envs", "2", "--bc-iterations", "1", "--eval-every", "0",
-                 "--out", str(run.parent), "--name", run.name, "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--world",
+                "semantic",
+                "--map-size",
+                str(SMALL),
+                "--budget",
+                "800",
+                "--envs",
+                "2",
+                "--bc-iterations",
+                "1",
+                "--eval-every",
+                "0",
+                "--out",
+                str(run.parent),
+                "--name",
+                run.name,
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     cfg = json.loads((run / "config.json").read_text())["train"]
     assert cfg["env"]["kind"] == "semantic" and cfg["bc_buffer"] == 4  # the semantic preset
     capsys.readouterr()
     out_dir = tmp_path / "b"
-    assert main(["bench", "--planner", "rl", "--world", "semantic", "--run", str(run),
-                 "--map-size", str(SMALL), "--budget", "800", "--envs", "2",
-                 "--out", str(out_dir), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "--planner",
+                "rl",
+                "--world",
+                "semantic",
+                "--run",
+                str(run),
+                "--map-size",
+                str(SMALL),
+                "--budget",
+                "800",
+                "--envs",
+                "2",
+                "--out",
+                str(out_dir),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "Imitation of detect planner" in out and "63.6" in out  # beside thesis Table 2.2
     assert "Ours-LSTM" not in out
-    assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "1",
-                 "--out", str(out_dir), "--quiet"]) == 2
+    assert main(["bench", "--planner", "rl", "--run", str(run), "--envs", "1", "--out", str(out_dir), "--quiet"]) == 2
     assert "trained on semantic worlds" in capsys.readouterr().err
 
 

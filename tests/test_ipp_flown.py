@@ -90,8 +90,25 @@ def test_execution_mode_errors(lat, capsys):
 
 
 def test_cli_ideal_vs_flown_table(tmp_path, capsys):
-    assert main(["bench", "--planner", "greedy", "--envs", "2", "--budget", "1500",
-                 "--execution", "ideal,flown", "--out", str(tmp_path), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "--planner",
+                "greedy",
+                "--envs",
+                "2",
+                "--budget",
+                "1500",
+                "--execution",
+                "ideal,flown",
+                "--out",
+                str(tmp_path),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "flown − ideal" in out and "tracking max mm" in out
     assert (tmp_path / "ipp_execution.md").is_file()
@@ -104,6 +121,7 @@ class _GoalSeeker:
     def __init__(self):
         from aerohrl.datagen.expert import GeometricController
         from aerohrl.sim import get_preset
+
         self.ctrl = GeometricController(get_preset("hummingbird"))
         self.calls = 0
 
@@ -115,6 +133,7 @@ class _GoalSeeker:
 
 def test_skill_execution_legs_and_tracking(lat):
     from aerohrl.ipp.flown import SKILL_SPACING, SkillEnv
+
     cfg = EnvConfig(budget=1200.0)
     skill = _GoalSeeker()
     env = SkillEnv(cfg, lat, skill)
@@ -126,8 +145,11 @@ def test_skill_execution_legs_and_tracking(lat):
     legs = env.leg_table()
     tt = env.tracking_table()
     # every primitive is cut into ceil(T / 1 s) legs, each ends near its goal or times out
-    n_legs = sum(int(np.ceil(lat.prim_T[int(p)] / SKILL_SPACING - 1e-9))
-                 for row in env.trace_prim for p in row if p >= 0) if env.trace_prim else None
+    n_legs = (
+        sum(int(np.ceil(lat.prim_T[int(p)] / SKILL_SPACING - 1e-9)) for row in env.trace_prim for p in row if p >= 0)
+        if env.trace_prim
+        else None
+    )
     assert len(legs) == n_legs == len(legs)
     # a leg ends when its goal is reached (x 2.5 tolerance) or at its timeout (>= 1 s)
     assert legs[:, 1].any() and np.all(legs[:, 2] > 0)
@@ -140,6 +162,7 @@ def test_skill_execution_legs_and_tracking(lat):
 
 def test_skill_run_errors(tmp_path, capsys):
     from aerohrl.ipp.flown import load_skill
+
     with pytest.raises(UserError, match="needs --skill-run"):
         load_skill(None)
     with pytest.raises(UserError, match="no skill policy run"):
@@ -147,8 +170,7 @@ def test_skill_run_errors(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     with pytest.raises(UserError, match="no checkpoints"):
         load_skill(tmp_path / "empty")
-    assert main(["bench", "--execution", "skill", "--skill-run", str(tmp_path / "x"),
-                 "--envs", "1"]) == 2
+    assert main(["bench", "--execution", "skill", "--skill-run", str(tmp_path / "x"), "--envs", "1"]) == 2
     assert "no skill policy run" in capsys.readouterr().err
     assert main(["bench", "--skill-run", str(tmp_path), "--envs", "1"]) == 2
     assert "--skill-run needs --execution skill" in capsys.readouterr().err
@@ -161,6 +183,7 @@ SKILL_RUN = "/work/main/runs/recipes/noise-n25000-s0-30k"
 @pytest.mark.skipif(not __import__("os").path.isdir(SKILL_RUN), reason="needs the chapter-3 run")
 def test_learned_skill_flies_primitives(lat):
     from aerohrl.ipp.flown import SkillEnv, load_skill
+
     pf, _ = load_skill(SKILL_RUN)
     cfg = EnvConfig(budget=800.0)
     env = SkillEnv(cfg, lat, pf)

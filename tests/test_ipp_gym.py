@@ -56,8 +56,7 @@ def test_invalid_action_is_penalised_not_executed():
 
 def test_vector_env_batched_autoreset_loop():
     n = 6
-    venv = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point",
-                        budget=1200.0)
+    venv = gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", budget=1200.0)
     assert isinstance(venv.unwrapped, IPPSearchVectorEnv)
     obs, info = venv.reset(seed=1)
     assert obs["maps"].shape[0] == n and info["action_mask"].shape[0] == n
@@ -98,6 +97,7 @@ def test_reset_rows_equals_a_fresh_reset():
     from aerohrl.ipp.env import EnvConfig, SearchEnv
     from aerohrl.ipp.lattice import default_lattice
     from aerohrl.ipp.world import sample_worlds
+
     lat, cfg = default_lattice(), EnvConfig(budget=1500.0)
     env = SearchEnv(cfg, lat)
     env.reset(sample_worlds(cfg.world, 7, [0, 1, 2]))

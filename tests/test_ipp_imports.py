@@ -14,8 +14,7 @@ import aerohrl.ipp
 PKG = Path(aerohrl.ipp.__file__).parent
 MODULES = sorted(p.stem for p in PKG.glob("*.py") if p.stem != "__init__")
 PLANNERS = {"baselines", "policy", "train", "bench", "cli"}
-ENVS = {"env", "semantic_env", "scoring", "sensor", "world", "semantic", "lattice", "features",
-        "factory", "flown", "gym_env"}
+ENVS = {"env", "semantic_env", "scoring", "sensor", "world", "semantic", "lattice", "features", "factory", "flown", "gym_env"}
 
 
 def _type_checking_only(tree: ast.Module) -> set[int]:
@@ -45,8 +44,7 @@ def _edges(mod: str) -> set[str]:
             elif node.module and node.module.startswith("aerohrl.ipp."):
                 out.add(node.module.split(".")[2])
         elif isinstance(node, ast.Import):
-            out.update(a.name.split(".")[2] for a in node.names
-                       if a.name.startswith("aerohrl.ipp."))
+            out.update(a.name.split(".")[2] for a in node.names if a.name.startswith("aerohrl.ipp."))
     return {m for m in out if m in MODULES and m != mod}
 
 
@@ -61,7 +59,7 @@ def _find_cycle(graph):
         stack.append(m)
         for n in sorted(graph[m]):
             if state.get(n) == 1:
-                return stack[stack.index(n):] + [n]
+                return stack[stack.index(n) :] + [n]
             if n not in state:
                 c = visit(n)
                 if c:
@@ -104,6 +102,7 @@ def test_each_module_imports_alone():
         "    for k in [k for k in sys.modules if k == 'aerohrl.ipp' or k.startswith('aerohrl.ipp.')]:\n"
         "        del sys.modules[k]\n"
         "    importlib.import_module('aerohrl.ipp.' + m)\n"
-        "print('ok')\n")
+        "print('ok')\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]

@@ -5,9 +5,19 @@ import json
 import numpy as np
 import pytest
 
-from aerohrl.ipp.lattice import (DEFAULT_PATH, LatticeConfig, build_lattice, dispersion,
-                                 jerk_cost, load_lattice, peak_speed_accel, poly_eval,
-                                 save_lattice, transfer_cost, velocity_samples)
+from aerohrl.ipp.lattice import (
+    DEFAULT_PATH,
+    LatticeConfig,
+    build_lattice,
+    dispersion,
+    jerk_cost,
+    load_lattice,
+    peak_speed_accel,
+    poly_eval,
+    save_lattice,
+    transfer_cost,
+    velocity_samples,
+)
 
 SMALL = LatticeConfig(n_vertices=6, reach=4, max_edges=10, t_step=0.2, hover_moves=(1, 3))
 
@@ -113,6 +123,7 @@ def test_tiling_reproduces_the_primitive_everywhere(default):
     # in the environment: the same primitive senses the same pattern at every cell
     from aerohrl.ipp.env import EnvConfig, SearchEnv
     from aerohrl.ipp.world import WorldConfig, sample_worlds
+
     env = SearchEnv(EnvConfig(), lat)
     env.reset(sample_worlds(WorldConfig(), 0, [0, 1, 2]), start=np.array([[5, 5], [15, 9], [22, 20]]))
     p = int(lat.edges[0, 0])
@@ -154,8 +165,7 @@ def _rewrite(src, dst, **changes):
     return dst
 
 
-@pytest.mark.parametrize("case", ["junk", "empty", "missing", "version", "format",
-                                  "edges", "meta", "shape"])
+@pytest.mark.parametrize("case", ["junk", "empty", "missing", "version", "format", "edges", "meta", "shape"])
 def test_malformed_lattice_files(small, tmp_path, case):
     good = save_lattice(small, tmp_path / "good.npz")
     bad = tmp_path / "bad.npz"
@@ -193,6 +203,7 @@ def test_bad_config():
 @pytest.mark.slow
 def test_shipped_semantic_lattice_is_current():
     from aerohrl.ipp.lattice import SEMANTIC_LATTICE, SEMANTIC_PATH
+
     shipped = load_lattice(SEMANTIC_PATH)
     fresh = build_lattice(SEMANTIC_LATTICE)
     assert shipped.config == fresh.config

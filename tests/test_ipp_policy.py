@@ -14,12 +14,11 @@ from aerohrl.ipp.policy import RLPlanner, load_policy, valid_loss
 from aerohrl.ipp.train import _gae, preset, train
 
 
-
-
 def random_walk(env, rng, steps):
     """``steps`` primitives drawn uniformly from the valid ones of every environment."""
     for _ in range(steps):
         env.step(np.array([rng.choice(np.flatnonzero(m)) for m in env.valid_mask()]))
+
 
 def fly_valid(env, model):
     """Fly ``model`` to the end of every episode: it only ever picks valid primitives, and
@@ -31,6 +30,7 @@ def fly_valid(env, model):
         assert env.valid_mask()[live, a[live]].all()
         env.step(a)
     assert np.all(env.metrics()["coverage"] > 0)
+
 
 def test_valid_loss_is_eq_2_7():
     phi = torch.tensor([[2.0, -1.0, 0.5]])
@@ -77,6 +77,7 @@ def test_bad_policy_and_preset(tmp_path):
 
 def test_action_features_by_hand():
     from aerohrl.ipp.features import EPS, N_FEAT
+
     lat = default_lattice()
     env, _ = make_env(EnvConfig(), lat, 4, range(2))
     rng = np.random.default_rng(0)
@@ -87,7 +88,7 @@ def test_action_features_by_hand():
     valid = env.valid_mask()[n]
     np.testing.assert_array_equal(f[n, :, 9], valid)
     b = env.belief()[n]
-    cov = env.cov[n, env.pad:env.pad + 30, env.pad:env.pad + 30]
+    cov = env.cov[n, env.pad : env.pad + 30, env.pad : env.pad + 30]
     cmean = lat.prim_cost.mean()
 
     def new_cells(p, origin):
@@ -117,8 +118,7 @@ def test_warm_start_and_mismatch(tmp_path):
     last = train(preset("test", init=str(tmp_path / "a"), lr=1e-4), lat, tmp_path / "b")
     assert np.isfinite(last["return"])
     with pytest.raises(UserError, match="does not match"):
-        train(preset("test", init=str(tmp_path / "a"), policy=preset("test").policy.__class__(
-            hidden=16)), lat, tmp_path / "c")
+        train(preset("test", init=str(tmp_path / "a"), policy=preset("test").policy.__class__(hidden=16)), lat, tmp_path / "c")
     assert not (tmp_path / "c").exists()  # refused before it began: the claimed folder is removed again
 
 
@@ -131,15 +131,22 @@ def test_describe_policy_names_what_trained_it(tmp_path):
 
     dims = dict(map_ch=9, map_hw=8, vec_dim=10, n_actions=4)
     for feats, train_cfg, want in [
-            (True, {"bc_iterations": 30, "teacher": "detect", "iterations": 0},
-             "Imitation of detect planner (DAgger; its features, GRU)"),
-            (True, {"bc_iterations": 3, "teacher": "detect", "iterations": 5},
-             "Imitation of detect planner + PPO 5 it. (DAgger; its features, GRU)"),
-            (False, {"bc_iterations": 0, "teacher": "detect", "iterations": 782},
-             "Actor-critic RL (map-only, GRU)")]:
+        (
+            True,
+            {"bc_iterations": 30, "teacher": "detect", "iterations": 0},
+            "Imitation of detect planner (DAgger; its features, GRU)",
+        ),
+        (
+            True,
+            {"bc_iterations": 3, "teacher": "detect", "iterations": 5},
+            "Imitation of detect planner + PPO 5 it. (DAgger; its features, GRU)",
+        ),
+        (False, {"bc_iterations": 0, "teacher": "detect", "iterations": 782}, "Actor-critic RL (map-only, GRU)"),
+    ]:
         run = tmp_path / f"r{len(want)}"
         run.mkdir()
         from aerohrl.ipp.features import N_FEAT
+
         d = dict(dims, n_feat=N_FEAT if feats else 0)
         m = ActorCritic(**d, cfg=PolicyConfig(hidden=16, features=feats))
         save_policy(m, d, run / "model.pt")

@@ -10,10 +10,20 @@ from aerohrl.ipp.cli import main
 from aerohrl.ipp.env import TERMS, semantic_config
 from aerohrl.ipp.factory import make_env
 from aerohrl.ipp.lattice import semantic_lattice
-from aerohrl.ipp.semantic import (CLASSES, PALETTE, SemanticConfig, _info_gain_cat_direct,
-                                  campus_map, categorical_update, info_gain_cat,
-                                  label_logratio, load_class_raster, measure_labels,
-                                  sample_semantic_worlds, softmax)
+from aerohrl.ipp.semantic import (
+    CLASSES,
+    PALETTE,
+    SemanticConfig,
+    _info_gain_cat_direct,
+    campus_map,
+    categorical_update,
+    info_gain_cat,
+    label_logratio,
+    load_class_raster,
+    measure_labels,
+    sample_semantic_worlds,
+    softmax,
+)
 
 SMALL = 48  # a small semantic map keeps the tests fast
 
@@ -48,8 +58,7 @@ def test_categorical_update_by_hand():
     assert label_logratio(0.11, 2) == pytest.approx(np.log(0.89 / 0.11))
     # labels: the truth unless u1 < e; a wrong label is never the truth
     t = np.array([0, 3, 4, 2])
-    z = measure_labels(t, np.full(4, 0.5), np.array([0.9, 0.1, 0.1, 0.1]),
-                       np.array([0.0, 0.0, 0.99, 0.5]), 5)
+    z = measure_labels(t, np.full(4, 0.5), np.array([0.9, 0.1, 0.1, 0.1]), np.array([0.0, 0.0, 0.99, 0.5]), 5)
     assert z[0] == 0 and np.all(z[1:] != t[1:]) and z[1] == 0 and z[2] == 3
 
 
@@ -60,8 +69,7 @@ def test_info_gain_cat():
     np.testing.assert_allclose(info_gain_cat(p, lam), _info_gain_cat_direct(p, lam), atol=1e-10)
     b = rng.uniform(0.05, 0.95, 20)
     lam2 = rng.uniform(0, 6, 20)
-    np.testing.assert_allclose(info_gain_cat(np.stack([1 - b, b], -1), lam2), info_gain(b, lam2),
-                               atol=1e-10)
+    np.testing.assert_allclose(info_gain_cat(np.stack([1 - b, b], -1), lam2), info_gain(b, lam2), atol=1e-10)
 
 
 def _cfg(budget=1500.0):
@@ -70,8 +78,7 @@ def _cfg(budget=1500.0):
 
 @pytest.mark.parametrize("u,wrong", [(0.999, False), (0.0, True)])
 def test_env_belief_update_equals_hand_computation(lat, monkeypatch, u, wrong):
-    monkeypatch.setattr(semenv, "hashed_uniform", lambda *a: np.full(np.broadcast_shapes(
-        *[np.shape(x) for x in a]), u))
+    monkeypatch.setattr(semenv, "hashed_uniform", lambda *a: np.full(np.broadcast_shapes(*[np.shape(x) for x in a]), u))
     env, _ = make_env(_cfg(), lat, 3, [0])
     C = env.n_classes
     prior = env.worlds.prior[0].astype(float)
@@ -101,8 +108,7 @@ def test_reward_terms_match_metrics(lat):
     total = np.zeros((2, len(TERMS)))
     while not env.done.all():
         m = env.valid_mask()
-        _, _, terms, _ = env.step(np.array([rng.choice(np.flatnonzero(r)) if r.any() else 0
-                                            for r in m]))
+        _, _, terms, _ = env.step(np.array([rng.choice(np.flatnonzero(r)) if r.any() else 0 for r in m]))
         total += terms
     met = env.metrics()
     np.testing.assert_allclose(total[:, 0], 15 * met["entropy_reduction"] / 100, atol=1e-6)
@@ -130,6 +136,7 @@ def test_planners_run_on_semantic(lat, name):
 
 def test_detect_teacher_and_its_feature_on_semantic(lat):
     from aerohrl.ipp.features import N_FEAT
+
     env, _ = make_env(_cfg(1200.0), lat, 2, range(2))
     pl = make_planner("detect", env)
     for _ in range(2):
@@ -143,6 +150,7 @@ def test_detect_teacher_and_its_feature_on_semantic(lat):
 
 def test_raster_loader_formats(tmp_path):
     import matplotlib.pyplot as plt
+
     a = np.zeros((64, 32), np.int64)
     a[10:20, 5:9] = 1
     a[30:, :] = 2
@@ -158,13 +166,24 @@ def test_raster_loader_formats(tmp_path):
         np.testing.assert_array_equal(r[:, ::2], a, err_msg=f)
 
 
-@pytest.mark.parametrize("case,msg", [
-    ("missing", "not found"), ("ext", "unsupported"), ("3d", "2-D"), ("range", "0..4"),
-    ("float", "integer"), ("colour", "palette"), ("empty", "no feature"),
-    ("npzkeys", "no 'classes'"), ("junk", "not a numpy"), ("tiny", "too small"),
-])
+@pytest.mark.parametrize(
+    "case,msg",
+    [
+        ("missing", "not found"),
+        ("ext", "unsupported"),
+        ("3d", "2-D"),
+        ("range", "0..4"),
+        ("float", "integer"),
+        ("colour", "palette"),
+        ("empty", "no feature"),
+        ("npzkeys", "no 'classes'"),
+        ("junk", "not a numpy"),
+        ("tiny", "too small"),
+    ],
+)
 def test_raster_loader_errors_one_line(tmp_path, case, msg):
     import matplotlib.pyplot as plt
+
     f = tmp_path / "r.npy"
     if case == "missing":
         f = tmp_path / "nope.npy"
@@ -198,19 +217,42 @@ def test_cli_semantic_bench_with_raster(tmp_path, capsys):
     rast = tmp_path / "campus.npy"
     np.save(rast, campus_map(np.random.default_rng(0), SMALL))
     d = tmp_path / "b"
-    assert main(["bench", "--planner", "coverage", "--world", "semantic", "--raster", str(rast),
-                 "--map-size", str(SMALL), "--budget", "1200", "--envs", "2",
-                 "--out", str(d), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "--planner",
+                "coverage",
+                "--world",
+                "semantic",
+                "--raster",
+                str(rast),
+                "--map-size",
+                str(SMALL),
+                "--budget",
+                "1200",
+                "--envs",
+                "2",
+                "--out",
+                str(d),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "Coverage" in out and "88.7" in out  # Table 2.2 beside ours
     assert (d / "ipp_bench.csv").is_file() and (d / "ipp_kl.png").is_file()
 
 
-@pytest.mark.parametrize("argv,msg", [
-    (["bench", "--world", "semantic", "--raster", "nope.png"], "not found"),
-    (["bench", "--raster", "x.npy"], "--world semantic"),
-    (["bench", "--world", "moon"], "invalid choice"),
-])
+@pytest.mark.parametrize(
+    "argv,msg",
+    [
+        (["bench", "--world", "semantic", "--raster", "nope.png"], "not found"),
+        (["bench", "--raster", "x.npy"], "--world semantic"),
+        (["bench", "--world", "moon"], "invalid choice"),
+    ],
+)
 def test_cli_semantic_errors(argv, msg, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "x.npy").write_bytes(b"")

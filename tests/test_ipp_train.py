@@ -81,16 +81,16 @@ def test_resumed_weights_differ_from_a_fresh_start(full_run, tmp_path):
 
 def test_dagger_warm_start_imitates_the_teacher(tmp_path):
     lat = default_lattice()
-    cfg = preset("test", n_envs=8, bc_iterations=4, iterations=0, bc_epochs=8, eval_every=0,
-                 bc_beta_decay=0.5, bc_lr=3e-3)
+    cfg = preset("test", n_envs=8, bc_iterations=4, iterations=0, bc_epochs=8, eval_every=0, bc_beta_decay=0.5, bc_lr=3e-3)
     train(cfg, lat, tmp_path / "bc")
     rows = [json.loads(x) for x in (tmp_path / "bc" / "metrics.jsonl").read_text().splitlines()]
     assert [r["phase"] for r in rows] == ["bc"] * 4
-    assert rows[-1]["beta"] == pytest.approx(0.5 ** 3)
+    assert rows[-1]["beta"] == pytest.approx(0.5**3)
     assert rows[-1]["bc_accuracy"] > 0.4
 
     def agreement(model):  # on unseen worlds, along the teacher's own path
         from aerohrl.ipp.policy import RLPlanner
+
         env, _ = make_env(EnvConfig(budget=1500.0), lat, 500, range(6))
         teacher, pl = make_planner("detect", env), RLPlanner(env, model)
         agree = tot = 0
@@ -103,8 +103,7 @@ def test_dagger_warm_start_imitates_the_teacher(tmp_path):
         return agree / tot
 
     train(replace(cfg, bc_iterations=0, iterations=1, lr=1e-12), lat, tmp_path / "none")
-    cloned, untrained = agreement(load_policy(tmp_path / "bc")), \
-        agreement(load_policy(tmp_path / "none"))
+    cloned, untrained = agreement(load_policy(tmp_path / "bc")), agreement(load_policy(tmp_path / "none"))
     print(cloned, untrained)
     assert cloned > 0.3 and cloned > untrained + 0.15
 
@@ -159,8 +158,7 @@ def test_budget_aware_endgame_maximises_detections_by_hand():
             d1.append(env.plan_detect_gain(b, np.zeros_like(lam), lam).sum())
         d1 = np.array(d1)
         assert d1[list(valid).index(a[n])] == pytest.approx(d1.max())
-        np.testing.assert_allclose(f[n, valid, 14] * 25 * (1.0 / cmean), d1, rtol=1e-6,
-                                   atol=1e-12)
+        np.testing.assert_allclose(f[n, valid, 14] * 25 * (1.0 / cmean), d1, rtol=1e-6, atol=1e-12)
 
 
 def test_detect_gain_flat_matches_the_generic_hook():
@@ -173,10 +171,8 @@ def test_detect_gain_flat_matches_the_generic_hook():
     lam = rng.choice([1.3, 2.1, 4.6, 6.7], 500)
     HH = env.Hp * env.Hp
     b = env.plan_cells(flat // HH, flat % HH)
-    np.testing.assert_allclose(env.plan_detect_gain_flat(flat, lp, lam),
-                               env.plan_detect_gain(b, lp, lam), atol=1e-12)
-    g = env.plan_detect_gain(np.array([0.3, 0.3, 0.97]), np.array([0.0, 0.0, 0.0]),
-                             np.array([4.6, 1.3, 4.6]))
+    np.testing.assert_allclose(env.plan_detect_gain_flat(flat, lp, lam), env.plan_detect_gain(b, lp, lam), atol=1e-12)
+    g = env.plan_detect_gain(np.array([0.3, 0.3, 0.97]), np.array([0.0, 0.0, 0.0]), np.array([4.6, 1.3, 4.6]))
     # one centre look at b=0.3 finds it with P(target) * P(label 1) = 0.3 * 0.99; an
     # edge look (posterior logit -0.85 + 1.3 < logit 0.95) finds nothing; b >= 0.95: done
     np.testing.assert_allclose(g, [0.3 * (1 - 1 / (1 + np.exp(4.6))), 0.0, 0.0])
@@ -184,10 +180,11 @@ def test_detect_gain_flat_matches_the_generic_hook():
 
 def test_paired_differences_by_hand():
     ids = np.arange(3)
-    res = {"dp": {"per_env": {"search_efficiency": np.array([50.0, 60.0, 70.0])}, "env_ids": ids},
-           "prio_coverage": {"per_env": {"search_efficiency": np.array([55.0, 60.0, 71.0])},
-                             "env_ids": ids},
-           "rl": {"per_env": {"search_efficiency": np.array([56.0, 62.0, 71.0])}, "env_ids": ids}}
+    res = {
+        "dp": {"per_env": {"search_efficiency": np.array([50.0, 60.0, 70.0])}, "env_ids": ids},
+        "prio_coverage": {"per_env": {"search_efficiency": np.array([55.0, 60.0, 71.0])}, "env_ids": ids},
+        "rl": {"per_env": {"search_efficiency": np.array([56.0, 62.0, 71.0])}, "env_ids": ids},
+    }
     d, best = paired_differences(res, ("dp", "prio_coverage"))
     assert best == "prio_coverage"
     m, se, n = d["rl"]["prio_coverage"]
@@ -207,8 +204,7 @@ def test_config_round_trip_and_curve(full_run, tmp_path):
 
 def test_cli_train_resume_and_curve(tmp_path, capsys):
     run = tmp_path / "run"
-    assert main(["train", "--preset", "test", "--iterations", "1", "--out", str(run.parent), "--name", run.name,
-                 "--quiet"]) == 0
+    assert main(["train", "--preset", "test", "--iterations", "1", "--out", str(run.parent), "--name", run.name, "--quiet"]) == 0
     assert "learning_curve.png" in capsys.readouterr().out
     first = json.loads((run / "metrics.jsonl").read_text().splitlines()[-1])
     assert first["iteration"] == 3 and first["phase"] == "ppo"
@@ -222,23 +218,26 @@ def test_cli_train_resume_and_curve(tmp_path, capsys):
     assert [p.name for p in run.glob(".*")] == [".lock"]  # the run's lock; atomic writes leave no temp files
 
 
-@pytest.mark.parametrize("argv,msg", [
-    (["train", "--resume", "nowhere"], "no config.json"),
-    (["train", "--preset", "test", "--adv-weights", "1,2"], "--adv-weights"),
-    (["train", "--preset", "test", "--adv-weights", "1,x,1,1,1"], "comma-separated"),
-    (["train", "--preset", "test", "--teacher", "astar"], "invalid choice: 'astar'"),
-    (["train", "--preset", "test", "--teacher", "cmaes"], "invalid choice: 'cmaes'"),
-    (["train", "--preset", "test", "--teacher-depth", "9"], "teacher-depth"),
-    (["train", "--preset", "test", "--seed", "1000"], "test suite"),
-    (["train", "--preset", "test", "--lr", "-1"], "--lr"),
-    (["train", "--preset", "test", "--bc-iterations", "-1"], "--bc-iterations"),
-    (["train", "--preset", "test", "--iterations", "0", "--bc-iterations", "0"], "must be >= 1"),
-    (["train", "--preset", "test", "--eval-every", "-2"], "--eval-every"),
-    (["train", "--preset", "test", "--threads", "0"], "--threads"),
-    (["curve", "nowhere"], "no metrics.jsonl"),
-    (["bench", "--planner", "detect", "--depth", "9", "--envs", "1"], "depth"),
-    (["bench", "--planner", "dp", "--depth", "0", "--envs", "1"], "depth"),
-])
+@pytest.mark.parametrize(
+    "argv,msg",
+    [
+        (["train", "--resume", "nowhere"], "no config.json"),
+        (["train", "--preset", "test", "--adv-weights", "1,2"], "--adv-weights"),
+        (["train", "--preset", "test", "--adv-weights", "1,x,1,1,1"], "comma-separated"),
+        (["train", "--preset", "test", "--teacher", "astar"], "invalid choice: 'astar'"),
+        (["train", "--preset", "test", "--teacher", "cmaes"], "invalid choice: 'cmaes'"),
+        (["train", "--preset", "test", "--teacher-depth", "9"], "teacher-depth"),
+        (["train", "--preset", "test", "--seed", "1000"], "test suite"),
+        (["train", "--preset", "test", "--lr", "-1"], "--lr"),
+        (["train", "--preset", "test", "--bc-iterations", "-1"], "--bc-iterations"),
+        (["train", "--preset", "test", "--iterations", "0", "--bc-iterations", "0"], "must be >= 1"),
+        (["train", "--preset", "test", "--eval-every", "-2"], "--eval-every"),
+        (["train", "--preset", "test", "--threads", "0"], "--threads"),
+        (["curve", "nowhere"], "no metrics.jsonl"),
+        (["bench", "--planner", "detect", "--depth", "9", "--envs", "1"], "depth"),
+        (["bench", "--planner", "dp", "--depth", "0", "--envs", "1"], "depth"),
+    ],
+)
 def test_train_bad_input_one_line(argv, msg, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 2
@@ -248,6 +247,7 @@ def test_train_bad_input_one_line(argv, msg, capsys, tmp_path, monkeypatch):
 
 def test_resume_rejects_damaged_runs(full_run, tmp_path, capsys):
     import shutil
+
     run = tmp_path / "r"
     shutil.copytree(full_run, run)
     assert main(["train", "--resume", str(run), "--envs", "9"]) == 2
@@ -274,7 +274,7 @@ def test_resume_rejects_damaged_runs(full_run, tmp_path, capsys):
     assert main(["train", "--resume", str(run)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("aerohrl ipp: error:") and "\n" not in err
-    (run / "metrics.jsonl").write_text("{\"iteration\": 1}\n")
+    (run / "metrics.jsonl").write_text('{"iteration": 1}\n')
     assert main(["curve", str(run)]) == 2
     assert "not a metrics line" in capsys.readouterr().err
 
@@ -310,12 +310,15 @@ def test_seeds_markdown_by_hand():
     from scipy import stats
 
     from aerohrl.ipp.metrics import seeds_markdown
+
     ids = np.arange(4)
     dp = np.array([50.0, 60.0, 70.0, 80.0])
     s1, s2 = dp + [1.0, 3.0, 2.0, 2.0], dp + [3.0, 1.0, 2.0, 0.0]
-    res = {"dp": {"per_env": {"search_efficiency": dp}, "env_ids": ids},
-           "rl": {"per_env": {"search_efficiency": s1}, "env_ids": ids},
-           "rl_2": {"per_env": {"search_efficiency": s2}, "env_ids": ids}}
+    res = {
+        "dp": {"per_env": {"search_efficiency": dp}, "env_ids": ids},
+        "rl": {"per_env": {"search_efficiency": s1}, "env_ids": ids},
+        "rl_2": {"per_env": {"search_efficiency": s2}, "env_ids": ids},
+    }
     names = {"dp": "DP-IPP"}
     md = seeds_markdown(res, names, {"recipe, seeds 7, 8": ["rl", "rl_2"]}, ("dp",))
     row = next(line for line in md.splitlines() if line.startswith("| recipe, seeds"))
@@ -338,7 +341,6 @@ def test_bench_groups_a_recipe_over_seeds(full_run, tmp_path, capsys):
     assert main(argv + ["--all", "--run", str(full_run), "--run", str(s8)]) == 0
     out = capsys.readouterr().out
     assert "Over seeds" in out
-    assert "| Imitation of detect planner + PPO 1 it. (DAgger; its features, GRU), model.pt, " \
-           "seeds 7, 8 | 2 |" in out
+    assert "| Imitation of detect planner + PPO 1 it. (DAgger; its features, GRU), model.pt, seeds 7, 8 | 2 |" in out
     assert main(argv + ["--all", "--run", str(full_run), "--run", str(full_run)]) == 0
     assert "Over seeds" not in capsys.readouterr().out

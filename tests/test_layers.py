@@ -34,12 +34,27 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE_DIRS: dict[str, str] = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
 
 # the modules of the aerohrl package itself, by layer
-BOTTOM = {"aerohrl.errors", "aerohrl.atomic", "aerohrl.task", "aerohrl.hardware", "aerohrl.cli_common",
-          "aerohrl.cli_types", "aerohrl.cluster", "aerohrl.config"}
+BOTTOM = {
+    "aerohrl.errors",
+    "aerohrl.atomic",
+    "aerohrl.task",
+    "aerohrl.hardware",
+    "aerohrl.cli_common",
+    "aerohrl.cli_types",
+    "aerohrl.cluster",
+    "aerohrl.config",
+}
 TOP = {"aerohrl", "aerohrl.api", "aerohrl.cli", "aerohrl.runs", "aerohrl.sweep"}
 # layer units bottom to top; units in one tuple share a rank and may not import each other
-LAYERS: list[tuple[str, ...]] = [("bottom",), ("aerohrl.sim",), ("aerohrl.datagen",), ("aerohrl.envs",),
-                                 ("aerohrl.algorithms",), ("aerohrl.planning",), ("aerohrl.eval", "aerohrl.ipp")]
+LAYERS: list[tuple[str, ...]] = [
+    ("bottom",),
+    ("aerohrl.sim",),
+    ("aerohrl.datagen",),
+    ("aerohrl.envs",),
+    ("aerohrl.algorithms",),
+    ("aerohrl.planning",),
+    ("aerohrl.eval", "aerohrl.ipp"),
+]
 RANK = {unit: i for i, units in enumerate(LAYERS) for unit in units}
 
 # Known violations in files this change does not own, each with its reason. An entry that
@@ -208,36 +223,53 @@ SYNTHETIC = set(MODULES) | {"aerohrl.datagen.fake", "aerohrl.eval.fake", "aerohr
 
 def test_checker_flags_an_upward_edge():
     v = violations("aerohrl.datagen.fake", "from aerohrl.eval.harness import evaluate_run\n", SYNTHETIC)
-    assert list(v) == ["aerohrl.datagen.fake -> aerohrl.eval.harness"] and "above" in v["aerohrl.datagen.fake -> aerohrl.eval.harness"]
+    assert (
+        list(v) == ["aerohrl.datagen.fake -> aerohrl.eval.harness"]
+        and "above" in v["aerohrl.datagen.fake -> aerohrl.eval.harness"]
+    )
     lazy = "def f():\n    from aerohrl.planning import planner\n    return planner\n"
     assert list(violations("aerohrl.datagen.fake", lazy, SYNTHETIC)) == ["aerohrl.datagen.fake -> aerohrl.planning.planner"]
-    assert list(violations("aerohrl.sim.fake", "from aerohrl import api, task\n", SYNTHETIC)) == ["aerohrl.sim.fake -> aerohrl.api"]
+    assert list(violations("aerohrl.sim.fake", "from aerohrl import api, task\n", SYNTHETIC)) == [
+        "aerohrl.sim.fake -> aerohrl.api"
+    ]
     assert list(violations("aerohrl.sim.fake", "import aerohrl.sweep\n", SYNTHETIC)) == ["aerohrl.sim.fake -> aerohrl.sweep"]
     beside = violations("aerohrl.eval.fake", "from aerohrl.ipp.env import SearchEnv\n", SYNTHETIC)
     assert "beside" in beside["aerohrl.eval.fake -> aerohrl.ipp.env"]
-    assert list(violations("aerohrl.ipp.fake", "from aerohrl.eval import tasks\n", SYNTHETIC)) == ["aerohrl.ipp.fake -> aerohrl.eval.tasks"]
+    assert list(violations("aerohrl.ipp.fake", "from aerohrl.eval import tasks\n", SYNTHETIC)) == [
+        "aerohrl.ipp.fake -> aerohrl.eval.tasks"
+    ]
 
 
 def test_checker_flags_a_private_import():
     src = "from aerohrl.eval.reproduce import _evaluated\n"
-    assert list(violations("aerohrl.ipp.fake", src, SYNTHETIC)) == ["aerohrl.ipp.fake -> aerohrl.eval.reproduce._evaluated",
-                                                                    "aerohrl.ipp.fake -> aerohrl.eval.reproduce"]
-    assert list(violations("aerohrl.cli", src, SYNTHETIC)) == ["aerohrl.cli -> aerohrl.eval.reproduce._evaluated"]  # entry points too
+    assert list(violations("aerohrl.ipp.fake", src, SYNTHETIC)) == [
+        "aerohrl.ipp.fake -> aerohrl.eval.reproduce._evaluated",
+        "aerohrl.ipp.fake -> aerohrl.eval.reproduce",
+    ]
+    assert list(violations("aerohrl.cli", src, SYNTHETIC)) == [
+        "aerohrl.cli -> aerohrl.eval.reproduce._evaluated"
+    ]  # entry points too
     assert list(violations("aerohrl.eval.fake", "from ._x import y\n", SYNTHETIC | {"aerohrl.eval._x"})) == []  # own package
-    attr = "from aerohrl.datagen import reference\nimport aerohrl.sim.params\nimport aerohrl\nf = reference._positive\n" \
-           "g = aerohrl.sim.params._hidden\naerohrl._register_env()\nh = reference.positive\n"
-    assert list(violations("aerohrl.eval.fake", attr, SYNTHETIC)) == ["aerohrl.eval.fake -> aerohrl.datagen.reference._positive",
-                                                                      "aerohrl.eval.fake -> aerohrl.sim.params._hidden",
-                                                                      "aerohrl.eval.fake -> aerohrl._register_env"]
+    attr = (
+        "from aerohrl.datagen import reference\nimport aerohrl.sim.params\nimport aerohrl\nf = reference._positive\n"
+        "g = aerohrl.sim.params._hidden\naerohrl._register_env()\nh = reference.positive\n"
+    )
+    assert list(violations("aerohrl.eval.fake", attr, SYNTHETIC)) == [
+        "aerohrl.eval.fake -> aerohrl.datagen.reference._positive",
+        "aerohrl.eval.fake -> aerohrl.sim.params._hidden",
+        "aerohrl.eval.fake -> aerohrl._register_env",
+    ]
     assert list(violations("aerohrl.datagen.fake", "from . import reference\nf = reference._positive\n", SYNTHETIC)) == []
     assert list(violations("aerohrl.eval.fake", "from aerohrl.eval.tasks import _check_n\n", SYNTHETIC)) == []
 
 
 def test_checker_allows_what_the_layers_allow():
-    ok = ("from aerohrl import task, __version__\nfrom aerohrl.errors import UserError\nimport aerohrl\n"
-          "from aerohrl.sim import BatchedQuadrotor\nfrom . import tasks\nfrom .tasks import TASKS\n"
-          "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from aerohrl.api import Run\n"
-          "def f():\n    from aerohrl.envs.rollout import rollout\n    from aerohrl.planning.planner import Planner\n")
+    ok = (
+        "from aerohrl import task, __version__\nfrom aerohrl.errors import UserError\nimport aerohrl\n"
+        "from aerohrl.sim import BatchedQuadrotor\nfrom . import tasks\nfrom .tasks import TASKS\n"
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from aerohrl.api import Run\n"
+        "def f():\n    from aerohrl.envs.rollout import rollout\n    from aerohrl.planning.planner import Planner\n"
+    )
     assert violations("aerohrl.eval.fake", ok, SYNTHETIC) == {}
     assert violations("aerohrl.datagen.cli", "from aerohrl.eval.harness import evaluate_run\n", SYNTHETIC) == {}
 
@@ -258,4 +290,3 @@ def test_imports_point_down_and_private_names_stay_private():
     assert not new, "imports against the layers:\n" + "\n".join(f"  {k}  ({v})" for k, v in sorted(new.items()))
     stale = sorted(set(ALLOWED) - set(found))
     assert not stale, f"allow-listed imports that no longer occur (delete them from ALLOWED): {stale}"
-

@@ -93,8 +93,13 @@ def _load(root, **kw):
 def test_layout_and_info(small):
     root, cols, ep = small
     files = sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
-    assert files == ["data/chunk-000/file-000.parquet", "meta/episodes/chunk-000/file-000.parquet",
-                     "meta/info.json", "meta/stats.json", "meta/tasks.parquet"]
+    assert files == [
+        "data/chunk-000/file-000.parquet",
+        "meta/episodes/chunk-000/file-000.parquet",
+        "meta/info.json",
+        "meta/stats.json",
+        "meta/tasks.parquet",
+    ]
     info = read_info(root)
     assert info["codebase_version"] == "v3.0" and info["fps"] == FPS and info["video_path"] is None
     assert (info["total_episodes"], info["total_frames"], info["total_tasks"]) == (4, sum(LENGTHS), 1)
@@ -107,7 +112,9 @@ def test_layout_and_info(small):
     assert f["action"]["names"] == task.ACTION_NAMES and f["observation.desired_goal"]["names"] == task.GOAL_NAMES
     assert f["next.done"] == {"dtype": "bool", "shape": [1], "names": None}
     schema = pq.read_schema(root / "data/chunk-000/file-000.parquet")
-    assert str(schema.field("observation.state").type).startswith("fixed_size_list<") and schema.field("next.reward").type == "float"
+    assert (
+        str(schema.field("observation.state").type).startswith("fixed_size_list<") and schema.field("next.reward").type == "float"
+    )
     # tasks: the string is the pandas index named "task" (lerobot reads tasks.iloc[i].name)
     import pandas as pd
 

@@ -31,15 +31,21 @@ def _load(code: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow  # three subprocesses that import lerobot (~45 s)
 def test_lerobot_load_prints_no_traceback(ds):
-    bare = _load(f"from lerobot.datasets.lerobot_dataset import LeRobotDataset\n"
-                 f"ds = LeRobotDataset('aerohrl/quadrotor-reach', root={str(ds)!r})\nprint(len(ds), ds[3]['action'].shape)")
+    bare = _load(
+        f"from lerobot.datasets.lerobot_dataset import LeRobotDataset\n"
+        f"ds = LeRobotDataset('aerohrl/quadrotor-reach', root={str(ds)!r})\nprint(len(ds), ds[3]['action'].shape)"
+    )
     assert bare.returncode == 0, bare.stderr[-2000:]
     assert "Traceback" not in bare.stderr and "libtorchcodec" not in bare.stderr, bare.stderr[:3000]
     assert len(bare.stderr.splitlines()) <= 1, bare.stderr  # at most lerobot's "falling back to 'pyav'" line
-    named = _load(f"from lerobot.datasets.lerobot_dataset import LeRobotDataset\n"
-                  f"ds = LeRobotDataset('aerohrl/quadrotor-reach', root={str(ds)!r}, video_backend='pyav')\nprint(len(ds))")
+    named = _load(
+        f"from lerobot.datasets.lerobot_dataset import LeRobotDataset\n"
+        f"ds = LeRobotDataset('aerohrl/quadrotor-reach', root={str(ds)!r}, video_backend='pyav')\nprint(len(ds))"
+    )
     assert named.returncode == 0 and named.stderr == "", named.stderr[:3000]
-    ours = _load(f"import aerohrl\nds = aerohrl.load_dataset({str(ds)!r}, as_='lerobot')\nprint(len(ds), ds[0]['observation.state'].shape)")
+    ours = _load(
+        f"import aerohrl\nds = aerohrl.load_dataset({str(ds)!r}, as_='lerobot')\nprint(len(ds), ds[0]['observation.state'].shape)"
+    )
     assert ours.returncode == 0 and ours.stderr == "", ours.stderr[:3000]
     assert ours.stdout.split()[0] == bare.stdout.split()[0] == named.stdout.strip()
 

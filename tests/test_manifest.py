@@ -58,7 +58,9 @@ def test_manifest_content_and_fresh_dataset_validates(ds):
     m = read_manifest(root)
     assert m == manifest
     assert set(m["checksums"]) == set(_files(root)) - {MANIFEST_PATH}
-    assert {"README.md", "meta/aerohrl_episodes.parquet", "meta/info.json", "data/chunk-000/file-000.parquet"} <= set(m["checksums"])
+    assert {"README.md", "meta/aerohrl_episodes.parquet", "meta/info.json", "data/chunk-000/file-000.parquet"} <= set(
+        m["checksums"]
+    )
     assert m["spec"]["pos_range"] == [1.0, 2.0] and m["episodes"] == 3 and m["vehicle"]["mass"] == 0.5
     assert m["vehicle"]["inertia"][2] == [0.0, 0.0, 0.002] and m["expert_success_rate"] == 2 / 3
     assert m["note"] == "ünïcode ok"

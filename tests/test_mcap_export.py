@@ -65,8 +65,15 @@ def test_export_counts_and_content(ds, tmp_path):
     rows = np.flatnonzero(ep == e)
     out = tmp_path / "sub" / "ep1.mcap"
     counts = export_mcap(root, e, out)
-    assert counts == {"/tf": 2 * (L + 1), "/vehicle/pose": L + 1, "/vehicle/velocity": L + 1, "/goal/pose": L + 1,
-                      "/goal/velocity": L + 1, "/action": L, "/step": L}
+    assert counts == {
+        "/tf": 2 * (L + 1),
+        "/vehicle/pose": L + 1,
+        "/vehicle/velocity": L + 1,
+        "/goal/pose": L + 1,
+        "/goal/velocity": L + 1,
+        "/action": L,
+        "/step": L,
+    }
     msgs = _read(out)
     assert {k: len(v) for k, v in msgs.items()} == counts
     assert list(out.parent.iterdir()) == [out]  # no temporary left behind

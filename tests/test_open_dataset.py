@@ -8,8 +8,14 @@ import numpy as np
 import pytest
 
 import aerohrl
-from aerohrl.datagen.dataset import (DatasetDamaged, DatasetError, DatasetMissing, NotAnAerohrlDataset,
-                                     UnsupportedDatasetVersion, open_dataset)
+from aerohrl.datagen.dataset import (
+    DatasetDamaged,
+    DatasetError,
+    DatasetMissing,
+    NotAnAerohrlDataset,
+    UnsupportedDatasetVersion,
+    open_dataset,
+)
 from aerohrl.errors import UserError
 
 
@@ -52,12 +58,21 @@ def _unsupported(built, tmp_path):
 
 KINDS = {
     "missing": (_missing, DatasetMissing, "no dataset at {p} (build one with `datagen build`)"),
-    "not-aerohrl": (_not_aerohrl, NotAnAerohrlDataset,
-                    "{p} is not an aerohrl dataset (no meta/aerohrl.json); build one with `datagen build`"),
-    "damaged": (_damaged, DatasetDamaged,
-                "dataset {p} is damaged: checksum mismatch: README.md; `datagen validate {p}` lists every problem"),
-    "unsupported": (_unsupported, UnsupportedDatasetVersion,
-                    "{p} is a LeRobot v2.1 dataset; aerohrl reads LeRobot v3.0 (rebuild it with `datagen build`)"),
+    "not-aerohrl": (
+        _not_aerohrl,
+        NotAnAerohrlDataset,
+        "{p} is not an aerohrl dataset (no meta/aerohrl.json); build one with `datagen build`",
+    ),
+    "damaged": (
+        _damaged,
+        DatasetDamaged,
+        "dataset {p} is damaged: checksum mismatch: README.md; `datagen validate {p}` lists every problem",
+    ),
+    "unsupported": (
+        _unsupported,
+        UnsupportedDatasetVersion,
+        "{p} is a LeRobot v2.1 dataset; aerohrl reads LeRobot v3.0 (rebuild it with `datagen build`)",
+    ),
 }
 
 

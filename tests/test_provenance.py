@@ -67,11 +67,44 @@ def test_progress_lines_without_a_terminal(dataset_dir, tmp_path):
     """The CLI run as a job (stderr a file, no tty): one line every --progress-steps steps,
     with step, steps/s, the losses and the ETA."""
     env = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
-    r = subprocess.run([sys.executable, "-m", "aerohrl.algorithms.cli", "--algo", "td3bc", "--dataset", str(dataset_dir),
-                        "--out", str(tmp_path), "--name", "j", "--hidden", "8", "8", "--critic-hidden", "8",
-                        "--batch-size", "16", "--steps", "30", "--log-every", "10", "--checkpoint-every", "10",
-                        "--eval-every", "0", "--progress-steps", "10", "--progress-every", "0"],
-                       capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "aerohrl.algorithms.cli",
+            "--algo",
+            "td3bc",
+            "--dataset",
+            str(dataset_dir),
+            "--out",
+            str(tmp_path),
+            "--name",
+            "j",
+            "--hidden",
+            "8",
+            "8",
+            "--critic-hidden",
+            "8",
+            "--batch-size",
+            "16",
+            "--steps",
+            "30",
+            "--log-every",
+            "10",
+            "--checkpoint-every",
+            "10",
+            "--eval-every",
+            "0",
+            "--progress-steps",
+            "10",
+            "--progress-every",
+            "0",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+    )
     assert r.returncode == 0, r.stderr
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("train td3bc j: step")]
     assert [int(re.search(r"step (\d+)/30", ln).group(1)) for ln in lines] == [10, 20, 30]

@@ -39,8 +39,12 @@ def test_seeds_are_aggregated_with_their_values_and_floors(tmp_path, monkeypatch
     monkeypatch.setattr(rs, "critics_auc", lambda rd: 0.75)
     rows = [rs.Row("noise", 2500, s, 15000) for s in (0, 1, 2)]
     for s, base in zip((0, 1, 2), (0.90, 0.94, 0.98)):
-        _fake_run(tmp_path, rows[s], {"reach-novel": [base - 0.01, base + 0.01], "reach-desired": [base, base]},
-                  floors={"hover": {"reach-novel": 0.0, "reach-intermediate": 0.3}} if s == 0 else None)
+        _fake_run(
+            tmp_path,
+            rows[s],
+            {"reach-novel": [base - 0.01, base + 0.01], "reach-desired": [base, base]},
+            floors={"hover": {"reach-novel": 0.0, "reach-intermediate": 0.3}} if s == 0 else None,
+        )
     (rec,) = rs.aggregate(rows, tmp_path)
     rn = rec["cols"]["reach-novel"]
     np.testing.assert_allclose(rn["values"], [90.0, 94.0, 98.0])
@@ -62,8 +66,11 @@ def test_rows_name_their_runs_and_repeats_count_flights():
 def test_a_row_end_to_end(tmp_path, monkeypatch):
     """Build a small noisy dataset, train GCSL briefly, evaluate two columns and a floor
     through the real command lines; a second call finds everything done."""
-    monkeypatch.setattr(rs, "EVALS", [("reach-novel", ["--task", "reach-novel"]),
-                                      ("reach-novel-goaltol0.5", ["--task", "reach-novel", "--goal-tol", "0.5"])])
+    monkeypatch.setattr(
+        rs,
+        "EVALS",
+        [("reach-novel", ["--task", "reach-novel"]), ("reach-novel-goaltol0.5", ["--task", "reach-novel", "--goal-tol", "0.5"])],
+    )
     monkeypatch.setattr(rs, "FLOORS", ("hover",))
     monkeypatch.setattr(rs, "FLOOR_COLS", ("reach-novel",))
     monkeypatch.setattr(rs, "EPISODES", 20)
@@ -90,8 +97,22 @@ def test_the_report_goes_to_a_dated_page(tmp_path, monkeypatch):
     for r, base in zip(rows, (0.2, 0.5, 0.8, 0.9)):
         _fake_run(tmp_path / "runs", r, {"reach-novel": [base, base], "ood": [0.0, 0.0]})
     pages = tmp_path / "pages"
-    assert rs.main(["--plan", "size", "--report-only", "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out"),
-                    "--results-dir", str(pages)]) == 0
+    assert (
+        rs.main(
+            [
+                "--plan",
+                "size",
+                "--report-only",
+                "--runs",
+                str(tmp_path / "runs"),
+                "--out",
+                str(tmp_path / "out"),
+                "--results-dir",
+                str(pages),
+            ]
+        )
+        == 0
+    )
     (page,) = pages.glob("*-recipes.md")
     text = page.read_text()
     assert text.index("```\npython experiments/recipe_study.py --plan size --report-only") < text.index("**size**")

@@ -41,8 +41,15 @@ def noisy():
 
 
 def test_zero_noise_and_default_recipe_keep_todays_bytes(tmp_path):
-    explicit = DatasetSpec(action_noise=(0, 0, 0, 0), expert="open-loop", start_states="rest", rollouts_per_goal=1,
-                           noise_tau=0.7, replan_every=9, start_vel=2.0)  # sub-settings of recipes that are off
+    explicit = DatasetSpec(
+        action_noise=(0, 0, 0, 0),
+        expert="open-loop",
+        start_states="rest",
+        rollouts_per_goal=1,
+        noise_tau=0.7,
+        replan_every=9,
+        start_vel=2.0,
+    )  # sub-settings of recipes that are off
     assert version_name(explicit) == version_name(DatasetSpec()) == "n250-s0-dbb240c0"
     res = build(explicit, tmp_path, progress=False)
     for f, digest in DEFAULT_250.items():
@@ -51,9 +58,18 @@ def test_zero_noise_and_default_recipe_keep_todays_bytes(tmp_path):
 
 
 def test_recipes_change_the_version_and_reach_the_card(tmp_path):
-    names = {version_name(DatasetSpec(**kw)) for kw in
-             ({}, {"action_noise": NOISE}, {"action_noise": NOISE, "noise_tau": 0.1}, {"expert": "replan"},
-              {"expert": "replan", "replan_every": 10}, {"start_states": "perturbed"}, {"action_noise": NOISE, "rollouts_per_goal": 2})}
+    names = {
+        version_name(DatasetSpec(**kw))
+        for kw in (
+            {},
+            {"action_noise": NOISE},
+            {"action_noise": NOISE, "noise_tau": 0.1},
+            {"expert": "replan"},
+            {"expert": "replan", "replan_every": 10},
+            {"start_states": "perturbed"},
+            {"action_noise": NOISE, "rollouts_per_goal": 2},
+        )
+    }
     assert len(names) == 7
     res = build(DatasetSpec(goals=4, seed=1, action_noise=NOISE, expert="replan"), tmp_path, progress=False)
     card = (res.path / "README.md").read_text()
@@ -125,8 +141,9 @@ def test_replanning_expert_with_a_qp_reference_of_higher_degree():
 
 
 def test_perturbed_starts_and_repeated_flights(tmp_path):
-    spec = DatasetSpec(goals=5, seed=1, start_states="perturbed", rollouts_per_goal=3, start_vel=1.0, start_tilt=0.3,
-                       start_rate=1.0)
+    spec = DatasetSpec(
+        goals=5, seed=1, start_states="perturbed", rollouts_per_goal=3, start_vel=1.0, start_tilt=0.3, start_rate=1.0
+    )
     d = generate(spec, progress=False)
     assert len(d.T) == 15
     np.testing.assert_array_equal(d.goal_index, np.repeat(np.arange(5), 3))
@@ -152,17 +169,20 @@ def test_clean_flights_do_not_depend_on_the_rollout_block(monkeypatch):
         np.testing.assert_array_equal(getattr(whole, f), getattr(blocked, f))
 
 
-@pytest.mark.parametrize("kw, msg", [
-    ({"action_noise": (-1.0, 0.5)}, "action_noise must be >= 0"),
-    ({"action_noise": (1.0, 0.5, 0.5)}, "4 numbers"),
-    ({"expert": "mpc"}, "expert must be one of open-loop, replan"),
-    ({"start_states": "random"}, "start_states must be one of rest, perturbed"),
-    ({"noise_tau": 0.0}, "noise_tau must be > 0"),
-    ({"replan_every": 0}, "replan_every must be >= 1"),
-    ({"start_vel": 7.0}, "start_vel must be <= 3"),
-    ({"rollouts_per_goal": 3}, "identical flights"),
-    ({"action_noise": (9.0, 0.5)}, "action_noise .* is beyond what the expert flies through"),
-])
+@pytest.mark.parametrize(
+    "kw, msg",
+    [
+        ({"action_noise": (-1.0, 0.5)}, "action_noise must be >= 0"),
+        ({"action_noise": (1.0, 0.5, 0.5)}, "4 numbers"),
+        ({"expert": "mpc"}, "expert must be one of open-loop, replan"),
+        ({"start_states": "random"}, "start_states must be one of rest, perturbed"),
+        ({"noise_tau": 0.0}, "noise_tau must be > 0"),
+        ({"replan_every": 0}, "replan_every must be >= 1"),
+        ({"start_vel": 7.0}, "start_vel must be <= 3"),
+        ({"rollouts_per_goal": 3}, "identical flights"),
+        ({"action_noise": (9.0, 0.5)}, "action_noise .* is beyond what the expert flies through"),
+    ],
+)
 def test_bad_recipes_are_one_line_errors(kw, msg):
     with pytest.raises(UserError, match=msg) as e:
         load_spec(None, **kw)
@@ -170,8 +190,23 @@ def test_bad_recipes_are_one_line_errors(kw, msg):
 
 
 def test_cli_rejects_a_bad_recipe_in_one_line(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", "3", "--out", str(tmp_path),
-                        "--action-noise", "-1", "0.5"], capture_output=True, text=True)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "aerohrl.datagen.cli",
+            "build",
+            "--goals",
+            "3",
+            "--out",
+            str(tmp_path),
+            "--action-noise",
+            "-1",
+            "0.5",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert p.returncode == 2 and p.stderr.count("\n") == 1 and "action-noise" in p.stderr
 
 

@@ -156,8 +156,16 @@ def test_critic_random_goals_are_a_separate_batch(augment):
     norm = fit_normalizer(d, 0.5)
 
     def sampler(p):
-        return GoalBatchSampler(d, norm, batch_size=8192, delta=0.3, generator=torch.Generator().manual_seed(4),
-                                mc_gamma=0.99, augment=augment, critic_random_goal_prob=p)
+        return GoalBatchSampler(
+            d,
+            norm,
+            batch_size=8192,
+            delta=0.3,
+            generator=torch.Generator().manual_seed(4),
+            mc_gamma=0.99,
+            augment=augment,
+            critic_random_goal_prob=p,
+        )
 
     plain, both = sampler(0.0).sample(), sampler(0.4).sample()
     assert "critic" not in plain.keys()

@@ -25,9 +25,25 @@ warnings.filterwarnings("ignore", category=UserWarning)
 def checkpoint_paths(run_dir):
     return Run(run_dir).checkpoints()
 
+
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)
-FLAGS = ["--hidden", "16", "16", "--critic-hidden", "16", "16", "--batch-size", "32", "--log-every", "10",
-         "--checkpoint-every", "20", "--eval-every", "0", "--quiet"]
+FLAGS = [
+    "--hidden",
+    "16",
+    "16",
+    "--critic-hidden",
+    "16",
+    "16",
+    "--batch-size",
+    "32",
+    "--log-every",
+    "10",
+    "--checkpoint-every",
+    "20",
+    "--eval-every",
+    "0",
+    "--quiet",
+]
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +85,10 @@ def test_a_taken_run_name_is_refused_and_the_other_run_untouched(dataset_dir, tm
     out = tmp_path / "runs"
     (out / "g").mkdir(parents=True)  # another `train --name g` has just claimed it
     (out / "g" / "marker").write_text("theirs")
-    assert cli.main(["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(out), "--name", "g", "--steps", "20", *FLAGS]) == 2
+    assert (
+        cli.main(["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(out), "--name", "g", "--steps", "20", *FLAGS])
+        == 2
+    )
     err = _one_line(capsys.readouterr().err)
     assert "train: error: run folder" in err and "is taken" in err and "--name" in err
     assert [p.name for p in (out / "g").iterdir()] == ["marker"]
@@ -98,18 +117,22 @@ def test_a_run_being_trained_cannot_be_resumed_twice(trained, tmp_path, capsys):
         lock.release()
 
 
-@pytest.mark.parametrize("flags,msg", [
-    (["--seed", "-1"], "--seed: must be >= 0"),
-    (["--lr-actor", "-1"], "--lr-actor: must be > 0"),
-    (["--lr-critic", "0"], "--lr-critic: must be > 0"),
-    (["--batch-size", "0"], "--batch-size: must be >= 1"),
-    (["--steps", "0"], "--steps: must be >= 1"),
-    (["--hidden", "16", "0"], "--hidden: must be >= 1"),
-    (["--gamma", "nan"], "--gamma: must be a finite number"),
-    (["--tau", "2"], "tau"),
-    (["--relabel-prob", "1.5"], "--relabel-prob: must be <= 1"),
-    (["--device", "tpu"], "unknown device"),
-] + ([] if torch.cuda.is_available() else [(["--device", "cuda"], "no CUDA device")]))
+@pytest.mark.parametrize(
+    "flags,msg",
+    [
+        (["--seed", "-1"], "--seed: must be >= 0"),
+        (["--lr-actor", "-1"], "--lr-actor: must be > 0"),
+        (["--lr-critic", "0"], "--lr-critic: must be > 0"),
+        (["--batch-size", "0"], "--batch-size: must be >= 1"),
+        (["--steps", "0"], "--steps: must be >= 1"),
+        (["--hidden", "16", "0"], "--hidden: must be >= 1"),
+        (["--gamma", "nan"], "--gamma: must be a finite number"),
+        (["--tau", "2"], "tau"),
+        (["--relabel-prob", "1.5"], "--relabel-prob: must be <= 1"),
+        (["--device", "tpu"], "unknown device"),
+    ]
+    + ([] if torch.cuda.is_available() else [(["--device", "cuda"], "no CUDA device")]),
+)
 def test_bad_arguments_fail_before_the_run_folder_exists(flags, msg, dataset_dir, tmp_path, capsys):
     out = tmp_path / "runs"
     try:
@@ -125,7 +148,10 @@ def test_bad_arguments_fail_before_the_run_folder_exists(flags, msg, dataset_dir
 def test_a_full_disk_at_the_start_is_one_line_and_leaves_no_run_folder(dataset_dir, small_disk, capsys):
     small_disk.fill()
     out = small_disk.path / "runs"
-    assert cli.main(["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(out), "--name", "g", "--steps", "20", *FLAGS]) == 2
+    assert (
+        cli.main(["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(out), "--name", "g", "--steps", "20", *FLAGS])
+        == 2
+    )
     err = _one_line(capsys.readouterr().err)
     assert err.startswith("train: error: cannot write") and "No space left on device" in err
     assert not (out / "g").exists()
@@ -178,8 +204,10 @@ def test_checkpoints_from_before_checksums_load_with_one_warning(trained, tmp_pa
         side.unlink()
     assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(run), "--episodes", "2", "--quiet"]) == 0
     err = capsys.readouterr().err.strip()
-    assert err == f"aerohrl eval: warning: the checkpoints in {run / 'checkpoints'} have no .sha256 files " \
-                  "(written before checkpoints had checksums); loaded unverified"  # once for both checkpoints
+    assert (
+        err == f"aerohrl eval: warning: the checkpoints in {run / 'checkpoints'} have no .sha256 files "
+        "(written before checkpoints had checksums); loaded unverified"
+    )  # once for both checkpoints
     assert runs.main(["show", str(run), "--no-plot"]) == 0
     assert "DAMAGED" not in capsys.readouterr().out  # their zip CRCs hold
     _damage(run / "checkpoints" / "step-000000040.pt", "flip")
@@ -237,8 +265,9 @@ def test_runs_find_a_moved_dataset_by_version_or_say_dataset(dataset_dir, tmp_pa
     proj.rename(moved)  # the whole project elsewhere: the recorded path is gone
     monkeypatch.chdir(tmp_path)
     capsys.readouterr()
-    assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(moved / "runs" / "g"), "--episodes", "2",
-                         "--quiet"]) == 0
+    assert (
+        aerohrl_main(["eval", "--task", "reach-desired", "--run", str(moved / "runs" / "g"), "--episodes", "2", "--quiet"]) == 0
+    )
     assert "using " + str(moved / "datasets" / "synthetic" / "synthetic-1") in capsys.readouterr().err
     shutil.rmtree(moved / "datasets")
     assert cli.main(["--resume", str(moved / "runs" / "g"), "--steps", "30", "--quiet"]) == 2

@@ -4,7 +4,6 @@ the results of `aerohrl eval` appear in the text after an evaluation."""
 from __future__ import annotations
 
 
-
 from aerohrl.cli import main as aerohrl_main
 
 
@@ -24,8 +23,21 @@ def test_runs_show_lists_aerohrl_eval_results(tmp_path, capsys):
     import aerohrl
 
     ds = aerohrl.build_dataset(goals=8, seed=2, out=tmp_path / "ds")
-    run = aerohrl.train({"algo": "gcsl", "dataset": ds, "hidden": (16, 16), "critic_hidden": (16, 16), "batch_size": 32,
-                         "steps": 20, "log_every": 10, "checkpoint_every": 10, "eval_every": 0}, out=tmp_path / "runs", name="g")
+    run = aerohrl.train(
+        {
+            "algo": "gcsl",
+            "dataset": ds,
+            "hidden": (16, 16),
+            "critic_hidden": (16, 16),
+            "batch_size": 32,
+            "steps": 20,
+            "log_every": 10,
+            "checkpoint_every": 10,
+            "eval_every": 0,
+        },
+        out=tmp_path / "runs",
+        name="g",
+    )
     assert aerohrl_main(["runs", "show", str(run.path), "--no-plot"]) == 0
     assert "eval:" not in capsys.readouterr().out
     assert aerohrl_main(["eval", "--task", "reach-desired", "--run", str(run.path), "--checkpoints", "2", "--episodes", "8"]) == 0

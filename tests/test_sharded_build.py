@@ -57,8 +57,9 @@ def test_sharded_recipe_with_continuations_is_byte_identical_and_validates(tmp_p
     whose starts come from the first part's frames), 1,000 goals in 4 blocks + 1."""
     res = _same_bytes(DatasetSpec(goals=1000, seed=2, action_noise=(1.0, 0.5), continuations=250), tmp_path, block=250)
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    r = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", "validate", str(res.path)], capture_output=True,
-                       text=True, env=env)
+    r = subprocess.run(
+        [sys.executable, "-m", "aerohrl.datagen.cli", "validate", str(res.path)], capture_output=True, text=True, env=env
+    )
     assert r.returncode == 0 and r.stdout.strip().endswith("OK")
 
 

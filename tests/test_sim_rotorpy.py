@@ -30,12 +30,29 @@ from aerohrl.sim import BatchedQuadrotor, get_preset  # noqa: E402
 def rotorpy_params(p):
     r = p.rotor_positions
     return {
-        "mass": p.mass, "Ixx": p.inertia[0], "Iyy": p.inertia[1], "Izz": p.inertia[2], "Ixy": 0.0, "Iyz": 0.0, "Ixz": 0.0,
-        "num_rotors": 4, "rotor_pos": {f"r{i + 1}": r[i] for i in range(4)},
-        "rotor_directions": np.array(p.rotor_directions), "rI": np.zeros(3),
-        "c_Dx": 0.0, "c_Dy": 0.0, "c_Dz": 0.0,
-        "k_eta": p.k_eta, "k_m": p.k_m, "k_d": 0.0, "k_z": 0.0, "k_h": 0.0, "k_flap": 0.0,
-        "tau_m": p.tau_m, "rotor_speed_min": p.rotor_speed_min, "rotor_speed_max": p.rotor_speed_max,
+        "mass": p.mass,
+        "Ixx": p.inertia[0],
+        "Iyy": p.inertia[1],
+        "Izz": p.inertia[2],
+        "Ixy": 0.0,
+        "Iyz": 0.0,
+        "Ixz": 0.0,
+        "num_rotors": 4,
+        "rotor_pos": {f"r{i + 1}": r[i] for i in range(4)},
+        "rotor_directions": np.array(p.rotor_directions),
+        "rI": np.zeros(3),
+        "c_Dx": 0.0,
+        "c_Dy": 0.0,
+        "c_Dz": 0.0,
+        "k_eta": p.k_eta,
+        "k_m": p.k_m,
+        "k_d": 0.0,
+        "k_z": 0.0,
+        "k_h": 0.0,
+        "k_flap": 0.0,
+        "tau_m": p.tau_m,
+        "rotor_speed_min": p.rotor_speed_min,
+        "rotor_speed_max": p.rotor_speed_max,
         "motor_noise_std": 0.0,
     }
 
@@ -48,7 +65,9 @@ def commands(p, steps):
     roll = 0.004 * h * np.sin(3.0 * t + 0.3)
     pitch = 0.004 * h * np.sin(2.3 * t + 1.1)
     yaw = 0.04 * h * np.sin(1.7 * t)
-    cmd = np.stack([base + roll - pitch + yaw, base - roll - pitch - yaw, base - roll + pitch + yaw, base + roll + pitch - yaw], 1)
+    cmd = np.stack(
+        [base + roll - pitch + yaw, base - roll - pitch - yaw, base - roll + pitch + yaw, base + roll + pitch - yaw], 1
+    )
     return np.clip(cmd, 0.0, None)
 
 
@@ -58,10 +77,22 @@ def test_matches_rotorpy_multirotor(preset):
     steps = 200  # 2 s
     cmd = commands(p, steps)
     hover = np.full(4, p.hover_rotor_speed)
-    init = {"x": np.zeros(3), "v": np.zeros(3), "q": np.array([0.0, 0.0, 0.0, 1.0]), "w": np.zeros(3),
-            "wind": np.zeros(3), "rotor_speeds": hover.copy()}
-    vehicle = Multirotor(rotorpy_params(p), initial_state=init, control_abstraction="cmd_motor_speeds", aero=False,
-                         enable_ground=False, integrator_kwargs={"method": "RK45", "rtol": 1e-10, "atol": 1e-10})
+    init = {
+        "x": np.zeros(3),
+        "v": np.zeros(3),
+        "q": np.array([0.0, 0.0, 0.0, 1.0]),
+        "w": np.zeros(3),
+        "wind": np.zeros(3),
+        "rotor_speeds": hover.copy(),
+    }
+    vehicle = Multirotor(
+        rotorpy_params(p),
+        initial_state=init,
+        control_abstraction="cmd_motor_speeds",
+        aero=False,
+        enable_ground=False,
+        integrator_kwargs={"method": "RK45", "rtol": 1e-10, "atol": 1e-10},
+    )
     sim = BatchedQuadrotor(p, 1)
     sim.reset()
     state = {k: v.copy() for k, v in init.items()}

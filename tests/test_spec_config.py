@@ -36,8 +36,14 @@ def test_version_names_are_unchanged(tmp_path):
     # the version names of existing specs; an integer written for a float setting
     # (a_max = 5) hashes as the integer it is
     assert version_name(load_spec(None)) == version_name(DatasetSpec()) == "n250-s0-dbb240c0"
-    assert version_name(load_spec(_spec(tmp_path, "a_max = 5\nt_max = 4\ngoals = 12\npos_range = [1, 2]\n"
-                                                  "action_noise = [1, 0]\nnoise_tau = 1\n"))) == "n12-s0-409ffd64"
+    assert (
+        version_name(
+            load_spec(
+                _spec(tmp_path, "a_max = 5\nt_max = 4\ngoals = 12\npos_range = [1, 2]\naction_noise = [1, 0]\nnoise_tau = 1\n")
+            )
+        )
+        == "n12-s0-409ffd64"
+    )
     assert version_name(load_spec(None, a_max=5, t_max=4)) == "n250-s0-ab83c052"
     assert version_name(load_spec(None, goals=25000, action_noise=[1.0, 0.5])) == "n25000-s0-81b96355"
     assert version_name(load_spec(None, expert="replan", replan_every=3)) == "n250-s0-76b2ef0e"

@@ -80,7 +80,7 @@ def test_writer_pieces_give_the_bulk_bytes(tmp_path):
     e = 0
     while e < len(lengths):
         e1 = min(len(lengths), e + int(rng.integers(1, 90)))
-        w.append({k: v[starts[e]:starts[e1]] for k, v in cols.items()}, lengths[e:e1])
+        w.append({k: v[starts[e] : starts[e1]] for k, v in cols.items()}, lengths[e:e1])
         e = e1
     w.close()
     a, b = _files(tmp_path / "bulk"), _files(tmp_path / "stream")
@@ -106,9 +106,13 @@ def test_streamed_statistics_are_bit_identical_to_the_sorted_column(n):
     lengths = rng.integers(1, 300, max(1, n // 100))
     starts = np.r_[0, np.cumsum(lengths)[:-1]]
     fi = np.arange(lengths.sum()) - np.repeat(starts, lengths)
-    cols = {"frame_index": fi, "episode_index": np.repeat(np.arange(len(lengths)), lengths),
-            "index": np.arange(lengths.sum()), "task_index": np.zeros(lengths.sum(), np.int64),
-            "timestamp": (fi / 50.0).astype(np.float32)}
+    cols = {
+        "frame_index": fi,
+        "episode_index": np.repeat(np.arange(len(lengths)), lengths),
+        "index": np.arange(lengths.sum()),
+        "task_index": np.zeros(lengths.sum(), np.int64),
+        "timestamp": (fi / 50.0).astype(np.float32),
+    }
     for k, a in cols.items():
         ref, got = LS.global_stats(a), LS.index_stats(k, lengths, 50)
         for s in LS.STAT_KEYS:

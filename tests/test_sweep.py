@@ -27,8 +27,26 @@ def _main(args, capsys):
 
 
 def test_grid_points_and_names(dataset_dir):
-    a = sweep.parser().parse_args(["--out", "x", "--algos", "gcsl", "td3bc", "--seeds", "0", "1", "--datasets", str(dataset_dir),
-                                   "--set", "steps=100", "--grid", "batch_size=32,64", "--grid", "hidden=[16,16],[32]"])
+    a = sweep.parser().parse_args(
+        [
+            "--out",
+            "x",
+            "--algos",
+            "gcsl",
+            "td3bc",
+            "--seeds",
+            "0",
+            "1",
+            "--datasets",
+            str(dataset_dir),
+            "--set",
+            "steps=100",
+            "--grid",
+            "batch_size=32,64",
+            "--grid",
+            "hidden=[16,16],[32]",
+        ]
+    )
     sp = sweep.load_spec(None, a)
     pts = sweep.points(sp)
     assert len(pts) == 2 * 2 * 2 * 2 and len({p.name() for p in pts}) == 16
@@ -47,11 +65,15 @@ def test_grid_points_and_names(dataset_dir):
 
 def test_yaml_grid_equals_toml(dataset_dir, tmp_path):
     y = tmp_path / "g.yaml"
-    y.write_text(f"algos: [gcsl]\nseeds: [0, 1]\ndatasets: ['{dataset_dir}']\nset: {{steps: 100}}\ngrid: {{batch_size: [32, 64]}}\n"
-                 "eval: {episodes: 5}\n")
+    y.write_text(
+        f"algos: [gcsl]\nseeds: [0, 1]\ndatasets: ['{dataset_dir}']\nset: {{steps: 100}}\ngrid: {{batch_size: [32, 64]}}\n"
+        "eval: {episodes: 5}\n"
+    )
     t = tmp_path / "g.toml"
-    t.write_text(f"algos = ['gcsl']\nseeds = [0, 1]\ndatasets = ['{dataset_dir}']\n[set]\nsteps = 100\n[grid]\n"
-                 "batch_size = [32, 64]\n[eval]\nepisodes = 5\n")
+    t.write_text(
+        f"algos = ['gcsl']\nseeds = [0, 1]\ndatasets = ['{dataset_dir}']\n[set]\nsteps = 100\n[grid]\n"
+        "batch_size = [32, 64]\n[eval]\nepisodes = 5\n"
+    )
     a = sweep.parser().parse_args(["--out", "x"])
     assert sweep.load_spec(y, a) == sweep.load_spec(t, a)
     assert sweep.load_spec(y, a).episodes == 5 and len(sweep.points(sweep.load_spec(y, a))) == 4
@@ -77,12 +99,15 @@ def test_bad_inputs_are_one_line_errors(dataset_dir, tmp_path, capsys):
     for extra, msg in cases:
         code, err = _main(base + extra, capsys)
         assert code == 2 and msg in err and err.count("\n") == 0, (extra, err)
-    for text, msg in (('algos = ["gcsl"]\nseeds = [-1]\n', "seeds must be >= 0, got -1"),
-                      ('algos = ["gcsl"]\n[eval]\nepisodes = 0\n', "episodes must be >= 1, got 0"),
-                      ('algos = "gcsl"\n', "algos must be a list")):
+    for text, msg in (
+        ('algos = ["gcsl"]\nseeds = [-1]\n', "seeds must be >= 0, got -1"),
+        ('algos = ["gcsl"]\n[eval]\nepisodes = 0\n', "episodes must be >= 1, got 0"),
+        ('algos = "gcsl"\n', "algos must be a list"),
+    ):
         (tmp_path / "v.toml").write_text(text)
-        code, err = _main(["--out", str(tmp_path / "s"), "--config", str(tmp_path / "v.toml"), "--datasets", str(dataset_dir)],
-                          capsys)
+        code, err = _main(
+            ["--out", str(tmp_path / "s"), "--config", str(tmp_path / "v.toml"), "--datasets", str(dataset_dir)], capsys
+        )
         assert code == 2 and msg in err and err.count("\n") == 0, err
     bad = tmp_path / "bad.toml"
     bad.write_text('algos = ["gcsl"]\nlearning_rate = 3\n')
@@ -108,10 +133,43 @@ def test_another_grid_in_the_same_folder_is_refused(dataset_dir, tmp_path):
 
 
 def _sweep_cmd(ds, out):
-    return [sys.executable, "-m", "aerohrl.sweep", "--out", str(out), "--algos", "gcsl", "td3bc", "--seeds", "0", "1",
-            "--datasets", str(ds), "--set", "steps=160", "--set", "checkpoint_every=40", "--set", "log_every=40",
-            "--set", "hidden=[32,32]", "--set", "critic_hidden=[32,32]", "--set", "batch_size=64", "--set", "eval_every=0",
-            "--tasks", "reach-desired", "--episodes", "8", "--checkpoints", "2", "--num-cpus", "2"]
+    return [
+        sys.executable,
+        "-m",
+        "aerohrl.sweep",
+        "--out",
+        str(out),
+        "--algos",
+        "gcsl",
+        "td3bc",
+        "--seeds",
+        "0",
+        "1",
+        "--datasets",
+        str(ds),
+        "--set",
+        "steps=160",
+        "--set",
+        "checkpoint_every=40",
+        "--set",
+        "log_every=40",
+        "--set",
+        "hidden=[32,32]",
+        "--set",
+        "critic_hidden=[32,32]",
+        "--set",
+        "batch_size=64",
+        "--set",
+        "eval_every=0",
+        "--tasks",
+        "reach-desired",
+        "--episodes",
+        "8",
+        "--checkpoints",
+        "2",
+        "--num-cpus",
+        "2",
+    ]
 
 
 def _weights(run):
@@ -132,8 +190,9 @@ def test_a_reused_run_with_another_config_says_so(dataset_dir, tmp_path):
     rd.mkdir()
     (rd / "config.json").write_text(json.dumps({"config": C.to_dict(cfg)}))
     assert sweep.config_differences(rd, C.make_config("cpu", algo="gcsl", dataset="/elsewhere", steps=80)) == ""
-    msg = sweep.config_differences(rd, C.make_config("cpu", algo="gcsl", dataset=str(dataset_dir), steps=40,
-                                                     relabel_prob=0.3, hidden=(64, 64)))
+    msg = sweep.config_differences(
+        rd, C.make_config("cpu", algo="gcsl", dataset=str(dataset_dir), steps=40, relabel_prob=0.3, hidden=(64, 64))
+    )
     assert msg.startswith(" (kept its own config: ") and f"relabel_prob {cfg.relabel_prob} -> 0.3" in msg
     assert "hidden [512, 512, 512] -> [64, 64]" in msg and "steps" not in msg
     assert sweep.config_differences(tmp_path / "no-run", cfg) == ""
@@ -148,8 +207,12 @@ def test_sweep_survives_a_killed_worker(tmp_path):
     import torch
 
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONWARNINGS="ignore")
-    r = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", "250", "--out", str(tmp_path / "ds"),
-                        "--quiet"], capture_output=True, text=True, env=env)
+    r = subprocess.run(
+        [sys.executable, "-m", "aerohrl.datagen.cli", "build", "--goals", "250", "--out", str(tmp_path / "ds"), "--quiet"],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
     assert r.returncode == 0, r.stderr
     ds = r.stdout.strip().splitlines()[-1]
 
@@ -195,14 +258,15 @@ def test_sweep_survives_a_killed_worker(tmp_path):
     assert tables in r.stdout and (clean / "tables.md").read_text() == tables
 
 
-
 @pytest.mark.slow
 def test_local_ray_workers_run_at_the_callers_priority():
     """Ray's default worker niceness (15) starves sweep tasks beside any ordinary process;
     the local Ray of ray_connect starts its workers at the caller's niceness."""
-    code = ("import os\nfrom aerohrl.cluster import ray_connect\n"
-            "def niceness():\n    return os.nice(0)\n"
-            "r = ray_connect(num_cpus=1)\nprint('NICE', r.get(r.remote(niceness).remote()), os.nice(0))\nr.shutdown()\n")
+    code = (
+        "import os\nfrom aerohrl.cluster import ray_connect\n"
+        "def niceness():\n    return os.nice(0)\n"
+        "r = ray_connect(num_cpus=1)\nprint('NICE', r.get(r.remote(niceness).remote()), os.nice(0))\nr.shutdown()\n"
+    )
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     line = [x for x in p.stdout.splitlines() if x.startswith("NICE")]
     assert p.returncode == 0 and line, p.stderr[-2000:]

@@ -51,7 +51,9 @@ def test_numpy_and_torch_agree_batched():
     got = task.goal_reached(torch.as_tensor(a), torch.as_tensor(g)).numpy()
     assert 0 < want.sum() < 200
     np.testing.assert_array_equal(want, got)
-    np.testing.assert_allclose(task.goal_errors(a, g)[2], task.goal_errors(torch.as_tensor(a), torch.as_tensor(g))[2].numpy(), atol=1e-9)
+    np.testing.assert_allclose(
+        task.goal_errors(a, g)[2], task.goal_errors(torch.as_tensor(a), torch.as_tensor(g))[2].numpy(), atol=1e-9
+    )
 
 
 def test_policy_inputs_are_translation_invariant():

@@ -26,6 +26,7 @@ warnings.filterwarnings("ignore", category=UserWarning)
 def checkpoint_paths(run_dir):
     return Run(run_dir).checkpoints()
 
+
 TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=40, log_every=10, checkpoint_every=20, eval_every=0)
 
 
@@ -34,9 +35,12 @@ def _same(a, b):
     return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
 
 
-@pytest.mark.parametrize("algo,extra", [(a, {}) for a in ALGORITHMS]
-                         + [(a, {"ema_decay": 0.9, "mc_lower_bound": True, "amp": "bf16"}) for a in ALGORITHMS]
-                         + [(a, {"critic_random_goal_prob": 0.3}) for a in ("gcsl", "td3bc")])
+@pytest.mark.parametrize(
+    "algo,extra",
+    [(a, {}) for a in ALGORITHMS]
+    + [(a, {"ema_decay": 0.9, "mc_lower_bound": True, "amp": "bf16"}) for a in ALGORITHMS]
+    + [(a, {"critic_random_goal_prob": 0.3}) for a in ("gcsl", "td3bc")],
+)
 def test_resume_gives_same_weights(algo, extra, data, tmp_path):
     """Also with the EMA policy, Monte-Carlo-bounded targets and bf16 autocast."""
     torch.set_num_threads(1)
@@ -107,7 +111,9 @@ def test_nan_loss_stops_and_keeps_last_checkpoint(data, tmp_path):
 
 def _cli(args, cwd=None):
     env = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", "aerohrl.algorithms.cli", *args], capture_output=True, text=True, env=env, cwd=cwd)
+    return subprocess.run(
+        [sys.executable, "-m", "aerohrl.algorithms.cli", *args], capture_output=True, text=True, env=env, cwd=cwd
+    )
 
 
 def test_cli_bad_input(dataset_dir, tmp_path):
@@ -143,9 +149,36 @@ def test_cli_damaged_dataset(dataset_dir, tmp_path, capsys):
 
 def test_cli_train_show_and_resume_args(dataset_dir, tmp_path, capsys):
     out = tmp_path / "runs"
-    args = ["--algo", "gcsl", "--dataset", str(dataset_dir), "--out", str(out), "--name", "g", "--quiet",
-            "--hidden", "8", "8", "--critic-hidden", "8", "--batch-size", "16", "--steps", "30", "--log-every", "10", "--checkpoint-every", "10",
-            "--eval-every", "15", "--eval-episodes", "2", "--eval-horizon", "10"]
+    args = [
+        "--algo",
+        "gcsl",
+        "--dataset",
+        str(dataset_dir),
+        "--out",
+        str(out),
+        "--name",
+        "g",
+        "--quiet",
+        "--hidden",
+        "8",
+        "8",
+        "--critic-hidden",
+        "8",
+        "--batch-size",
+        "16",
+        "--steps",
+        "30",
+        "--log-every",
+        "10",
+        "--checkpoint-every",
+        "10",
+        "--eval-every",
+        "15",
+        "--eval-episodes",
+        "2",
+        "--eval-horizon",
+        "10",
+    ]
     assert cli.main(args) == 0
     assert cli.main(args) == 2  # the run exists
     assert "use --resume" in capsys.readouterr().err
@@ -166,13 +199,41 @@ def test_cli_train_show_and_resume_args(dataset_dir, tmp_path, capsys):
 def test_kill9_then_resume_matches_uninterrupted(dataset_dir, tmp_path):
     """A run killed with SIGKILL resumes from its last checkpoint and ends with the same
     weights as a run that was never interrupted."""
-    common = ["--algo", "td3bc", "--dataset", str(dataset_dir), "--out", str(tmp_path), "--quiet",
-              "--hidden", "16", "16", "--critic-hidden", "16", "16", "--batch-size", "32", "--steps", "800", "--checkpoint-every", "50",
-              "--log-every", "50", "--eval-every", "0", "--keep-checkpoints", "50"]
+    common = [
+        "--algo",
+        "td3bc",
+        "--dataset",
+        str(dataset_dir),
+        "--out",
+        str(tmp_path),
+        "--quiet",
+        "--hidden",
+        "16",
+        "16",
+        "--critic-hidden",
+        "16",
+        "16",
+        "--batch-size",
+        "32",
+        "--steps",
+        "800",
+        "--checkpoint-every",
+        "50",
+        "--log-every",
+        "50",
+        "--eval-every",
+        "0",
+        "--keep-checkpoints",
+        "50",
+    ]
     assert _cli(common + ["--name", "full"]).returncode == 0
     env = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
-    p = subprocess.Popen([sys.executable, "-m", "aerohrl.algorithms.cli", *common, "--name", "killed"], env=env,
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "aerohrl.algorithms.cli", *common, "--name", "killed"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     ck_dir = tmp_path / "killed" / "checkpoints"
     t0 = time.time()
     while time.time() - t0 < 60 and len(list(ck_dir.glob("step-*.pt"))) < 3:
@@ -202,8 +263,10 @@ def test_real_dataset_from_datagen_build(tmp_path):
     res = build.build(load_spec(None, goals=3), tmp_path / "datasets", progress=False, log=lambda *a, **k: None)
     data = load_dataset(res.path)
     assert data.info["version"] == res.path.name and data.num_episodes == 3
-    assert torch.equal(data.achieved_goal[:-1][data.episode_end[:-1] > torch.arange(len(data) - 1)],
-                       data.state[1:, :15][data.episode_end[:-1] > torch.arange(len(data) - 1)])  # contiguous episodes
+    assert torch.equal(
+        data.achieved_goal[:-1][data.episode_end[:-1] > torch.arange(len(data) - 1)],
+        data.state[1:, :15][data.episode_end[:-1] > torch.arange(len(data) - 1)],
+    )  # contiguous episodes
     cfg = make_config("cpu", algo="gcsl", dataset=str(res.path), **dict(TINY, eval_every=20, eval_episodes=2, eval_horizon=15))
     tr = start_run(cfg, tmp_path / "run", data=data, progress=False)
     tr.train()
@@ -218,9 +281,34 @@ def test_end_to_end_cpu_preset(tmp_path, capsys):
 
     assert datagen_main(["build", "--goals", "10", "--out", str(tmp_path / "datasets"), "--quiet"]) == 0
     ds = next((tmp_path / "datasets" / "quadrotor-reach").iterdir())
-    assert cli.main(["--algo", "gcsl", "--dataset", str(ds), "--preset", "cpu", "--steps", "600", "--eval-every", "300",
-                     "--eval-episodes", "5", "--checkpoint-every", "300", "--log-every", "100", "--out", str(tmp_path / "runs"),
-                     "--name", "e2e", "--quiet"]) == 0
+    assert (
+        cli.main(
+            [
+                "--algo",
+                "gcsl",
+                "--dataset",
+                str(ds),
+                "--preset",
+                "cpu",
+                "--steps",
+                "600",
+                "--eval-every",
+                "300",
+                "--eval-episodes",
+                "5",
+                "--checkpoint-every",
+                "300",
+                "--log-every",
+                "100",
+                "--out",
+                str(tmp_path / "runs"),
+                "--name",
+                "e2e",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert runs.main(["show", str(tmp_path / "runs" / "e2e")]) == 0
     out = capsys.readouterr().out
     assert "600 / 600" in out and "eval @ 600" in out
@@ -274,9 +362,11 @@ def test_relabel_offset_flags_reach_the_sampler(data, tmp_path):
     tr = start_run(cfg, tmp_path / "r", data=data, progress=False)
     assert tr.sampler.future == {"strategy": "geometric", "mean": 12.5, "window": 60}
     assert json.loads((tmp_path / "r" / "config.json").read_text())["config"]["relabel_offset"] == "geometric"
-    for bad, msg in [({"relabel_offset": "final"}, "relabel_offset must be one of uniform, geometric, got 'final'"),
-                     ({"relabel_window": -1}, "relabel_window must be >= 0"),
-                     ({"relabel_mean_offset": 0.5}, "relabel_mean_offset must be >= 1")]:
+    for bad, msg in [
+        ({"relabel_offset": "final"}, "relabel_offset must be one of uniform, geometric, got 'final'"),
+        ({"relabel_window": -1}, "relabel_window must be >= 0"),
+        ({"relabel_mean_offset": 0.5}, "relabel_mean_offset must be >= 1"),
+    ]:
         with pytest.raises(UserError, match=msg):
             make_config("cpu", **bad)
     with pytest.raises(SystemExit) as e:  # a choice: refused when the command line is parsed
