@@ -14,7 +14,7 @@ PYTHON312 ?= $(shell for p in python3.12 $$(ls -d $${PYENV_ROOT:-$$HOME/.pyenv}/
   $$p -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' >/dev/null 2>&1 && { command -v $$p; break; }; done)
 STAMP := $(VENV)/.installed
 
-.PHONY: venv demo test test-fast bench results lock clean docs
+.PHONY: venv demo test test-fast lint format bench results lock clean docs
 
 venv: $(STAMP)
 $(STAMP): pyproject.toml constraints.txt
@@ -42,8 +42,16 @@ demo: venv
 	echo "demo: dataset $$ds, run $$run, figures in $(OUT)/ (a short run: make results trains the cpu preset in full)"
 
 # Everything CI runs: fast tests and the slow end-to-end ones.
-test: venv
+test: venv lint
 	$(BIN)/python -m pytest -m "slow or not slow" --durations=20
+
+# ruff's lint and format checks (pyproject.toml [tool.ruff]); `make format` applies the format
+lint: venv
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: venv
+	$(BIN)/ruff format .
 
 test-fast: venv
 	$(BIN)/python -m pytest

@@ -9,6 +9,7 @@ import os
 import re
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -132,60 +133,14 @@ def test_every_public_function_is_annotated_and_documented():
     assert not problems, f"{len(problems)} problems:\n" + "\n".join(problems)
 
 
-@pytest.mark.slow  # ~50 s without a cache
-def test_public_modules_are_mypy_clean():
+@pytest.mark.slow  # ~40 s without a cache
+def test_every_module_is_mypy_clean():
+    """mypy over every module of every package and the experiments, as pyproject.toml's
+    [tool.mypy] lists them (no hand-kept file list here); the modules that cannot pass yet
+    are named there, with the reason."""
     pytest.importorskip("mypy")
-    files = [
-        "aerohrl/__init__.py",
-        "aerohrl/api.py",
-        "aerohrl/errors.py",
-        "aerohrl/cli_common.py",
-        "aerohrl/task.py",
-        "datagen/exchange.py",
-        "datagen/spec.py",
-        # every module that passes as it stands (the others need code changes, not hints)
-        "aerohrl/cli.py",
-        "aerohrl/cli_types.py",
-        "algorithms/__init__.py",
-        "algorithms/augment.py",
-        "algorithms/base.py",
-        "algorithms/cli.py",
-        "algorithms/closed_loop.py",
-        "algorithms/config.py",
-        "algorithms/cql.py",
-        "algorithms/gcsl.py",
-        "algorithms/relabel.py",
-        "algorithms/td3awbc.py",
-        "algorithms/td3bc.py",
-        "datagen/__init__.py",
-        "datagen/cli.py",
-        "datagen/estimate.py",
-        "datagen/expert.py",
-        "datagen/goals.py",
-        "datagen/mcap_export.py",
-        "datagen/plots.py",
-        "datagen/recipes.py",
-        "eval/__init__.py",
-        "eval/cli.py",
-        "eval/families.py",
-        "eval/floors.py",
-        "eval/harness.py",
-        "experiments/reproduce.py",
-        "eval/tasks.py",
-        "envs/__init__.py",
-        "envs/episodes.py",
-        "planning/__init__.py",
-        "aerohrl/runs.py",
-        "ipp/__init__.py",
-        "ipp/sensor.py",
-        "ipp/world.py",
-        "algorithms/run.py",
-    ]
-    p = subprocess.run(
-        [sys.executable, "-m", "mypy", *files, "--follow-imports=silent", "--ignore-missing-imports", "--no-incremental"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]
+    packages = set(cfg["setuptools"]["package-dir"].values())
+    assert packages <= set(cfg["mypy"]["files"]), "a package mypy does not check"
+    p = subprocess.run([sys.executable, "-m", "mypy", "--no-incremental"], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0 and "Success" in p.stdout, p.stdout + p.stderr
