@@ -24,10 +24,9 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
     # Ray starts its workers at niceness 15 (its raylet's worker_niceness), to keep a driver
     # responsive; here the tasks are the work itself, and beside any ordinary process at
-    # niceness 0 they starve: a TD3-BC run in a sweep trained at 1.5 steps/s beside two
-    # other jobs on these 2 cores, and ~12 steps/s once reniced to 0. Workers of a local Ray
-    # (whose raylet inherits this environment) run at the caller's priority; on a cluster,
-    # start the nodes with RAY_worker_niceness=0 (README "Running on a cluster").
+    # niceness 0 they starve (a sweep's runs train several times slower beside other jobs).
+    # Workers of a local Ray (whose raylet inherits this environment) run at the caller's
+    # priority; on a cluster, start the nodes with RAY_worker_niceness=0 (docs/cluster.md).
     os.environ.setdefault("RAY_worker_niceness", "0")
     if address:
         if address != "auto":

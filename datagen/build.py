@@ -225,9 +225,9 @@ ROLLOUT_BLOCK = 8192
 NOISE_STREAM = 11  # seed stream of the action noise: [spec.seed, 11, part, block]
 START_STREAM = 13  # seed stream of the perturbed start states: [spec.seed, 13]
 # Below this a recipe is refused. Not a quality bar: the labels are the clean command at
-# every flown state, and sigma x 2 (44.6 % expert success) gives the best Reach-Novel of the
-# 2,500-flight rows (eval/README.md "Recipes"); below 20 % the flights rarely come near their
-# goals, and the data would miss how a flight ends at its goal.
+# every flown state, and the noisiest recipe that trains best reaches well under half of its
+# goals (docs/results/ "recipes"); below 20 % the flights rarely come near their goals, and
+# the data would miss how a flight ends at its goal.
 MIN_EXPERT_SUCCESS = 0.2
 
 

@@ -1,6 +1,6 @@
 r"""Which goals the vehicle can reach at all: the expert, directly and through one run-up.
 
-A planner is judged on the goals the vehicle can reach (issue 17). For a goal set
+A planner is judged on the goals the vehicle can reach. For a goal set
 (``eval/families.py``) this module flies the project's expert — a minimum-time
 minimum-jerk reference (:mod:`aerohrl.datagen.reference`, closed form) tracked by the
 geometric controller (:class:`aerohrl.datagen.expert.GeometricController`, clean: no

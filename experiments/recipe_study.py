@@ -50,7 +50,7 @@ from study_tools import run_logged
 PROG = "experiments/recipe_study.py"
 STUDY = "recipes"  # the results page: RESULTS_DIR/YYYY-MM-DD-recipes.md
 
-# The recipes: datagen build flags on top of the default spec (SPEC.md "Expert-data recipes").
+# The recipes: datagen build flags on top of the default spec (docs/spec.md "Expert-data recipes").
 NOISE = ["--action-noise", "1.0", "0.5"]  # sigma: 1.0 m/s^2 thrust, 0.5 rad/s per body rate; tau 0.2 s
 RECIPES: dict[str, list[str]] = {
     "clean": [],

@@ -5,7 +5,7 @@ The thesis trained with A3C (asynchronous workers, one episode each). Here ``n_e
 environments run in one batch, every iteration collects one full episode per
 environment (the budget bounds its length), and the recurrent policy is updated by
 back-propagation through the whole episode with the clipped PPO objective, which is a
-"sound parallel actor-critic on batched environments" (SPEC.md). Losses:
+"sound parallel actor-critic on batched environments" (docs/spec.md). Losses:
 
 * critic: ``sum_delta (G^lambda_delta - V_delta)^2`` per reward term (Eq. 2.6 per head);
 * actor: clipped surrogate on GAE(lambda) advantages; the advantage is the sum of the
