@@ -282,6 +282,34 @@ def build_episodes(data: Dataset, opt: EvalOptions) -> EpisodeSet:
     return make_episodes(opt.task, data, opt.episodes, opt.seed, **kw)
 
 
+def fly(
+    algo: Algorithm, episodes: EpisodeSet, data: Dataset, opt: EvalOptions, *, record: bool = False, desc: str = "rollout"
+) -> dict:
+    """One checkpoint's flight of ``episodes`` with the planner ``opt`` asks for (legs of
+    ``opt.leg_horizon`` steps, else the horizon shared among the legs) on the dataset's
+    vehicle: :func:`aerohrl.envs.rollout.rollout`'s per-episode results."""
+    from aerohrl.envs.rollout import rollout
+
+    planner, nw = make_planner(algo, data, opt)
+    leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
+    return rollout(
+        algo,
+        episodes,
+        planner=planner,
+        n_waypoints=nw,
+        leg_horizon=leg_h,
+        replan=opt.replan,
+        replan_every=opt.replan_every,
+        waypoint_tol=opt.waypoint_tol,
+        goal_tol=opt.goal_tol,
+        decline_margin=opt.decline_margin,
+        record=record,
+        progress=opt.progress,
+        desc=desc,
+        **sim_kwargs(data),
+    )
+
+
 def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, dict] | None = None) -> dict:
     """Evaluate the last ``opt.checkpoints`` checkpoints of ``run_dir``; returns the summary.
     ``loaded``: ``(data, meta)`` of :func:`load_run_dataset` for this run, when a study
@@ -317,26 +345,9 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         if hover_success is None and episodes.task == "reach-intermediate" and opt.floor != "hover":  # one flight, ~1 s
             hover_success = rollout(wrap_floor(algo, "hover"), episodes, goal_tol=opt.goal_tol, **sim_kwargs(data))["success"]
         algo = wrap_floor(algo, opt.floor)
-        planner, nw = make_planner(algo, data, opt)
-        leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
         record = opt.record and i == len(ckpts) - 1
         t0 = time.perf_counter()
-        r = rollout(
-            algo,
-            episodes,
-            planner=planner,
-            n_waypoints=nw,
-            leg_horizon=leg_h,
-            replan=opt.replan,
-            replan_every=opt.replan_every,
-            waypoint_tol=opt.waypoint_tol,
-            goal_tol=opt.goal_tol,
-            decline_margin=opt.decline_margin,
-            record=record,
-            progress=opt.progress,
-            desc=f"step {ck['step']}",
-            **sim_kwargs(data),
-        )
+        r = fly(algo, episodes, data, opt, record=record, desc=f"step {ck['step']}")
         wall = time.perf_counter() - t0
         results.write_episodes(out_dir, int(ck["step"]), episodes, r)
         per_ckpt.append(
@@ -426,6 +437,7 @@ def critics_auc(run_dir: str | Path) -> float:
 __all__ = [
     "EvalOptions",
     "evaluate_run",
+    "fly",
     "run_checkpoints",
     "load_run_dataset",
     "critics_auc",

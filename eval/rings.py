@@ -153,15 +153,7 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     trajectories, summary.json). Rings already evaluated with these options are skipped."""
     from aerohrl.eval import results
     from aerohrl.algorithms.base import load_policy
-    from aerohrl.envs.rollout import rollout
-    from aerohrl.eval.harness import (
-        build_episodes,
-        check_checkpoint_dataset,
-        check_options,
-        make_planner,
-        run_checkpoints,
-        sim_kwargs,
-    )
+    from aerohrl.eval.harness import build_episodes, check_checkpoint_dataset, check_options, fly, run_checkpoints
 
     outs = [
         eval_root(run, opts[0].episodes if not heldout else base_episodes) / ("heldout" if heldout else "") / o.name()
@@ -196,24 +188,10 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
     for i, path in enumerate(ckpts):
         algo, ck = load_policy(path, o0.device)
         check_checkpoint_dataset(ck, data, path)
-        planner, nw = make_planner(algo, data, o0)
-        leg_h = o0.leg_horizon or max(1, int(allset.horizons.max()) // (nw + 1))
         record = o0.record and i == len(ckpts) - 1
         t0 = time.perf_counter()
-        r = rollout(
-            algo,
-            allset,
-            planner=planner,
-            n_waypoints=nw,
-            leg_horizon=leg_h,
-            replan=o0.replan,
-            replan_every=o0.replan_every,
-            waypoint_tol=o0.waypoint_tol,
-            goal_tol=o0.goal_tol,
-            decline_margin=o0.decline_margin,
-            record=record,
-            **sim_kwargs(data),
-        )
+        # the rings of one variant fly as one episode set (one batched closed loop)
+        r = fly(algo, allset, data, replace(o0, progress=False), record=record)
         wall = (time.perf_counter() - t0) / len(todo)
         for j, ((_o, d), eps) in enumerate(zip(todo, sets)):
             idx = np.arange(bounds[j], bounds[j + 1])
