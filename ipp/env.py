@@ -153,6 +153,9 @@ def _viability(edges_b, eshape, bbox_b, disp_b, to_b, size):
 class SearchEnv:
     """``N`` target-search environments stepped together (arrays, no per-cell loops)."""
 
+    # (state key, features) of the last fast_features call, set there
+    _fast_cache: tuple
+
     def __init__(self, cfg: EnvConfig, lattice: Lattice):
         cfg.validate(lattice)
         self.cfg, self.lat = cfg, lattice

@@ -57,7 +57,7 @@ def sigmoid(L: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * L))
 
 
-def logit(b: np.ndarray) -> np.ndarray:
+def logit(b: np.ndarray | float) -> np.ndarray:
     """Log-odds ``log(b) - log(1 - b)`` of probabilities ``b``, elementwise."""
     b = np.asarray(b, float)
     return np.log(b) - np.log1p(-b)
