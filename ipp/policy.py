@@ -177,7 +177,7 @@ class RLPlanner(Planner):
     def __init__(self, env, model: ActorCritic, greedy: bool = True):
         super().__init__(env)
         self.model, self.greedy = model, greedy
-        self.h = None
+        self.h: torch.Tensor | None = None
 
     def reset(self) -> None:
         """Forget the recurrent state (a new episode starts)."""
