@@ -169,7 +169,7 @@ def torch_save(path: str | os.PathLike[str], obj: Any) -> str:
         with open(tmp, "wb") as f:
             w = _HashingWriter(f)
             try:
-                torch.save(obj, w)
+                torch.save(obj, w)  # type: ignore[arg-type]  # torch's stub asks IO[bytes]; save needs only write()
             except RuntimeError:
                 if w.error is not None:
                     raise w.error from None
@@ -267,7 +267,7 @@ def remove_stale_temporaries(folder: str | os.PathLike[str]) -> list[Path]:
     """Delete the temporaries in ``folder`` whose writer process is gone (a kill during a
     write); a live writer's are kept. Returns what was removed."""
     folder = Path(folder)
-    removed = []
+    removed: list[Path] = []
     if not folder.is_dir():
         return removed
     for p in folder.iterdir():

@@ -38,7 +38,7 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
                 raise UserError(f"cannot reach a Ray cluster at {address}: {getattr(e, 'strerror', None) or e}") from None
         try:
             with _quiet_stderr():  # Ray's C++ client logs each failed attempt to fd 2: one error line instead
-                ray.init(address=address, log_to_driver=True, logging_level="ERROR")
+                ray.init(address=address, log_to_driver=True, logging_level="ERROR")  # type: ignore[arg-type]  # ray annotates int; logging takes level names too
         except (ConnectionError, RuntimeError, ValueError) as e:
             raise UserError(f"cannot join the Ray cluster at {address}: {str(e).splitlines()[0]}") from None
     else:
@@ -47,7 +47,7 @@ def ray_connect(address: str | None = None, num_cpus: int | None = None, num_gpu
             num_gpus=num_gpus,
             include_dashboard=False,
             object_store_memory=500 * 2**20,
-            logging_level="ERROR",
+            logging_level="ERROR",  # type: ignore[arg-type]  # ray annotates int; logging takes level names too
             log_to_driver=True,
         )
     return ray

@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -124,7 +124,7 @@ def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
     missing/damaged dataset or wrong feature shapes."""
     if isinstance(source, dict):
         cols = source
-        info = {"path": None, "version": "in-memory", "checksum": None, "spec": {}}
+        info: dict[str, Any] = {"path": None, "version": "in-memory", "checksum": None, "spec": {}}
     else:
         from aerohrl.datagen.dataset import open_dataset
 

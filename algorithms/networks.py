@@ -43,6 +43,12 @@ class Normalizer(nn.Module):
     bounds, noise and random actions are meaningful.
     """
 
+    # buffers, registered in __init__ (declared: nn.Module's __getattr__ types them Tensor | Module)
+    in_mean: torch.Tensor
+    in_std: torch.Tensor
+    act_center: torch.Tensor
+    act_half: torch.Tensor
+
     def __init__(self):
         super().__init__()
         self.register_buffer("in_mean", torch.zeros(IN_DIM))
@@ -184,6 +190,10 @@ class EnsembleSoftUpdate(SoftUpdate):
     ``delay_actor=False``, as GCSL's and CQL's ensemble losses) are skipped -- without
     that ``select``.
     """
+
+    # set by torchrl's TargetNetUpdater.__init__, whose untyped code mypy cannot infer them from
+    _target_names: list[str]
+    _source_names: list[str]
 
     def init_(self) -> None:
         """Copy each source's weights to its target group (the start of the Polyak averaging);

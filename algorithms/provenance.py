@@ -41,7 +41,7 @@ def git_state(where: Path | None = None) -> dict:
 
 def package_versions() -> dict:
     """Python's and every package of ``PACKAGES``'s installed version (None when absent)."""
-    out = {"python": platform.python_version()}
+    out: dict[str, str | None] = {"python": platform.python_version()}
     for name in PACKAGES:
         try:
             out[name] = metadata.version(name)

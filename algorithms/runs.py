@@ -10,6 +10,7 @@ every evaluated checkpoint), with the training losses beside it.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Sequence
 
 from aerohrl.atomic import save_figure
 
@@ -87,6 +88,8 @@ def plot_learning_curve(run_dir: str | Path, out: str | Path | None = None) -> P
     metrics = s["metrics"]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
     evals = sorted({k for r in metrics for k in r if k.startswith("eval/") and k.endswith("/success")})
+    pts: list[tuple]
+    near: Sequence[tuple | float]
     for k in evals:
         pts = [(r["step"], 100 * r[k]) for r in metrics if k in r]
         (line,) = ax1.plot(*zip(*pts), marker="o", label=k.split("/")[1].replace("_", "-"))

@@ -17,7 +17,7 @@ def straight_columns(n_eps: int = 4, length: int = 30, seed: int = 0) -> dict:
     length when ``length`` is a list)."""
     rng = np.random.default_rng(seed)
     lengths = length if isinstance(length, (list, tuple)) else [length] * n_eps
-    cols = {
+    cols: dict[str, list] = {
         k: []
         for k in (
             "observation.state",

@@ -95,7 +95,7 @@ class Trainer:
         self.step = 0
         self.set_aside: list[tuple[Path, str]] = []  # damaged checkpoints skipped on resume, and why
         # what the metric line in progress has summed so far (restored on resume)
-        self._acc = {"sums": {}, "count": 0, "seconds": 0.0}
+        self._acc: dict[str, Any] = {"sums": {}, "count": 0, "seconds": 0.0}  # loss sums, step count, seconds
         self._acc_restored = True
         self._t0 = time.perf_counter()
         self.run.remove_stale_temporaries()
@@ -380,6 +380,8 @@ class ProgressLines:
     """The progress of a run without a terminal (a cluster job's log): one line on stderr
     every ``every_s`` seconds and, when ``every_steps`` > 0, every that many steps:
     step, steps/s (since the previous line), the mean losses since it, and the ETA."""
+
+    sums: dict[str, float]  # the losses summed since the last line, set by _reset
 
     def __init__(self, name: str, step: int, total: int, every_s: float = 60.0, every_steps: int = 0, out=None):
         import sys

@@ -26,7 +26,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, cast
 
 import numpy as np
 import pyarrow as pa
@@ -45,6 +45,9 @@ from aerohrl.datagen.lerobot_writer import DatasetWriter
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
 from aerohrl.datagen.spec import GENERATOR_VERSION, TASK, DatasetSpec, spec_hash, version_name
 from aerohrl.sim import BatchedQuadrotor, get_preset
+
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
 
 EPISODES_FILE = "meta/aerohrl_episodes.parquet"
 REPO_ID = "aerohrl/quadrotor-reach"
@@ -193,6 +196,7 @@ def rollout_expert(
         out.expert_actions = np.empty_like(actions)
         lo, hi = ctrl.action_box
     replanning = spec.expert == "replan"
+    t0: np.ndarray | float
     if replanning:
         coeffs = coeffs.copy()
         t0 = np.zeros(n)  # start time of each episode's current plan
@@ -202,18 +206,22 @@ def rollout_expert(
     states[0] = sim.reset(start_state, rotor_speeds)
     for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
         if record_rotors:
+            assert out.rotors is not None  # allocated with record_rotors
             out.rotors[k] = sim.rotor_speeds
         t = np.minimum(k * dt, T)
         if replanning and k > 0 and k % spec.replan_every == 0:
-            recipes.replan(coeffs, t0, T - k * dt > spec.replan_endgame + 1e-9, k * dt, states[k], xf, T)
+            # t0 holds each episode's plan start (an array) when replanning
+            recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, states[k], xf, T)
         ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
         a = ctrl(states[k], *ref, yaw=0.0)
         if noise is not None:
+            assert out.expert_actions is not None  # allocated with the noise
             out.expert_actions[k] = a
             a = np.clip(a + noise(), lo, hi)
         actions[k] = a
         states[k + 1] = sim.step(a)
     if record_rotors:
+        assert out.rotors is not None
         out.rotors[kmax] = sim.rotor_speeds
     return out
 
@@ -271,6 +279,7 @@ def _fly_block(
     if r.expert_actions is not None:
         out["expert_action"] = r.expert_actions[kk, e]
     if record_rotors:
+        assert r.rotors is not None  # recorded with record_rotors
         out["rotors"] = r.rotors[kk, e]
     del r  # the rollout's (steps, N, .) buffers, before the goal test's temporaries
     out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
@@ -308,7 +317,7 @@ def fly_blocks(
     bounds = block_bounds(n)
     nb = len(bounds) - 1
 
-    def args(b):
+    def args(b: int) -> tuple[DatasetSpec, dict, np.ndarray, np.ndarray, Any, Any, bool, int, int]:
         sl = slice(int(bounds[b]), int(bounds[b + 1]))
         return (
             spec,
@@ -322,6 +331,7 @@ def fly_blocks(
             b,
         )
 
+    results: Iterator[dict]
     if runner is None or nb < 2:
         results = (_fly_block(*args(b), progress=progress) for b in range(nb))
     else:
@@ -397,8 +407,8 @@ class BlockRunner:
 
     def __init__(self, workers: int, ray_address: str | None = None):
         self.workers, self.ray_address = int(workers), ray_address
-        self._pool = None
-        self._ray_fn = None
+        self._pool: ProcessPoolExecutor | None = None
+        self._ray_fn: Any = None  # a ray remote function
         if ray_address:
             from aerohrl.cluster import ray_connect
 
@@ -417,8 +427,13 @@ class BlockRunner:
         the results in the order of ``arg_iter``."""
         from collections import deque
 
-        window = deque()
-        submit = (lambda a: self._ray_fn.remote(*a)) if self._ray_fn is not None else (lambda a: self._pool.submit(fn, *a))
+        window: deque = deque()
+        # the pool exists whenever ray is not used (mypy does not carry the test into the lambda)
+        submit = (
+            (lambda a: self._ray_fn.remote(*a))
+            if self._ray_fn is not None
+            else (lambda a: cast("ProcessPoolExecutor", self._pool).submit(fn, *a))
+        )
         get = (lambda f: self._ray.get(f)) if self._ray_fn is not None else (lambda f: f.result())
         for a in arg_iter:
             window.append(submit(a))
@@ -523,6 +538,7 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
         g2, T2, c2, r2, f = plan_continuations(spec, crng, coeffs, ep, k, state)
         start2 = state[f].copy()
         start2[:, task.POS] = 0.0
+        assert fr.rotors is not None  # recorded with continuations (record_rotors=cont)
         fr2 = fly(spec, g2, T2, c2, progress, part=1, start_state=start2, rotor_speeds=fr.rotors[f], runner=runner)
         n = len(T)
         goals = {key: np.concatenate([goals[key], g2[key]]) for key in goals}
@@ -831,7 +847,7 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
 
 def recipe_summary(spec: DatasetSpec) -> dict:
     """The non-default expert-data recipe of a spec, in words and numbers ({} = the thesis's)."""
-    r = {}
+    r: dict[str, Any] = {}
     if spec.expert == "replan":
         r["expert"] = (
             f"replan: shrinking-horizon minimum-jerk re-plan from the flown state every {spec.replan_every} steps, "

@@ -63,7 +63,7 @@ def global_stats(a: np.ndarray) -> dict:
     :func:`sorted_stats` / :func:`index_stats` reproduce bit for bit (tested)."""
     cols = a.reshape(len(a), -1)
     d = cols.shape[1]
-    res = {k: np.empty(d) for k in STAT_KEYS if k != "count"}
+    res: dict[str, np.ndarray] = {k: np.empty(d) for k in STAT_KEYS if k != "count"}
     sdt = stats_dtype(a.dtype)
     for j in range(d):
         c = np.sort(cols[:, j].astype(sdt))

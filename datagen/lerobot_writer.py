@@ -145,12 +145,12 @@ class DatasetWriter:
         self.lengths: list[np.ndarray] = []
         self._data_roller = _FileRoller(self.size_mb, self.chunks_size)
         self._meta_roller = _FileRoller(self.size_mb, self.chunks_size)
-        self._data_file = None  # (chunk, file) open
-        self._writer = None
-        self._schema = None
+        self._data_file: tuple[int, int] | None = None  # (chunk, file) open
+        self._writer: pq.ParquetWriter | None = None
+        self._schema: pa.Schema | None = None
         self._pending: list[dict] = []  # frames not yet in a row group
         self._pending_rows = 0
-        self._meta_file = None
+        self._meta_file: tuple[int, int] | None = None
         self._meta_pending: list[dict] = []
         self._paths: list[Path] = []  # data files in order
         self._closed = False
@@ -280,6 +280,7 @@ class DatasetWriter:
             self._pending_rows = n - m
 
     def _write_rows(self, rows: dict) -> None:
+        assert self.feats is not None  # set by the first append, before any rows
         keys = list(self.feats)
         meta = {b"huggingface": json.dumps(_hf_features(self.feats)).encode()}
         table = pa.table([arrow_column(np.ascontiguousarray(rows[k])) for k in keys], names=keys)
@@ -287,6 +288,7 @@ class DatasetWriter:
             self._schema = table.schema.with_metadata(meta)
         table = table.replace_schema_metadata(meta)
         if self._writer is None:
+            assert self._data_file is not None  # append opens a data file before adding rows
             chunk, fidx = self._data_file
             path = self.layout.data_file(chunk, fidx)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -300,6 +302,7 @@ class DatasetWriter:
         if self._data_file is None:
             return
         if self._pending_rows:
+            assert self.feats is not None  # pending rows came through append, which sets it
             keys = list(self.feats)
             self._write_rows({k: np.concatenate([p[k] for p in self._pending]) for k in keys})
             self._pending, self._pending_rows = [], 0

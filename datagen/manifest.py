@@ -132,6 +132,7 @@ def read_manifest(root: str | Path) -> dict:
     m, problems = load_manifest(root)
     if problems:
         raise UserError(f"{root}: {problems[0]}")
+    assert m is not None  # load_manifest returns None only with a problem
     return m
 
 

@@ -100,6 +100,7 @@ a few bisection steps above the true minimum and depends (deterministically) on
 from __future__ import annotations
 
 import math
+from typing import Any
 from functools import lru_cache
 
 import numpy as np
@@ -158,7 +159,7 @@ def _durations(T, n: int) -> np.ndarray:
     return t
 
 
-def positive_number(name: str, x: object) -> float:
+def positive_number(name: str, x: Any) -> float:
     """``x`` as a float, finite and > 0; a one-line error naming ``name`` otherwise."""
     try:
         v = float(x)
@@ -290,7 +291,7 @@ def max_acceleration(coeffs: np.ndarray, T: float | np.ndarray) -> np.ndarray:
             if scale > 0.0:
                 jj = P.polytrim(jj, tol=1e-13 * scale)
                 if len(jj) > 1:
-                    r = P.polyroots(jj)
+                    r: np.ndarray = P.polyroots(jj)
                     r = r.real[(np.abs(r.imag) <= 1e-9) & (r.real > 0.0) & (r.real < 1.0)]
                     cand.extend(r.tolist())
             out[i, j] = np.abs(P.polyval(np.asarray(cand), curv[i, j])).max()
@@ -594,14 +595,14 @@ def min_time(
         if not ok:
             continue
         feasible[i] = True
-        lo, hi, d_hi = t_lo, t_hi, d
+        lo_i, hi_i, d_hi = t_lo, t_hi, d
         for _ in range(steps):
-            mid = 0.5 * (lo + hi)
-            ok, d = _qp_one(ws, x0[i], xf[i], mid, a_max, warm, stop_early=True)
+            mid_i = 0.5 * (lo_i + hi_i)
+            ok, d = _qp_one(ws, x0[i], xf[i], mid_i, a_max, warm, stop_early=True)
             if ok:
-                hi, d_hi = mid, d
+                hi_i, d_hi = mid_i, d
             else:
-                lo = mid
-        T[i] = hi
+                lo_i = mid_i
+        T[i] = hi_i
         coeffs[i] = _to_power(d_hi[None], T[i : i + 1])[0]
     return T, coeffs, feasible

@@ -124,15 +124,15 @@ class DatasetSpec:
             v = getattr(self, f.name)
             if f.type in (int, "int") and (isinstance(v, bool) or not isinstance(v, (int, float)) or int(v) != v):
                 raise UserError(f"{f.name} must be an integer, got {v!r}")
-        for f in ("pos_range", "vel_range", "acc_range"):
-            r = getattr(self, f)
+        for attr in ("pos_range", "vel_range", "acc_range"):
+            r = getattr(self, attr)
             if len(r) != 2:
-                raise UserError(f"{f} needs two numbers LOW HIGH, got {list(r)}")
+                raise UserError(f"{attr} needs two numbers LOW HIGH, got {list(r)}")
         validate(self)
-        for f in ("pos_range", "vel_range", "acc_range"):
-            r = getattr(self, f)
+        for attr in ("pos_range", "vel_range", "acc_range"):
+            r = getattr(self, attr)
             if not r[0] < r[1]:
-                raise UserError(f"{f} is empty or inverted: {r[0]} .. {r[1]} (need LOW < HIGH)")
+                raise UserError(f"{attr} is empty or inverted: {r[0]} .. {r[1]} (need LOW < HIGH)")
         if self.solver == "closed-form" and self.degree != 5:
             raise UserError("the closed-form solver exists for degree 5 only; use --solver qp for higher degrees")
         if self.fps * self.substeps < 500:

@@ -82,6 +82,7 @@ class QuadrotorReachVectorEnv(VectorEnv):
     """``num_envs`` quadrotors, one batched simulator; see the module docstring."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+    single_action_space: spaces.Box  # set in __init__
 
     def __init__(
         self,
@@ -209,7 +210,7 @@ class QuadrotorReachVectorEnv(VectorEnv):
         """Apply CTBR actions (n, 4), clipped to the action box, for one control period; ``(obs, reward, terminated,
         truncated, info)`` per vehicle (a non-finite action raises :class:`NonFiniteAction`)."""
         n = self.num_envs
-        a = np.asarray(actions, np.float64).reshape(n, 4).copy()
+        a: np.ndarray = np.asarray(actions, np.float64).reshape(n, 4).copy()
         resetting = self._needs_reset.copy() if self.autoreset else np.zeros(n, bool)
         bad_action = ~np.isfinite(a).all(1) & ~resetting
         if bad_action.any():
@@ -294,8 +295,8 @@ def normalize_actions(env: gym.Env | VectorEnv) -> gym.Env | VectorEnv:
     if isinstance(env, VectorEnv):
         from gymnasium.wrappers.vector import RescaleAction as VecRescale
 
-        return VecRescale(env, -1.0, 1.0)
-    return gym.wrappers.RescaleAction(env, -1.0, 1.0)
+        return VecRescale(env, -1.0, 1.0)  # type: ignore[arg-type]  # gymnasium annotates numpy scalars or arrays; floats work
+    return gym.wrappers.RescaleAction(env, -1.0, 1.0)  # type: ignore[arg-type]  # as above
 
 
 __all__ = ["QuadrotorReachVectorEnv", "QuadrotorReachEnv", "NonFiniteAction", "compute_reward", "normalize_actions", "ENV_ID"]

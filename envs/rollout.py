@@ -108,6 +108,7 @@ def rollout(
     out: dict = {}
     t_plan = 0.0
     if nw:
+        assert planner is not None  # nw > 0 only with a planner
         t0 = time.perf_counter()
         plan = planner.plan(episodes.start_states, G, n=nw)
         t_plan += time.perf_counter() - t0
@@ -138,9 +139,10 @@ def rollout(
     finished = np.zeros(E, bool)
     steps = total.copy()
     final = np.zeros((E, 3))
-    min_pos = np.full(E, np.inf)
+    min_pos: np.ndarray = np.full(E, np.inf)
     pos = np.zeros((E, T + 1, 3), np.float32) if record else None
     if record:
+        assert pos is not None
         pos[:, 0] = obs["observation"][:, :3]
     bar = tqdm(total=T, desc=desc, unit="step", disable=None if progress else True, leave=False, dynamic_ncols=True)
     try:
@@ -153,6 +155,7 @@ def rollout(
             obs, _, term, trunc, _ = env.step(a)
             ag = obs["achieved_goal"]
             if record:
+                assert pos is not None
                 pos[:, t + 1] = obs["observation"][:, :3]
             dp, dv, dr = task.goal_errors(ag, G)
             min_pos = np.where(active, np.minimum(min_pos, dp), min_pos)

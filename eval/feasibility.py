@@ -78,7 +78,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING, Sequence, cast
 
 import numpy as np
 
@@ -218,6 +218,8 @@ def min_time(
     def ok(T):
         return (reference.max_acceleration(reference.min_jerk_closed_form(x0, xf, T), T) <= bound).all(axis=1)
 
+    hi: np.ndarray
+    lo: np.ndarray
     hi, lo = np.full(n, float(t_hi)), np.zeros(n)
     feasible = ok(hi)
     w, steps = float(t_hi), 0
@@ -485,11 +487,12 @@ def feasibility(
         horizon=horizon,
         positions_direct=pos_d,
         positions_runup=chosen_positions(pos, sel, O, any_r, first),
+        # the four grids were rebound to grid()'s float64 arrays after validation
         options={
-            "stretch": stretch.tolist(),
-            "factors": factors.tolist(),
-            "lateral": lateral.tolist(),
-            "runup_stretch": runup_stretch.tolist(),
+            "stretch": cast(np.ndarray, stretch).tolist(),
+            "factors": cast(np.ndarray, factors).tolist(),
+            "lateral": cast(np.ndarray, lateral).tolist(),
+            "runup_stretch": cast(np.ndarray, runup_stretch).tolist(),
             "runup": runup,
         },
     )

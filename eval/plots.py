@@ -33,7 +33,7 @@ def _plt():
     return plt
 
 
-def _save(fig, out: Path) -> Path:
+def _save(fig, out: str | Path) -> Path:
     return save_figure(fig, out, dpi=110)
 
 

@@ -73,7 +73,7 @@ def episode_rows(episodes: EpisodeSet, r: dict) -> tuple[list[str], list[list]]:
     kind = episodes.kind()
     rows = []
     for i in range(E):
-        row = [
+        row: list[Any] = [
             i,
             kind[i],
             int(episodes.source_episode[i]),
@@ -94,6 +94,7 @@ def episode_rows(episodes: EpisodeSet, r: dict) -> tuple[list[str], list[list]]:
             float(r["min_pos_err"][i]),
         ]
         for k in range(nw):
+            assert wp is not None  # nw > 0 only with waypoints
             row += [int(r["waypoint_frame"][i, k])] + [float(x) for x in wp[i, k, :3]]
         if nw:
             row += [float(r["plan_score"][i]), float(r["direct_score"][i]), int(r["legs_reached"][i])]
@@ -443,6 +444,7 @@ def tables(run_dirs: Sequence[str | Path]) -> dict:
         evals = sorted({p.name for rd in runs for p in (rd / "eval").glob("ood-*") if (p / "summary.json").exists()})
         for name in evals:
             f = _seed_figures(runs, name)
+            assert f is not None  # evals names only evaluations some run has a summary of
             planner, tol, floor = _ood_variant(name)
             label = f"floor: {floor_label(algo, floor)}" if floor else ALGO_NAMES.get(algo, algo)
             th2 = THESIS_T32.get(planner) if algo == "gcsl" and not (tol or floor) and planner in ("none", "single") else None

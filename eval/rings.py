@@ -182,7 +182,7 @@ def fly_group(run: Path, opts: list, loaded: tuple[Dataset, dict], heldout: bool
         meta={"leg_horizon": horizons.pop()},
     )
     o0 = todo[0][0]
-    per_ckpt = [[] for _ in todo]
+    per_ckpt: list[list[dict]] = [[] for _ in todo]
     t_all = time.perf_counter()
     ckpts = run_checkpoints(run, o0.checkpoints)
     for i, path in enumerate(ckpts):
@@ -239,7 +239,7 @@ def choose_margin(pairs: dict, max_loss: float = MAX_LOSS) -> tuple[float, dict]
     and mean. The chosen margin maximises the mean gain among the margins whose worst ring
     loses at most ``max_loss`` (declining everywhere, M = inf, always qualifies), then
     prefers the larger margin (declining more)."""
-    table = {}
+    table: dict[float, dict[str, Any]] = {}
     for m in MARGIN_GRID:
         gains = {
             ring: float(np.mean([decline_success(s, p, d, m).mean() - s.mean() for s, p, d in v])) for ring, v in pairs.items()
@@ -263,7 +263,7 @@ def study(
     from aerohrl.eval.harness import load_run_dataset
 
     margins, margin_tables = {}, {}
-    loaded = {}
+    loaded: dict[Path, Any] = {}
 
     def data_of(run):
         if run not in loaded:
@@ -293,7 +293,7 @@ def study(
         for v in ["straight", *planners]:
             fly(run, v, True)
     for p in planners:
-        pairs = {}
+        pairs: dict[str, list] = {}
         for ring in rings:
             for run in runs:
                 h = eval_root(run, base.episodes) / "heldout"
@@ -336,6 +336,7 @@ def collect(runs: list[Path], rings: list[Ring], variants: list[str], base: Eval
             for run in runs:
                 root = eval_root(run, base.episodes)
                 if v.endswith("-decline"):
+                    assert m is not None  # a declining variant without a margin was skipped above
                     flown = root / options(base, ring, v, m).name()
                     if math.isinf(m):  # declines everywhere: the straight flight
                         ep = straight[run]

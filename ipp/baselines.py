@@ -447,6 +447,7 @@ class CMAESPlanner(Planner):
 def make_planner(name: str, env: SearchEnv, cfg: PlannerConfig | None = None) -> Planner:
     """Planner by name (see :data:`PLANNERS`); unknown names raise ValueError."""
     cfg = cfg or PlannerConfig()
+    p: Planner
     if name == "greedy":
         p = TreePlanner(env, cfg, "greedy", 1)
     elif name == "dp":

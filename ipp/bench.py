@@ -19,7 +19,7 @@ from aerohrl.config import param, section, validate
 from aerohrl.errors import UserError
 
 from aerohrl.atomic import atomic_path
-from .baselines import PLANNERS, TEACHERS, THESIS_NAMES, PlannerConfig, make_planner
+from .baselines import PLANNERS, TEACHERS, THESIS_NAMES, Planner, PlannerConfig, make_planner
 from .env import EnvConfig, SearchEnv
 from .flown import EXECUTIONS
 from .factory import create_env, sample_for
@@ -90,6 +90,7 @@ def run_episodes(
             from .features import fast_path_applies
 
             fast_path_applies(env)
+        pl: Planner
         if model is not None:
             from .policy import RLPlanner
 
@@ -249,6 +250,7 @@ def animate_episode(
 
         env = create_flown_env(cfg.env, lattice, cfg.execution, skill)
     env.reset(sample_for(cfg.env, cfg.seed, [env_id]))
+    pl: Planner
     if model is not None:
         from .policy import RLPlanner
 
@@ -273,8 +275,8 @@ def animate_episode(
         env.step(pl.act())
     ty, tx = np.nonzero(env.worlds.targets[0])
     segs = []
-    for j, pr in enumerate(env.trace_prim):
-        pr = int(pr[0])
+    for j, prims in enumerate(env.trace_prim):
+        pr = int(prims[0])
         segs.append(lattice.positions(pr, env.trace[j][0]) if pr >= 0 else np.zeros((0, 2)))
     flown = getattr(env, "flown_trace", None)
     fig, ax = plt.subplots(figsize=(5.6, 5))

@@ -153,6 +153,9 @@ def _viability(edges_b, eshape, bbox_b, disp_b, to_b, size):
 class SearchEnv:
     """``N`` target-search environments stepped together (arrays, no per-cell loops)."""
 
+    # (state key, features) of the last fast_features call, set there
+    _fast_cache: tuple
+
     def __init__(self, cfg: EnvConfig, lattice: Lattice):
         cfg.validate(lattice)
         self.cfg, self.lat = cfg, lattice
@@ -253,7 +256,7 @@ class SearchEnv:
         self.path_cells = np.zeros(N)
         self.flight_s = np.zeros(N)
         self.trace = [self.pos.copy()] if self.keep_trace else []
-        self.trace_prim = []
+        self.trace_prim: list[np.ndarray] = []
         self.trace_budget = [self.remaining.copy()] if self.keep_trace else []
         self.version += 1
         self._seed_key = worlds.seeds[:, 0].astype(np.uint64) * np.uint64(1_000_003) + worlds.seeds[:, 1].astype(np.uint64)

@@ -530,6 +530,7 @@ def semantic_fast(env: SearchEnv) -> tuple[np.ndarray, np.ndarray]:
     pr = np.maximum(lat.edges[env.vert], 0)
     live = np.flatnonzero(~env.done)
     D = np.zeros((N, T["nrow"]))
+    L2: np.ndarray  # reshaped to (N, A, A, 2) below
     L1, L2 = np.zeros((N, A, 3)), np.zeros((N, AA, 2))
     IG = np.zeros((N, A))
     for v in np.unique(env.vert[live]):

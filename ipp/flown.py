@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from aerohrl.envs.rollout import PolicyFn
+    from aerohrl.sim import BatchedQuadrotor
 
     from .world import Worlds
 
@@ -65,7 +66,7 @@ class FlownEnv(SearchEnv):
         self.params = get_preset(vehicle)
         self.ctrl = GeometricController(self.params)
         self.dt = 1.0 / FPS
-        self.sim = None
+        self.sim: BatchedQuadrotor | None = None
 
     # ---------------------------------------------------------------- episodes
     def reset(self, worlds: Worlds, start: np.ndarray | None = None) -> dict:
@@ -85,7 +86,9 @@ class FlownEnv(SearchEnv):
         self.track_max = np.zeros(self.n)
         self.track_sq = np.zeros(self.n)
         self.track_steps = np.zeros(self.n, np.int64)
-        self.flown_trace = [[self.pos[i].astype(float)[None]] for i in range(self.n)] if self.keep_trace else None
+        self.flown_trace: list[list[np.ndarray]] | None = (
+            [[self.pos[i].astype(float)[None]] for i in range(self.n)] if self.keep_trace else None
+        )
         return obs
 
     def reset_rows(
@@ -110,11 +113,12 @@ class FlownEnv(SearchEnv):
         kmax = int(nsteps.max())
         coef = lat.prim_coef[pr]  # (k, 2, 6)
         origin = self.pos[idx].astype(float)  # nominal start cells (before the step)
+        assert self.sim is not None  # made by reset
         st = self.state.copy()
         rot = self.rotors.copy()
         # only the flying vehicles matter; the others are restored below
         end_state, end_rot = st.copy(), rot.copy()
-        emax = np.zeros(k)
+        emax: np.ndarray = np.zeros(k)
         esq = np.zeros(k)
         n_s = kmax // every + 1
         samples = np.zeros((k, n_s, 2))
@@ -127,7 +131,7 @@ class FlownEnv(SearchEnv):
         ref_p[:] = st[:, 0:3]
         ref_p[idx, 2] = 0.0
         rows = np.arange(k)
-        trace = [] if self.keep_trace else None
+        trace: list[np.ndarray] | None = [] if self.keep_trace else None
         # the references of every step, precomputed (k, 2, kmax + 1); derivatives are 0
         # after a primitive's end (the vehicle holds its end point until restored)
         tg = np.minimum(np.arange(kmax + 1)[None, :] * dt, T[:, None])
@@ -166,6 +170,7 @@ class FlownEnv(SearchEnv):
         self.track_sq[idx] += esq
         self.track_steps[idx] += nsteps
         if trace is not None and trace:
+            assert self.flown_trace is not None  # kept with the trace (keep_trace)
             tr = np.stack(trace, 1)  # (k, kmax, 2)
             for r, i in zip(rows, idx):
                 self.flown_trace[i].append(tr[r][np.isfinite(tr[r, :, 0])])
@@ -267,6 +272,7 @@ class SkillEnv(FlownEnv):
         # the primitive's path, for the path-deviation error
         tp = np.linspace(0, 1, 200)[None, :] * T[:, None]
         path = origin[:, :, None] + poly_eval(coef, tp[:, None, :], 0)  # (k, 2, 200)
+        assert self.sim is not None  # made by reset
         st = self.state.copy()
         end_state, end_rot = st.copy(), self.rotors.copy()
         leg = np.zeros(k, np.int64)
@@ -275,12 +281,13 @@ class SkillEnv(FlownEnv):
         near = np.zeros(k, bool)
         flying = np.ones(k, bool)
         steps = np.zeros(k, np.int64)
+        emax: np.ndarray
         emax, esq = np.zeros(k), np.zeros(k)
         every = int(round(lat.config.sense_dt / dt))
         max_steps = int((timeout * nleg).sum(0).max()) if k else 0
         samples = np.zeros((k, max_steps // every + 2, 2))
         sval = np.zeros(samples.shape[:2], bool)
-        trace = [] if self.keep_trace else None
+        trace: list[np.ndarray] | None = [] if self.keep_trace else None
         rows = np.arange(k)
         goal_all = np.zeros((self.n, task.GOAL_DIM))
         goal_all[:] = np.concatenate([st[:, 0:6], st[:, 6:15]], 1)  # others: hold (restored)
@@ -336,6 +343,7 @@ class SkillEnv(FlownEnv):
             self.skill_time = np.zeros(self.n)
         self.skill_time[idx] += steps * dt
         if trace is not None and trace:
+            assert self.flown_trace is not None  # kept with the trace (keep_trace)
             tr = np.stack(trace, 1)
             for r, i in zip(rows, idx):
                 self.flown_trace[i].append(tr[r][np.isfinite(tr[r, :, 0])])

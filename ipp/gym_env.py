@@ -132,7 +132,7 @@ class IPPSearchVectorEnv(VectorEnv):
         """Execute one primitive (action slot, (n,) int) per env; ``(obs, reward, terminated,
         truncated, info)`` (info: action masks, worlds, reward terms, metrics at the end)."""
         n, env = self.num_envs, self.env
-        a = np.asarray(actions).reshape(n)
+        a: np.ndarray = np.asarray(actions).reshape(n)
         if not np.issubdtype(a.dtype, np.integer):
             if not np.all(np.isfinite(a)) or np.any(a != np.round(a)):
                 raise ValueError("actions must be integer primitive slots")

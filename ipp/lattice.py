@@ -61,6 +61,7 @@ import os
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -190,13 +191,13 @@ def quintic_coefficients(
 
 def poly_eval(coef: np.ndarray, t: np.ndarray, deriv: int = 0) -> np.ndarray:
     """Evaluate ``d^k/dt^k sum_j c_j t^j``; ``coef`` (..., 6), ``t`` broadcastable to (..., S)."""
-    out = 0.0
+    out: np.ndarray | float = 0.0
     for j in range(deriv, 6):
         fac = 1.0
         for m in range(deriv):
             fac *= j - m
         out = out + fac * coef[..., j, None] * t ** (j - deriv)
-    return out
+    return cast(np.ndarray, out)  # an array once a term is added (deriv < 6)
 
 
 def path_length(coef: np.ndarray, T: np.ndarray, n: int = 200) -> np.ndarray:
@@ -347,7 +348,7 @@ def _select_edges(cfg: LatticeConfig, verts, I, J, D, T, C) -> list[int]:
 
 def _sensing(cfg: LatticeConfig, coef: np.ndarray, T: float):
     """Measurements of one primitive: offsets (m,2), levels (m,), visited centres (c,2)."""
-    t = np.arange(cfg.sense_dt, T + 1e-9, cfg.sense_dt)
+    t: np.ndarray = np.arange(cfg.sense_dt, T + 1e-9, cfg.sense_dt)
     if len(t) == 0 or t[-1] < T - 1e-9:
         t = np.append(t, T)
     p = poly_eval(coef, t[None, :]).T  # (S, 2)
@@ -462,8 +463,8 @@ def load_lattice(path: str | os.PathLike) -> Lattice:
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except Exception as e:  # zipfile.BadZipFile, ValueError, OSError, ...
-        raise ValueError(f"{path}: not a lattice file ({type(e).__name__})") from None
+    except Exception as err:  # zipfile.BadZipFile, ValueError, OSError, ...
+        raise ValueError(f"{path}: not a lattice file ({type(err).__name__})") from None
     try:
         meta = json.loads(str(data.pop("meta")))
     except Exception:

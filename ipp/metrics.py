@@ -129,7 +129,7 @@ def paired_differences(
     if not base or not others:
         return {}, None
     best = _best(results, base, metric)
-    out = {}
+    out: dict[str, dict[str, tuple[float, float, int]]] = {}
     for p in others:
         out[p] = {}
         for q in base:
@@ -146,6 +146,7 @@ def paired_markdown(results: dict[str, dict], names: dict[str, str], baselines: 
     diffs, best = paired_differences(results, baselines)
     if not diffs:
         return ""
+    assert best is not None  # paired_differences names the best baseline whenever it pairs rows
     base = [p for p in results if p in baselines]
     head = (
         "\nPaired search-efficiency difference (row − baseline, percentage points, mean ± "

@@ -35,6 +35,12 @@ from .train_config import PolicyConfig  # noqa: F401  (declared torch-free for t
 
 
 class ActorCritic(nn.Module):
+    # set after construction: load_policy (env_kind, train_info) and ipp.cli (run_label, checkpoint_name)
+    env_kind: str
+    train_info: dict
+    run_label: str
+    checkpoint_name: str
+
     def __init__(
         self, map_ch: int, map_hw: int, vec_dim: int, n_actions: int, cfg: PolicyConfig = PolicyConfig(), n_feat: int = 0
     ):
@@ -171,7 +177,7 @@ class RLPlanner(Planner):
     def __init__(self, env, model: ActorCritic, greedy: bool = True):
         super().__init__(env)
         self.model, self.greedy = model, greedy
-        self.h = None
+        self.h: torch.Tensor | None = None
 
     def reset(self) -> None:
         """Forget the recurrent state (a new episode starts)."""

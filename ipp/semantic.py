@@ -104,7 +104,7 @@ def campus_map(rng: np.random.Generator, size: int = 256) -> np.ndarray:
     road = np.zeros((S, S), bool)
     for axis_coord in (X, Y):
         spacing = rng.uniform(0.18, 0.3) * S
-        lines = np.arange(rng.uniform(0.1, 0.25) * S, S, spacing)
+        lines: np.ndarray = np.arange(rng.uniform(0.1, 0.25) * S, S, spacing)
         lines = lines + rng.normal(0, 0.02 * S, len(lines))
         width = rng.uniform(1.0, 1.6, len(lines))
         road |= (np.abs(axis_coord[None] - lines[:, None, None]) < width[:, None, None]).any(0)

@@ -57,7 +57,7 @@ def sigmoid(L: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * L))
 
 
-def logit(b: np.ndarray) -> np.ndarray:
+def logit(b: np.ndarray | float) -> np.ndarray:
     """Log-odds ``log(b) - log(1 - b)`` of probabilities ``b``, elementwise."""
     b = np.asarray(b, float)
     return np.log(b) - np.log1p(-b)
@@ -69,7 +69,7 @@ def entropy_bits(b: np.ndarray) -> np.ndarray:
     return -(b * np.log(b) + (1 - b) * np.log1p(-b)) * (1.0 / np.log(2.0))
 
 
-def hashed_uniform(seed: np.ndarray, step: np.ndarray, slot: np.ndarray) -> np.ndarray:
+def hashed_uniform(seed: np.ndarray, step: np.ndarray, slot: np.ndarray | int) -> np.ndarray:
     """Uniform [0,1) from splitmix64 of (seed, step, slot); arrays broadcast."""
     with np.errstate(over="ignore"):
         x = (

@@ -296,6 +296,7 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
         except RuntimeError:
             raise UserError(f"{cfg.init}: policy shapes do not match this environment") from None
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    last: dict[str, Any]  # the latest iteration's log entry
     start, buffer, best, elapsed0, last = 0, [], -np.inf, 0.0, {}
     if resume:
         _, ck, _ = run.newest_intact()  # CheckpointDamaged names the file

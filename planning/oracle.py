@@ -92,8 +92,8 @@ def oracle_single(
     first = rollout(algo, _flights(hover_states(C), cand.goals.double().cpu().numpy(), leg_horizon), **sim)
     pairs_s = np.repeat(S[None], E, 0).reshape(E * C, -1)
     pairs_g = np.repeat(G[:, None], C, 1).reshape(E * C, -1)
-    succ = np.zeros(E * C, bool)
-    near = np.zeros(E * C, bool)
+    succ: np.ndarray = np.zeros(E * C, bool)
+    near: np.ndarray = np.zeros(E * C, bool)
     for i in tqdm(range(0, E * C, chunk), desc="second legs", disable=None if progress else True, leave=False):
         r = rollout(algo, _flights(pairs_s[i : i + chunk], pairs_g[i : i + chunk], leg_horizon), **sim)
         succ[i : i + chunk], near[i : i + chunk] = r["success"], r["near_success"]

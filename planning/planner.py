@@ -94,7 +94,7 @@ def candidates_from_dataset(data: Dataset, max_candidates: int = 0, seed: int = 
     F = len(data)
     if F == 0:
         raise ValueError("the dataset holds no achieved goals to plan with")
-    idx = np.arange(F)
+    idx: np.ndarray = np.arange(F)
     if 0 < max_candidates < F:
         idx = np.sort(np.random.default_rng([seed, 7]).choice(F, size=int(max_candidates), replace=False))
     ns = data.next_state[torch.as_tensor(idx)].float()

@@ -138,7 +138,7 @@ class Scratch:
         self.t1 = np.empty(n)
         self.t1b = np.empty(n)
         self.neg = np.empty(n, dtype=bool)
-        self._rows: dict[int, list] = {}
+        self._rows: dict[int, tuple[np.ndarray, list]] = {}
 
     def rows(self, a: np.ndarray) -> list:
         """Row views of a persistent (k, N) buffer, cached (a view costs ~0.2 us to make).

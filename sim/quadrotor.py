@@ -18,6 +18,7 @@ import weakref
 from concurrent.futures import ThreadPoolExecutor
 from multiprocessing import get_context
 from multiprocessing.shared_memory import SharedMemory
+from typing import cast
 
 import numpy as np
 
@@ -82,7 +83,7 @@ _STEP = {b"c": "step_ctbr", b"s": "step_speeds"}
 
 def _shared_arrays(buf, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Views ``X0, X1, u, cmd`` over a shared block of ``(2 NX + 8) n`` float64."""
-    a = np.ndarray((2 * dyn.NX + 8, n), dtype=np.float64, buffer=buf)
+    a: np.ndarray = np.ndarray((2 * dyn.NX + 8, n), dtype=np.float64, buffer=buf)
     return a[: dyn.NX], a[dyn.NX : 2 * dyn.NX], a[2 * dyn.NX : 2 * dyn.NX + 4], a[2 * dyn.NX + 4 :]
 
 
@@ -277,11 +278,12 @@ class BatchedQuadrotor:
         if len(self._chunks) == 1:
             getattr(self._chunks[0], method)()
         elif self.processes > 1:
+            # with processes > 1 every chunk after the first is a _ProcChunk
             for c in self._chunks[1:]:
-                c.start(method)
+                cast(_ProcChunk, c).start(method)
             getattr(self._chunks[0], method)()
             for c in self._chunks[1:]:
-                c.wait()
+                cast(_ProcChunk, c).wait()
         else:
             futs = [_pool().submit(getattr(c, method)) for c in self._chunks[1:]]
             getattr(self._chunks[0], method)()
