@@ -4,6 +4,7 @@ Layers, bottom to top (a package may import its own modules and any lower layer)
 
     aerohrl's bottom modules (errors, atomic, task, hardware, cli_common, cli_types, cluster, config)
     sim
+    worlds
     datagen
     envs
     algorithms
@@ -49,6 +50,7 @@ TOP = {"aerohrl", "aerohrl.api", "aerohrl.cli", "aerohrl.runs", "aerohrl.sweep"}
 LAYERS: list[tuple[str, ...]] = [
     ("bottom",),
     ("aerohrl.sim",),
+    ("aerohrl.worlds",),
     ("aerohrl.datagen",),
     ("aerohrl.envs",),
     ("aerohrl.algorithms",),

@@ -1,0 +1,72 @@
+"""Maze layouts, collision checks and the cell graph (aerohrl.worlds)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aerohrl.errors import UserError
+from aerohrl.worlds import MAZES, VEHICLE_RADIUS, corners, load_maze
+from aerohrl.worlds.maze import parse_layout
+
+
+@pytest.mark.parametrize("name", MAZES)
+def test_layout_connected_and_tasks_far_apart(name):
+    m = load_maze(name)
+    d = m.distances()
+    assert np.isfinite(d).all(), "every free cell reaches every other"
+    diameter = d.max()
+    assert len(m.tasks) == 5
+    for s, g in m.tasks:
+        i, j = m.cell_index(np.array([s, g]))
+        assert d[i, j] >= 0.6 * diameter
+        path = m.shortest_path(s, g)
+        assert len(path) == d[i, j] + 1
+        assert (np.abs(np.diff(path, axis=0)).sum(1) == 1).all(), "4-connected steps"
+        assert not m.is_wall(path).any()
+
+
+def test_collision_sphere_against_a_wall_floor_and_ceiling():
+    m = load_maze("medium")
+    free = (1, 1)
+    c = m.cell_center(np.array(free))
+    assert not m.collides(c)
+    # (0, 1) is a wall: the cell's south face is at y = cell
+    south_face = m.cell
+    p = np.array([c[0], south_face + VEHICLE_RADIUS + 1e-3, c[2]])
+    q = np.array([c[0], south_face + VEHICLE_RADIUS - 1e-3, c[2]])
+    assert not m.collides(p) and m.collides(q)
+    assert m.collides(np.array([c[0], c[1], VEHICLE_RADIUS - 0.01]))
+    assert m.collides(np.array([c[0], c[1], m.ceiling - VEHICLE_RADIUS + 0.01]))
+    # batched, any leading shape; outside the grid is a wall
+    pts = np.stack([c, q, np.array([-5.0, -5.0, 1.5])]).reshape(1, 3, 3)
+    assert m.collides(pts).tolist() == [[False, True, True]]
+    # a convex wall corner: cell (2, 2)'s north and west neighbours are free, its north-west
+    # neighbour (3, 1) a wall; the distance is to that box's corner point
+    assert not m.walls[3, 2] and not m.walls[2, 1] and m.walls[3, 1]
+    p = np.array([2 * m.cell + 0.1, 3 * m.cell - 0.1, 1.5])
+    assert m.wall_distance(p) == pytest.approx(np.hypot(0.1, 0.1))
+
+
+def test_corners_keep_turns_and_ends():
+    path = np.array([[1, 1], [1, 2], [1, 3], [2, 3], [3, 3], [3, 4]])
+    assert corners(path).tolist() == [[1, 1], [1, 3], [3, 3], [3, 4]]
+
+
+def test_bad_mazes_and_cells_are_one_line_errors():
+    with pytest.raises(UserError, match="unknown maze"):
+        load_maze("huge")
+    with pytest.raises(UserError, match="enclosed"):
+        parse_layout("#.#\n###\n###")
+    with pytest.raises(UserError, match="only"):
+        parse_layout("###\n#x#\n###")
+    m = load_maze("large")
+    with pytest.raises(UserError, match="is a wall"):
+        m.shortest_path((0, 0), (1, 1))
+
+
+def test_metadata_round_trips_the_layout():
+    m = load_maze("giant")
+    d = m.to_dict()
+    assert (parse_layout("\n".join(d["layout"])) == m.walls).all()
+    assert d["vehicle_radius"] == VEHICLE_RADIUS and len(d["tasks"]) == 5
