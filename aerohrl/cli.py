@@ -17,6 +17,7 @@ commands:
   runs      inspect training runs (runs show RUN)
   ipp       informative path planning on motion primitives (lattice, bench, ...)
   eval      evaluate runs in the simulator (reach-desired, reach-intermediate, ood + planner; table, plot)
+  bench     the benchmark: mazes and free space, dataset families, frozen tasks (bench suite: the leaderboard)
   sweep     a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, evaluated, seed-aggregated tables
 
 Every command takes, where they mean something, the same flags: -o/--out PATH (where
@@ -54,13 +55,19 @@ def _eval(argv):
     return main(argv)
 
 
+def _bench(argv):
+    from aerohrl.benchmark import main
+
+    return main(argv)
+
+
 def _sweep(argv):
     from aerohrl.sweep import main
 
     return main(argv)
 
 
-COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp, "eval": _eval, "sweep": _sweep}
+COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp, "eval": _eval, "sweep": _sweep, "bench": _bench}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -45,7 +45,7 @@ BOTTOM = {
     "aerohrl.cluster",
     "aerohrl.config",
 }
-TOP = {"aerohrl", "aerohrl.api", "aerohrl.cli", "aerohrl.runs", "aerohrl.sweep"}
+TOP = {"aerohrl", "aerohrl.api", "aerohrl.cli", "aerohrl.runs", "aerohrl.sweep", "aerohrl.benchmark"}
 # layer units bottom to top; units in one tuple share a rank and may not import each other
 LAYERS: list[tuple[str, ...]] = [
     ("bottom",),

@@ -1,0 +1,391 @@
+"""``aerohrl bench suite``: the benchmark's leaderboard, agents x datasets x tasks over seeds.
+
+    aerohrl bench suite --agents gcsl td3bc gcsl+planner --datasets maze-large-stitch maze-large-navigate \\
+        --seeds 0 1 2 3 --out bench-out/suite
+    aerohrl bench suite --size ci --out bench-out/suite-ci       # the CI-sized variant (minutes on 2 cores)
+    aerohrl bench list                                           # datasets, tasks and agents of the suite
+
+A dataset is named by its spec file, ``datasets/<name>.toml`` (``maze-large-stitch`` and
+``quadrotor-maze-large-stitch-v0`` both name ``datasets/quadrotor-maze-large-stitch.toml``);
+it is built when missing (``datagen build``, versioned and verified as always). Its tasks
+follow its world: a maze dataset is evaluated on the maze's five frozen tasks (``maze``),
+a free-space dataset on ``reach-novel`` and ``fast``.
+
+An agent is an algorithm (``train --algo``), or ``ALGO+planner``: the thesis's planner over
+that algorithm's skills and critics (Eq. 3.6/3.7 with the declining chain), which flies
+the same trained runs. Training and evaluation go through the sweep's Ray tasks
+(aerohrl/sweep.py): every run resumable, a rerun does only what is missing.
+
+The leaderboard is the success rate at each run's final checkpoint, per agent x dataset x
+task, as mean ± std over seeds with the 95 % bootstrap interval of the mean and every
+seed's value: ``OUT/leaderboard.md``, ``OUT/leaderboard.csv`` and ``OUT/leaderboard.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from aerohrl import atomic
+from aerohrl import cli_types as T
+from aerohrl import config as K
+from aerohrl.cli_common import add_common
+from aerohrl.errors import ArgumentParser, UserError, run_cli
+
+PROG = "aerohrl bench"
+PLANNER_SUFFIX = "+planner"
+# the planner an ALGO+planner agent evaluates with: the thesis's multi-waypoint plan (Eq. 3.6)
+# with the declining chain (fly straight where the plan does not score higher)
+PLANNER_ARGS = ("--planner", "multi", "--decline-margin", "0")
+FREE_TASKS = ("reach-novel", "fast")
+MAZE_TASKS = ("maze",)
+DEFAULT_DATASETS = ("maze-medium-navigate", "maze-large-navigate", "maze-large-stitch", "maze-large-explore")
+DEFAULT_AGENTS = ("gcsl", "td3bc", "td3awbc", "gcsl+planner")
+
+
+@dataclass
+class Size:
+    """What one size of the suite trains and evaluates with."""
+
+    episodes: int  # dataset episodes (the spec's goal count): None keeps the spec file's
+    steps: int  # gradient steps per run
+    eval_episodes: int  # evaluation episodes per task
+
+
+SIZES = {
+    # the spec files' own dataset sizes, the cpu preset's run length
+    "full": Size(episodes=0, steps=30_000, eval_episodes=50),
+    # a newcomer's first look: small data, short runs; its numbers show the pipeline, not the methods
+    "ci": Size(episodes=40, steps=600, eval_episodes=10),
+}
+
+
+@dataclass
+class SuiteSpec:
+    """The suite's grid (flags or ``--config`` TOML)."""
+
+    agents: tuple[str, ...] = K.param(
+        DEFAULT_AGENTS, "agents: an algorithm, or ALGO+planner (the thesis planner over its skills)"
+    )
+    datasets: tuple[str, ...] = K.param(DEFAULT_DATASETS, "datasets by name (datasets/<name>.toml)")
+    seeds: tuple[int, ...] = K.param((0, 1, 2, 3), "training seeds", ge=0)
+    size: str = K.param("full", "full | ci (small data, short runs)", choices=tuple(SIZES))
+    preset: str = K.param("cpu", "train preset of every run")
+    steps: int = K.param(0, "gradient steps per run (0: the size's)", ge=0)
+    eval_episodes: int = K.param(0, "evaluation episodes per task (0: the size's)", ge=0)
+
+
+# ----------------------------------------------------------------------------- names
+
+
+def spec_path(name: str, root: Path = Path("datasets")) -> Path:
+    """The spec file of dataset ``name`` (``maze-large-stitch``, ``quadrotor-maze-large-stitch``
+    or ``quadrotor-maze-large-stitch-v0``); UserError when there is none."""
+    base = re.sub(r"-v\d+$", "", name)
+    for cand in (base, f"quadrotor-{base}"):
+        p = root / f"{cand}.toml"
+        if p.is_file():
+            return p
+    known = sorted(p.stem for p in root.glob("quadrotor-*.toml"))
+    raise UserError(f"unknown dataset {name!r} (no {root}/{base}.toml; the suite's datasets: {', '.join(known)})")
+
+
+def dataset_world(spec: Any) -> str:
+    """``free`` or ``maze-<name>``: the world a spec's data is flown in."""
+    return str(getattr(spec, "world", "free"))
+
+
+def tasks_for(world: str) -> tuple[str, ...]:
+    """The evaluation tasks of a world's datasets."""
+    return FREE_TASKS if world == "free" else MAZE_TASKS
+
+
+def split_agent(agent: str) -> tuple[str, bool]:
+    """(algorithm, planned) of an agent name; UserError for an unknown algorithm."""
+    from aerohrl.algorithms.config import ALGORITHMS
+
+    algo, planned = (agent[: -len(PLANNER_SUFFIX)], True) if agent.endswith(PLANNER_SUFFIX) else (agent, False)
+    if algo not in ALGORITHMS:
+        raise UserError(f"unknown agent {agent!r} (an algorithm: {', '.join(ALGORITHMS)}; or ALGO{PLANNER_SUFFIX})")
+    return algo, planned
+
+
+def eval_entries(world: str, planned: bool) -> list[tuple[str, ...]]:
+    """The ``aerohrl eval`` argument tuples of one agent on a world's tasks."""
+    return [("--task", t, *PLANNER_ARGS) if planned else ("--task", t) for t in tasks_for(world)]
+
+
+# ----------------------------------------------------------------------------- running
+
+
+@dataclass(frozen=True)
+class SuiteRun:
+    algo: str
+    dataset: str  # the suite's name of the dataset
+    path: str  # the built dataset's folder
+    world: str
+    seed: int
+
+    def name(self) -> str:
+        """The run folder's name: ``ALGO-DATASET-sSEED``."""
+        return f"{self.algo}-{self.dataset}-s{self.seed}"
+
+
+def build_datasets(sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print) -> dict[str, tuple[str, str]]:
+    """Every dataset of the suite built (or verified) under ``root``: name -> (folder, world)."""
+    from aerohrl.datagen.build import build
+    from aerohrl.datagen.spec import load_spec
+
+    size = SIZES[sp.size]
+    out = {}
+    for name in sp.datasets:
+        path = spec_path(name)
+        spec = load_spec(path)
+        if size.episodes:
+            spec = dataclasses.replace(spec, goals=min(spec.goals, size.episodes))
+        res = build(spec, root, progress=False, log=log)
+        log(f"suite: dataset {name}: {res.path} ({res.episodes} episodes, {res.frames:,} frames)")
+        out[name] = (str(Path(res.path).resolve()), dataset_world(spec))
+    return out
+
+
+def suite_runs(sp: SuiteSpec, datasets: dict[str, tuple[str, str]]) -> list[SuiteRun]:
+    """The training runs: one per algorithm (an ALGO+planner agent shares ALGO's runs) x dataset x seed."""
+    algos = list(dict.fromkeys(split_agent(a)[0] for a in sp.agents))
+    return [SuiteRun(a, d, datasets[d][0], datasets[d][1], s) for d in sp.datasets for a in algos for s in sp.seeds]
+
+
+def run_config(sp: SuiteSpec, r: SuiteRun) -> dict:
+    """The train config (flat dict) of one run: the preset, the size's steps, no in-training evaluation."""
+    from aerohrl.algorithms import config as C
+
+    steps = sp.steps or SIZES[sp.size].steps
+    cfg = C.make_config(
+        sp.preset,
+        algo=r.algo,
+        dataset=r.path,
+        seed=r.seed,
+        steps=steps,
+        eval_every=0,
+        checkpoint_every=max(1, steps // 10),
+        keep_checkpoints=2,
+    )
+    return C.to_dict(cfg)
+
+
+def eval_run(run_dir: str, entries: list[list[str]], episodes: int, threads: int) -> dict:
+    """``aerohrl eval ARGS --run RUN`` at the final checkpoint for each entry not already done."""
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from aerohrl.eval.cli import main as eval_main
+
+    done = []
+    for args in entries:
+        err = io.StringIO()
+        argv = [*args, "--run", run_dir, "--episodes", str(episodes), "--checkpoints", "1", "--threads", str(threads), "--quiet"]
+        with redirect_stdout(io.StringIO()), redirect_stderr(err):
+            code = eval_main(argv)
+        if code != 0:
+            raise RuntimeError(f"aerohrl eval {' '.join(argv)} failed: {err.getvalue().strip().splitlines()[-1:]}")
+        done.append(args)
+    return {"run": run_dir, "evaluated": done}
+
+
+def run_suite(sp: SuiteSpec, out: Path, *, num_cpus: int | None = None, address: str | None = None, log=print) -> list[dict]:
+    """Build, train and evaluate the suite into ``out``; write the leaderboard; returns it."""
+    from aerohrl.cluster import ray_connect
+    from aerohrl.sweep import train_on_ray
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    datasets = build_datasets(sp, Path("datasets"), log=log)
+    runs = suite_runs(sp, datasets)
+    episodes = sp.eval_episodes or SIZES[sp.size].eval_episodes
+    entries: dict[str, list[list[str]]] = {}
+    for r in runs:
+        entries[r.name()] = [
+            list(e)
+            for agent in sp.agents
+            if split_agent(agent)[0] == r.algo
+            for e in eval_entries(r.world, split_agent(agent)[1])
+        ]
+    (out / "runs").mkdir(exist_ok=True)
+    atomic.write_text(out / "suite.toml", K.to_toml(sp, header="aerohrl bench suite grid (written by `aerohrl bench suite`)"))
+    ray = ray_connect(address, num_cpus=num_cpus)
+    try:
+        evaluate = ray.remote(num_cpus=1, max_retries=2)(eval_run)
+        pending: dict[Any, str] = {}
+
+        def then_evaluate(label: str, res: dict) -> None:
+            pending[evaluate.remote(res["run"], entries[label], episodes, 1)] = label
+
+        report = train_on_ray(
+            ray,
+            [(r.name(), str((out / "runs" / r.name()).resolve()), run_config(sp, r)) for r in runs],
+            log=lambda m: log(m.replace("sweep:", "suite:")),
+            on_trained=then_evaluate,
+        )
+        for ref, label in pending.items():
+            try:
+                ray.get(ref)
+            except Exception as e:  # Ray wraps the task's error: keep its last line
+                report["errors"][label] = str(e).strip().splitlines()[-1]
+    finally:
+        if not address:
+            ray.shutdown()
+    atomic.write_json(out / "suite-report.json", report)
+    board = leaderboard(out, sp, runs)
+    write_leaderboard(out, board)
+    if report["errors"]:
+        raise UserError(
+            f"{len(report['errors'])} runs failed ({out / 'suite-report.json'}); rerun the same command to retry them"
+        )
+    return board
+
+
+# ----------------------------------------------------------------------------- the leaderboard
+
+
+def _final_success(run_dir: Path, task: str, planned: bool) -> float | None:
+    """Success rate at the final checkpoint of one evaluation of a run, or None when not evaluated."""
+    import json
+
+    for f in sorted((run_dir / "eval").glob("*/summary.json")):
+        s = json.loads(f.read_text())
+        if s.get("task") == task and (s.get("planner", "none") != "none") == planned:
+            return float(s["checkpoints"][-1]["success"])
+    return None
+
+
+def leaderboard(out: Path, sp: SuiteSpec, runs: list[SuiteRun]) -> list[dict]:
+    """One row per agent x dataset x task: the seeds' final-checkpoint success (%) and its statistics."""
+    from aerohrl.eval.results import seed_stats
+
+    rows = []
+    worlds = {r.dataset: r.world for r in runs}
+    for d in sp.datasets:
+        for task in tasks_for(worlds[d]):
+            for agent in sp.agents:
+                algo, planned = split_agent(agent)
+                vals, seeds = [], []
+                for r in runs:
+                    if r.algo == algo and r.dataset == d:
+                        v = _final_success(out / "runs" / r.name(), task, planned)
+                        if v is not None:
+                            vals.append(100 * v)
+                            seeds.append(r.seed)
+                st = seed_stats(vals) if vals else None
+                rows.append({"agent": agent, "dataset": d, "task": task, "seeds": seeds, "stats": st})
+    return rows
+
+
+def write_leaderboard(out: Path, rows: list[dict]) -> None:
+    """``leaderboard.md``, ``leaderboard.csv`` and ``leaderboard.png`` under ``out``."""
+    from aerohrl.eval.results import markdown, seed_cell, to_csv
+
+    head = ["dataset", "task", "agent", "success % (mean ± std [95 % CI] (per seed))", "seeds"]
+    md_rows = [[r["dataset"], r["task"], r["agent"], seed_cell(r["stats"]), len(r["seeds"])] for r in rows]
+    atomic.write_text(out / "leaderboard.md", "# Leaderboard\n\n" + markdown(head, md_rows) + "\n")
+    csv_head = ["dataset", "task", "agent", "mean", "std", "ci_lo", "ci_hi", "seeds", "values"]
+    csv_rows = []
+    for r in rows:
+        st = r["stats"] or {"mean": float("nan"), "std": float("nan"), "ci95": (float("nan"),) * 2, "values": []}
+        vals = " ".join(f"{v:.2f}" for v in st["values"])
+        csv_rows.append([r["dataset"], r["task"], r["agent"], st["mean"], st["std"], *st["ci95"], len(r["seeds"]), vals])
+    atomic.write_text(out / "leaderboard.csv", to_csv(csv_head, csv_rows))
+    plot_leaderboard(out / "leaderboard.png", rows)
+
+
+def plot_leaderboard(path: Path, rows: list[dict]) -> None:
+    """Grouped bars: success per dataset x task (groups) and agent (bars), with each seed as a dot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    cells = list(dict.fromkeys((r["dataset"], r["task"]) for r in rows))
+    agents = list(dict.fromkeys(r["agent"] for r in rows))
+    w = 0.8 / max(len(agents), 1)
+    fig, ax = plt.subplots(figsize=(max(6, 1.6 * len(cells) * max(1, len(agents)) / 3), 4))
+    for j, agent in enumerate(agents):
+        for i, cell in enumerate(cells):
+            r = next((x for x in rows if (x["dataset"], x["task"]) == cell and x["agent"] == agent), None)
+            if r is None or r["stats"] is None:
+                continue
+            x = i + (j - (len(agents) - 1) / 2) * w
+            st = r["stats"]
+            lo, hi = st["ci95"]
+            err = None if np.isnan(lo) else [[st["mean"] - lo], [hi - st["mean"]]]
+            ax.bar(x, st["mean"], w, color=f"C{j}", yerr=err, capsize=2, label=agent if i == 0 else None)
+            ax.plot([x] * len(st["values"]), st["values"], "k.", ms=3)
+    ax.set_xticks(range(len(cells)), [f"{d}\n{t}" for d, t in cells], fontsize=7)
+    ax.set_ylabel("success at the final checkpoint (%)")
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=7, ncol=min(4, len(agents)))
+    fig.tight_layout()
+    tmp = atomic.temp_path(path)
+    fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def parser() -> ArgumentParser:
+    """``aerohrl bench`` with its subcommands ``suite`` and ``list``."""
+    ap = ArgumentParser(prog=PROG, description="The benchmark: mazes and free space, dataset families, frozen tasks.")
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+    s = sub.add_parser("suite", help="train and evaluate agents x datasets x seeds; write the leaderboard")
+    s.add_argument("--config", type=Path, default=None, help="a suite TOML (its keys are these flags); flags override it")
+    K.add_flags(s, SuiteSpec)
+    s.add_argument("--num-cpus", type=T.positive_int, default=None, help="cores of the local Ray [all]")
+    s.add_argument("--address", default=None, help="join the Ray cluster at HOST:PORT instead of a local one")
+    add_common(s, out={"required": True, "help": "suite folder (runs, leaderboard)"})
+    sub.add_parser("list", help="the suite's datasets (spec files), their tasks, and the agents")
+    return ap
+
+
+def cmd_list() -> int:
+    """``aerohrl bench list``: what the suite can run."""
+    from aerohrl.algorithms.config import ALGORITHMS
+    from aerohrl.datagen.spec import load_spec
+
+    print("datasets (datasets/<name>.toml) and their tasks:")
+    for p in sorted(Path("datasets").glob("quadrotor-*.toml")):
+        world = dataset_world(load_spec(p))
+        print(f"  {p.stem:36s} {world:12s} {' '.join(tasks_for(world))}")
+    print("agents: " + " ".join([*ALGORITHMS, *(a + PLANNER_SUFFIX for a in ALGORITHMS)]))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The ``aerohrl bench`` command; exit code."""
+    a = parser().parse_args(argv)
+
+    def go() -> int:
+        if a.cmd == "list":
+            return cmd_list()
+        d: dict = K.load_toml(a.config) if a.config else {}
+        d.update(K.given_flags(a, SuiteSpec))
+        sp = K.from_mapping(SuiteSpec, d, where=str(a.config or "the suite"))
+        for agent in sp.agents:
+            split_agent(agent)
+        for name in sp.datasets:
+            spec_path(name)
+        board = run_suite(sp, a.out, num_cpus=a.num_cpus, address=a.address, log=lambda m: print(m, file=sys.stderr, flush=True))
+        print((Path(a.out) / "leaderboard.md").read_text(), end="")
+        print(f"leaderboard: {a.out}/leaderboard.md, .csv, .png ({len(board)} rows)", file=sys.stderr)
+        return 0
+
+    return run_cli(PROG, go)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
