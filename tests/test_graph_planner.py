@@ -1,0 +1,70 @@
+"""The graph planner: Eq. 3.6 by shortest paths over the candidates (planning/graph.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from aerohrl.planning.graph import GraphPlanner, leg_lengths
+from aerohrl.planning.planner import Candidates
+
+
+class LineCritics(nn.Module):
+    """Critics that know a corridor along x: a leg of length d <= reach is worth 0.9^d (every
+    critic alike), a longer one 0 (a wall in the way). The optimum from x = 0 to x = 6 with
+    candidates at every integer is therefore a chain of unit legs."""
+
+    def __init__(self, reach: float = 1.5, m: int = 5):
+        super().__init__()
+        self.w = nn.Parameter(torch.zeros(1))
+        self.reach, self.m = reach, m
+
+    def act(self, s, g):
+        return torch.zeros(len(s), 4)
+
+    def critics(self, s, g, a):
+        d = (g[:, 0] - s[:, 0]).abs()
+        v = torch.where(d <= self.reach, 0.9**d, torch.zeros_like(d))
+        return v.expand(self.m, -1)
+
+
+def _state(x):
+    s = torch.zeros(len(x), 18)
+    s[:, 0] = torch.as_tensor(x, dtype=torch.float32)
+    s[:, 6] = s[:, 10] = s[:, 14] = 1.0
+    return s
+
+
+def _candidates(xs):
+    st = _state(xs)
+    return Candidates(st[:, :15].clone(), st, np.arange(len(xs)))
+
+
+def test_leg_lengths_are_minus_log_of_the_penalised_value():
+    v = torch.tensor([[0.5, 0.9], [0.7, 0.9]])  # 2 critics x 2 legs
+    mean, var = torch.tensor([0.6, 0.9]), torch.tensor([0.01, 0.0])
+    expect = -torch.log(mean - 2.0 * var)
+    assert torch.allclose(leg_lengths(v, alpha=2.0), expect)
+    assert leg_lengths(v, alpha=0.0, min_leg_value=0.7)[0].item() == float("inf")
+
+
+def test_plan_is_the_chain_of_short_legs_and_beats_the_blocked_straight_leg():
+    algo = LineCritics()
+    planner = GraphPlanner(algo, _candidates([3.0, 1.0, 5.0, 2.0, 4.0]), n=3, alpha=0.0)
+    s0, G = _state([0.0, 0.0]), _state([6.0, 2.0])[:, :15]
+    p = planner.plan(s0, G)
+    xs = p.goals[..., 0]
+    assert xs[0].tolist() == [1.0, 2.0, 3.0]  # the first three legs of 0 -> 1 -> ... -> 5 -> 6
+    assert p.score[0] == pytest.approx(0.9**6, rel=1e-5)
+    assert p.direct_score[0] == pytest.approx(0.0, abs=1e-5)  # the straight leg is blocked
+    # a goal 2 m away: one intermediate goal; the plan is padded by repeating it
+    assert xs[1].tolist() == [1.0, 1.0, 1.0] and p.depth[1] == 1
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="empty"):
+        GraphPlanner(LineCritics(), _candidates([]))
+    with pytest.raises(ValueError, match=r"\[0, 1\)"):
+        GraphPlanner(LineCritics(), _candidates([1.0]), min_leg_value=1.0)
