@@ -109,9 +109,9 @@ class GraphPlanner:
         Gt = torch.as_tensor(np.asarray(G), dtype=torch.float32, device=self.device)
         E, C = len(s0), len(self.cg)
         ie, ic = torch.arange(E * C, device=self.device) // C, torch.arange(E * C, device=self.device) % C
-        a = leg_lengths(leg_values(self.algo, s0[ie], self.cg[ic], self.chunk), self.alpha, self.min_leg_value)
-        b = leg_lengths(leg_values(self.algo, self.cs[ic], Gt[ie], self.chunk), self.alpha, self.min_leg_value)
-        a, b = a.reshape(E, C).cpu().numpy(), b.reshape(E, C).cpu().numpy()
+        la = leg_lengths(leg_values(self.algo, s0[ie], self.cg[ic], self.chunk), self.alpha, self.min_leg_value)
+        lb = leg_lengths(leg_values(self.algo, self.cs[ic], Gt[ie], self.chunk), self.alpha, self.min_leg_value)
+        a, b = la.reshape(E, C).cpu().numpy(), lb.reshape(E, C).cpu().numpy()
         direct = leg_lengths(leg_values(self.algo, s0, Gt, self.chunk), self.alpha).cpu().numpy()
         best_i, best_j, best = np.zeros(E, np.int64), np.zeros(E, np.int64), np.full(E, np.inf)
         block = max(1, EPISODE_BLOCK_FLOATS // max(1, C * C))
