@@ -49,18 +49,22 @@ DEFAULT_AGENTS = ("gcsl", "td3bc", "td3awbc", "gcsl+planner")
 
 @dataclass
 class Size:
-    """What one size of the suite trains and evaluates with."""
+    """What one size of the suite trains and evaluates with, and its grid when none is given."""
 
-    episodes: int  # dataset episodes (the spec's goal count): None keeps the spec file's
+    episodes: int  # dataset episodes (the spec's goal count); 0 keeps the spec file's
     steps: int  # gradient steps per run
     eval_episodes: int  # evaluation episodes per task
+    agents: tuple[str, ...]
+    datasets: tuple[str, ...]
+    seeds: tuple[int, ...]
 
 
 SIZES = {
-    # the spec files' own dataset sizes, the cpu preset's run length
-    "full": Size(episodes=0, steps=30_000, eval_episodes=50),
-    # a newcomer's first look: small data, short runs; its numbers show the pipeline, not the methods
-    "ci": Size(episodes=40, steps=600, eval_episodes=10),
+    # the spec files' own dataset sizes, the cpu preset's run length, four seeds
+    "full": Size(0, 30_000, 50, DEFAULT_AGENTS, DEFAULT_DATASETS, (0, 1, 2, 3)),
+    # a newcomer's first look in minutes: small data, short runs, two seeds; its numbers show
+    # that the pipeline works end to end, not how the methods compare
+    "ci": Size(40, 600, 10, ("gcsl", "gcsl+planner"), ("maze-medium-navigate", "maze-medium-stitch"), (0, 1)),
 }
 
 
@@ -69,14 +73,20 @@ class SuiteSpec:
     """The suite's grid (flags or ``--config`` TOML)."""
 
     agents: tuple[str, ...] = K.param(
-        DEFAULT_AGENTS, "agents: an algorithm, or ALGO+planner (the thesis planner over its skills)"
+        (), "agents: an algorithm, or ALGO+planner (the thesis planner over its skills) [the size's]"
     )
-    datasets: tuple[str, ...] = K.param(DEFAULT_DATASETS, "datasets by name (datasets/<name>.toml)")
-    seeds: tuple[int, ...] = K.param((0, 1, 2, 3), "training seeds", ge=0)
+    datasets: tuple[str, ...] = K.param((), "datasets by name (datasets/<name>.toml) [the size's]")
+    seeds: tuple[int, ...] = K.param((), "training seeds [the size's]", ge=0)
     size: str = K.param("full", "full | ci (small data, short runs)", choices=tuple(SIZES))
     preset: str = K.param("cpu", "train preset of every run")
     steps: int = K.param(0, "gradient steps per run (0: the size's)", ge=0)
     eval_episodes: int = K.param(0, "evaluation episodes per task (0: the size's)", ge=0)
+
+
+def with_size_defaults(sp: SuiteSpec) -> SuiteSpec:
+    """``sp`` with its size's agents, datasets and seeds where it names none."""
+    z = SIZES[sp.size]
+    return dataclasses.replace(sp, agents=sp.agents or z.agents, datasets=sp.datasets or z.datasets, seeds=sp.seeds or z.seeds)
 
 
 # ----------------------------------------------------------------------------- names
@@ -374,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_list()
         d: dict = K.load_toml(a.config) if a.config else {}
         d.update(K.given_flags(a, SuiteSpec))
-        sp = K.from_mapping(SuiteSpec, d, where=str(a.config or "the suite"))
+        sp = with_size_defaults(K.from_mapping(SuiteSpec, d, where=str(a.config or "the suite")))
         for agent in sp.agents:
             split_agent(agent)
         for name in sp.datasets:

@@ -1,0 +1,69 @@
+"""The benchmark suite's names, grid and leaderboard (aerohrl/benchmark.py); the end-to-end
+CI-sized suite is in tests/test_benchmark_e2e.py."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from aerohrl import benchmark as B
+from aerohrl.errors import UserError
+
+
+def test_dataset_names_resolve_to_spec_files():
+    assert B.spec_path("reach-dart").name == "quadrotor-reach-dart.toml"
+    assert B.spec_path("quadrotor-reach-dart-v0").name == "quadrotor-reach-dart.toml"
+    with pytest.raises(UserError, match="unknown dataset 'maze-huge-stitch'"):
+        B.spec_path("maze-huge-stitch")
+
+
+def test_agents_and_their_evaluations():
+    assert B.split_agent("gcsl") == ("gcsl", False)
+    assert B.split_agent("td3bc+planner") == ("td3bc", True)
+    with pytest.raises(UserError, match="unknown agent 'hql'"):
+        B.split_agent("hql")
+    assert B.eval_entries("free", False) == [("--task", "reach-novel"), ("--task", "fast")]
+    assert B.eval_entries("maze-large", True) == [("--task", "maze", *B.PLANNER_ARGS)]
+
+
+def test_runs_are_shared_by_an_agent_and_its_planner():
+    sp = B.with_size_defaults(B.SuiteSpec(agents=("gcsl", "gcsl+planner", "td3bc"), datasets=("a", "b"), seeds=(0, 1)))
+    runs = B.suite_runs(sp, {"a": ("/d/a", "free"), "b": ("/d/b", "maze-large")})
+    assert len(runs) == 2 * 2 * 2  # algorithms x datasets x seeds
+    assert {r.name() for r in runs} >= {"gcsl-a-s0", "td3bc-b-s1"}
+    assert B.with_size_defaults(B.SuiteSpec(size="ci")).seeds == B.SIZES["ci"].seeds
+
+
+def _summary(run: Path, task: str, planner: str, success: float) -> None:
+    d = run / "eval" / (task if planner == "none" else f"{task}-{planner}")
+    d.mkdir(parents=True)
+    (d / "summary.json").write_text(json.dumps({"task": task, "planner": planner, "checkpoints": [{"success": success}]}))
+
+
+def test_leaderboard_aggregates_seeds_at_the_final_checkpoint(tmp_path):
+    sp = B.SuiteSpec(agents=("gcsl", "gcsl+planner"), datasets=("m",), seeds=(0, 1, 2))
+    runs = B.suite_runs(sp, {"m": ("/d/m", "maze-large")})
+    for r, (flat, planned) in zip(runs, [(0.1, 0.7), (0.2, 0.8), (0.3, 0.9)]):
+        _summary(tmp_path / "runs" / r.name(), "maze", "none", flat)
+        _summary(tmp_path / "runs" / r.name(), "maze", "multi", planned)
+    rows = B.leaderboard(tmp_path, sp, runs)
+    by = {r["agent"]: r for r in rows}
+    assert by["gcsl"]["stats"]["values"] == pytest.approx([10, 20, 30])
+    assert by["gcsl+planner"]["stats"]["mean"] == pytest.approx(80)
+    assert by["gcsl"]["seeds"] == [0, 1, 2]
+    B.write_leaderboard(tmp_path, rows)
+    md = (tmp_path / "leaderboard.md").read_text()
+    assert "80.0 ± 10.0" in md and "gcsl+planner" in md
+    csv = (tmp_path / "leaderboard.csv").read_text().splitlines()
+    assert csv[0].startswith("dataset,task,agent,mean") and len(csv) == 3
+    assert (tmp_path / "leaderboard.png").stat().st_size > 1000
+
+
+def test_command_line_errors_are_one_line(capsys):
+    assert B.main(["suite", "--agents", "nope", "-o", "/tmp/unused"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown agent" in err[0]
+    assert B.main(["suite", "--datasets", "maze-nowhere", "-o", "/tmp/unused"]) == 2
+    assert "unknown dataset" in capsys.readouterr().err
