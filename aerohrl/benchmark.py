@@ -75,7 +75,9 @@ class SuiteSpec:
     agents: tuple[str, ...] = K.param(
         (), "agents: an algorithm, or ALGO+planner (the thesis planner over its skills) [the size's]"
     )
-    datasets: tuple[str, ...] = K.param((), "datasets by name (datasets/<name>.toml) [the size's]")
+    datasets: tuple[str, ...] = K.param(
+        (), "datasets by name (datasets/<name>.toml), NAME@EPISODES for another size of it [the size's]"
+    )
     seeds: tuple[int, ...] = K.param((), "training seeds [the size's]", ge=0)
     size: str = K.param("full", "full | ci (small data, short runs)", choices=tuple(SIZES))
     preset: str = K.param("cpu", "train preset of every run")
@@ -102,6 +104,17 @@ def spec_path(name: str, root: Path = Path("datasets")) -> Path:
             return p
     known = sorted(p.stem for p in root.glob("quadrotor-*.toml"))
     raise UserError(f"unknown dataset {name!r} (no {root}/{base}.toml; the suite's datasets: {', '.join(known)})")
+
+
+def split_dataset(name: str) -> tuple[str, int]:
+    """(name, episodes) of ``NAME`` or ``NAME@EPISODES`` (a smaller or larger build of the same
+    spec, for data-efficiency curves; 0: the spec's own); UserError on a bad count."""
+    base, _, n = name.partition("@")
+    if not n:
+        return base, 0
+    if not n.isdigit() or int(n) < 1:
+        raise UserError(f"dataset {name!r}: the episode count after @ must be a positive integer")
+    return base, int(n)
 
 
 def dataset_world(spec: Any) -> str:
@@ -142,7 +155,7 @@ class SuiteRun:
 
     def name(self) -> str:
         """The run folder's name: ``ALGO-DATASET-sSEED``."""
-        return f"{self.algo}-{self.dataset}-s{self.seed}"
+        return f"{self.algo}-{self.dataset.replace('@', '-n')}-s{self.seed}"
 
 
 def build_datasets(sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print) -> dict[str, tuple[str, str]]:
@@ -153,10 +166,10 @@ def build_datasets(sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print)
     size = SIZES[sp.size]
     out = {}
     for name in sp.datasets:
-        path = spec_path(name)
-        spec = load_spec(path)
-        if size.episodes:
-            spec = dataclasses.replace(spec, goals=min(spec.goals, size.episodes))
+        base, episodes = split_dataset(name)
+        spec = load_spec(spec_path(base))
+        if episodes or size.episodes:
+            spec = dataclasses.replace(spec, goals=episodes or min(spec.goals, size.episodes))
         res = build(spec, root, progress=False, log=log)
         log(f"suite: dataset {name}: {res.path} ({res.episodes} episodes, {res.frames:,} frames)")
         out[name] = (str(Path(res.path).resolve()), dataset_world(spec))
@@ -388,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
         for agent in sp.agents:
             split_agent(agent)
         for name in sp.datasets:
-            spec_path(name)
+            spec_path(split_dataset(name)[0])
         board = run_suite(sp, a.out, num_cpus=a.num_cpus, address=a.address, log=lambda m: print(m, file=sys.stderr, flush=True))
         print((Path(a.out) / "leaderboard.md").read_text(), end="")
         print(f"leaderboard: {a.out}/leaderboard.md, .csv, .png ({len(board)} rows)", file=sys.stderr)

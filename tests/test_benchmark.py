@@ -17,6 +17,9 @@ def test_dataset_names_resolve_to_spec_files():
     assert B.spec_path("quadrotor-reach-dart-v0").name == "quadrotor-reach-dart.toml"
     with pytest.raises(UserError, match="unknown dataset 'maze-huge-stitch'"):
         B.spec_path("maze-huge-stitch")
+    assert B.split_dataset("reach-dart@250") == ("reach-dart", 250) and B.split_dataset("reach-dart") == ("reach-dart", 0)
+    with pytest.raises(UserError, match="positive integer"):
+        B.split_dataset("reach-dart@x")
 
 
 def test_agents_and_their_evaluations():
@@ -33,6 +36,7 @@ def test_runs_are_shared_by_an_agent_and_its_planner():
     runs = B.suite_runs(sp, {"a": ("/d/a", "free"), "b": ("/d/b", "maze-large")})
     assert len(runs) == 2 * 2 * 2  # algorithms x datasets x seeds
     assert {r.name() for r in runs} >= {"gcsl-a-s0", "td3bc-b-s1"}
+    assert B.SuiteRun("gcsl", "a@100", "/d", "free", 3).name() == "gcsl-a-n100-s3"
     assert B.with_size_defaults(B.SuiteSpec(size="ci")).seeds == B.SIZES["ci"].seeds
 
 
