@@ -123,6 +123,7 @@ def maze_episodes(
             "task_horizons": {int(k): task_horizon(m, k, fps) for k in ks},
             "start_pos_noise": START_POS_NOISE,
             "start_vel_noise": START_VEL_NOISE,
+            "fps": int(fps),
         },
     )
 
