@@ -152,9 +152,10 @@ def kind_rates(episodes: EpisodeSet, r: dict, hover_success: np.ndarray | None =
     the goals at least ``FAR_AHEAD`` steps ahead, and, given the hover floor's per-episode
     outcomes on the same episodes (``hover_success``), on the goals hovering misses
     (``success_beyond_hover``: what the policy reaches that the constant command
-    ``[g, 0, 0, 0]`` does not; hover itself scores 0 there by construction)."""
+    ``[g, 0, 0, 0]`` does not; hover itself scores 0 there by construction); maze tasks:
+    success, collision and mean time to the goal (s, None without a success) per task."""
     kind = episodes.kind()
-    out = {}
+    out: dict[str, float | None] = {}
     if episodes.task == "reach-intermediate":
         for k in ("desired", "intermediate"):
             m = kind == k
