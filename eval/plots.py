@@ -18,12 +18,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from aerohrl.atomic import save_figure
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    from aerohrl.envs.episodes import EpisodeSet
 
 
 def _plt():
@@ -58,7 +61,7 @@ def _eval_dir(run, task: str, planner: str | None) -> Path:
     return d
 
 
-def plot_maze(episodes, r: dict, out: str | Path, *, title: str = "", max_per_task: int = 10) -> Path:
+def plot_maze(episodes: EpisodeSet, r: dict, out: str | Path, *, title: str = "", max_per_task: int = 10) -> Path:
     """Top-down view of a maze evaluation: the walls (grey cells), every task's start
     (circle) and goal (star) cells, and up to ``max_per_task`` flown paths per task
     (``r["positions"]`` (E, T+1, 3), each up to its last step): successes green,

@@ -302,3 +302,57 @@ def test_eval_fast_on_free_space(runs, capsys):
     assert main(["eval", "--task", "fast", "--run", str(run), "--episodes", "3", "--checkpoints", "1", "--quiet"]) == 0
     s = json.loads((run / "eval" / "fast" / "summary.json").read_text())
     assert s["task"] == "fast" and s["episodes"] == 3 and s["horizon"] == 1000
+
+
+# ----------------------------------------------------------------------------- loading by name
+
+
+def test_make_env_by_name():
+    from aerohrl.envs.maze import QuadrotorMazeEnv
+    from aerohrl.envs.reach import QuadrotorReachEnv, QuadrotorReachVectorEnv
+
+    env = aerohrl.make_env("quadrotor-maze-large-stitch-v0", task=3)
+    assert isinstance(env, QuadrotorMazeEnv) and env.maze.name == "large"
+    obs, _ = env.reset(seed=0)
+    assert np.allclose(obs["desired_goal"], task_goal(load_maze("large"), 3))
+    venv = aerohrl.make_env("quadrotor-maze-medium-navigate-v0", 4, task=2)
+    assert venv.num_envs == 4 and venv.task == 2 and venv.maze.name == "medium"
+    assert isinstance(aerohrl.make_env("quadrotor-reach-v0"), QuadrotorReachEnv)
+    assert isinstance(aerohrl.make_env(3), QuadrotorReachVectorEnv)  # a number is still the number of vehicles
+    for bad, why in [
+        ("quadrotor-maze-tiny-stitch-v0", "unknown maze 'tiny'"),
+        ("quadrotor-maze-large-wander-v0", "unknown dataset family 'wander'"),
+        ("quadrotor-maze-large-stitch-v1", "unknown version v1"),
+        ("quadrotor-forest-v0", "unknown name"),
+        ("antmaze-large-stitch-v0", "unknown name"),
+    ]:
+        with pytest.raises(UserError, match=why) as e:
+            aerohrl.make_env(bad)
+        assert "\n" not in str(e.value)
+    with pytest.raises(UserError, match="1..5"):
+        aerohrl.make_env("quadrotor-maze-large-stitch-v0", task=9)
+    with pytest.raises(UserError, match="free space"):
+        aerohrl.make_env("quadrotor-reach-v0", task=1)
+
+
+def test_load_dataset_by_name(tmp_path):
+    import os
+
+    from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
+
+    name = "quadrotor-maze-medium-stitch-v0"
+    with pytest.raises(UserError, match=r"datagen build --spec .*quadrotor-maze-medium-stitch\.toml") as e:
+        aerohrl.load_dataset(name, root=tmp_path)
+    assert "\n" not in str(e.value)
+    folder = tmp_path / "quadrotor-maze-medium-stitch"
+    old = write_synthetic_dataset(folder / "v-old", spec={"world": "maze-medium"})
+    new = write_synthetic_dataset(
+        folder / "v-new", straight_columns(seed=3), version="synthetic-3", spec={"world": "maze-medium"}
+    )
+    os.utime(old / "meta" / "aerohrl.json", ns=(1, 1))  # the older build
+    cols = aerohrl.load_dataset(name, root=tmp_path)
+    ref = aerohrl.load_dataset(new)
+    assert np.array_equal(cols["observation.state"], ref["observation.state"])
+    assert aerohrl.load_dataset(name, "torch", root=tmp_path).info["version"] == "synthetic-3"
+    with pytest.raises(UserError, match="unknown dataset family"):
+        aerohrl.load_dataset("quadrotor-maze-medium-sprint-v0", root=tmp_path)
