@@ -430,7 +430,7 @@ def make_env(
         if num_envs is not None:
             raise UserError("make_env(N) takes the number of vehicles once")
         name, num_envs = None, name
-    world = parse_name(name) if name is not None else {"maze": None}
+    world = parse_name(str(name)) if name is not None else {"maze": None}
     if world["maze"] is not None:
         from aerohrl.envs import maze as maze_env
 
