@@ -368,7 +368,9 @@ def evaluate(run: "Run | PathLike", task: str = "reach-desired", **opts: Any) ->
 
     Args:
         run: a :class:`Run` or a run folder.
-        task: ``reach-desired``, ``reach-intermediate``, ``ood`` or ``reach-novel``.
+        task: ``reach-desired``, ``reach-intermediate``, ``ood``, ``reach-novel`` or
+            ``fast`` (free-space runs), ``maze`` (runs on a maze dataset: the five frozen
+            tasks of its maze; the summary adds ``collision_mean`` / ``collision_std``).
         **opts: fields of :class:`aerohrl.eval.harness.EvalOptions`: ``checkpoints``
             (last K, default 10), ``episodes`` (default 250), ``planner`` (ood: ``none``,
             ``single`` = thesis Eq. 3.7, ``multi`` = Eq. 3.6), ``seed``, ``device``,

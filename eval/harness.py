@@ -261,7 +261,7 @@ def check_options(opt: EvalOptions) -> None:
     (:func:`aerohrl.config.validate`), or options that contradict each other."""
     validate(opt)
     if opt.planner != "none" and opt.task not in PLANNED_TASKS:
-        raise UserError(f"--planner {opt.planner} applies to --task ood and --task maze only")
+        raise UserError(f"--planner {opt.planner} applies to --task ood only (and to --task maze)")
     if opt.task == "maze" and opt.candidate_source != "dataset":
         raise UserError("--task maze plans over the maze's free cells; it takes no --candidate-source")
     if opt.planner == "multi" and opt.waypoints < 2:
