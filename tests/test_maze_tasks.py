@@ -356,3 +356,14 @@ def test_load_dataset_by_name(tmp_path):
     assert aerohrl.load_dataset(name, "torch", root=tmp_path).info["version"] == "synthetic-3"
     with pytest.raises(UserError, match="unknown dataset family"):
         aerohrl.load_dataset("quadrotor-maze-medium-sprint-v0", root=tmp_path)
+
+
+def test_maze_env_passes_gymnasium_checks_and_seeds_its_starts():
+    from gymnasium.utils.env_checker import check_env
+
+    aerohrl.envs.register()
+    check_env(gym.make("aerohrl/QuadrotorMaze-v0", maze="giant", task=5).unwrapped, skip_render_check=True)
+    venv = gym.make_vec("aerohrl/QuadrotorMaze-v0", num_envs=4, vectorization_mode="vector_entry_point", maze="medium", task=1)
+    a, _ = venv.reset(seed=7)
+    b, _ = venv.reset(seed=7)
+    assert a["observation"].shape == (4, 18) and np.array_equal(a["observation"], b["observation"])
