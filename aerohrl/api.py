@@ -12,6 +12,9 @@ run = aerohrl.train({"algo": "gcsl", "dataset": ds, "steps": 3000})
 policy = aerohrl.load_policy(run)
 summary = aerohrl.evaluate(run, "reach-desired", checkpoints=1)
 env = aerohrl.make_env(dataset=ds)                           # the Gymnasium goal env
+
+env = aerohrl.make_env("quadrotor-maze-large-stitch-v0", task=1)   # by name: the maze env of that maze, task 1
+ds = aerohrl.load_dataset("quadrotor-maze-large-stitch-v0", root="datasets")   # its newest built dataset
 ```
 
 Errors the caller can fix (a missing dataset, a bad config value, a damaged checkpoint)
@@ -26,6 +29,7 @@ Which extra each function needs: :func:`build_dataset`, ``load_dataset(as_="nump
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Mapping
 
@@ -86,11 +90,78 @@ def build_dataset(
     return build(spec, out, progress=progress, log=log.info, force=force).path
 
 
-def load_dataset(path: PathLike, as_: Literal["numpy", "torch", "lerobot"] = "numpy", *, validate: bool = True) -> Any:
-    """Open a dataset folder written by :func:`build_dataset` (or ``datagen build``).
+# ----------------------------------------------------------------------------- names
+
+FAMILIES = ("navigate", "stitch", "explore")  # maze dataset families (datagen spec `family`)
+_NAME = re.compile(r"^quadrotor-(?P<body>[a-z0-9][a-z0-9-]*?)-v(?P<version>[0-9]+)$")
+_NAME_HELP = "quadrotor-reach[-<recipe>]-v0 or quadrotor-maze-<medium|large|giant>-<navigate|stitch|explore>-v0"
+
+
+def parse_name(name: str) -> dict:
+    """An environment/dataset name (the OGBench naming) -> its parts: ``dataset`` (the
+    dataset's name, the folder under ``datasets/``), ``world`` (``free`` or
+    ``maze-<maze>``), ``maze`` (None in free space) and ``family`` (None in free space).
+
+    ``quadrotor-reach-v0`` (and ``quadrotor-reach-<recipe>-v0``) is free space;
+    ``quadrotor-maze-<maze>-<family>-v0`` a maze (``medium`` | ``large`` | ``giant``) and a
+    dataset family (``navigate`` | ``stitch`` | ``explore``). UserError (one line) for
+    anything else."""
+    from aerohrl.worlds.maze import MAZES
+
+    m = _NAME.match(str(name))
+    if not m:
+        raise UserError(f"unknown name {name!r} (names look like {_NAME_HELP})")
+    if m["version"] != "0":
+        raise UserError(f"unknown version v{m['version']} of {name!r} (only v0 exists)")
+    body = m["body"]
+    if body == "reach" or body.startswith("reach-"):
+        return {"name": str(name), "dataset": f"quadrotor-{body}", "world": "free", "maze": None, "family": None}
+    parts = body.split("-")
+    if parts[0] != "maze":
+        raise UserError(f"unknown name {name!r} (names look like {_NAME_HELP})")
+    if len(parts) != 3:
+        raise UserError(f"maze names are quadrotor-maze-<maze>-<family>-v0, got {name!r}")
+    _, maze, family = parts
+    if maze not in MAZES:
+        raise UserError(f"unknown maze {maze!r} in {name!r} (choose from {', '.join(MAZES)})")
+    if family not in FAMILIES:
+        raise UserError(f"unknown dataset family {family!r} in {name!r} (choose from {', '.join(FAMILIES)})")
+    return {"name": str(name), "dataset": f"quadrotor-{body}", "world": f"maze-{maze}", "maze": maze, "family": family}
+
+
+def dataset_path(name: str, root: PathLike = "datasets") -> Path:
+    """The newest built version (by the time its manifest was written, the last file of a
+    build) of the dataset ``name`` (``quadrotor-maze-large-stitch-v0``) under ``root``;
+    UserError naming the ``datagen build`` command when none is built."""
+    from aerohrl.datagen.manifest import MANIFEST_PATH
+
+    parts = parse_name(name)
+    folder = Path(root) / parts["dataset"]
+    built = [p for p in folder.glob("*") if (p / MANIFEST_PATH).is_file()] if folder.is_dir() else []
+    if not built:
+        raise UserError(
+            f"dataset {name} is not built under {folder}: build it with "
+            f"`datagen build --spec {Path(root) / (parts['dataset'] + '.toml')}`"
+        )
+    return max(built, key=lambda p: ((p / MANIFEST_PATH).stat().st_mtime_ns, p.name))
+
+
+def load_dataset(
+    path: PathLike,
+    as_: Literal["numpy", "torch", "lerobot"] = "numpy",
+    *,
+    validate: bool = True,
+    root: PathLike = "datasets",
+) -> Any:
+    """Open a dataset folder written by :func:`build_dataset` (or ``datagen build``), or a
+    built dataset by name (the OGBench ``make_env_and_datasets`` analogue).
 
     Args:
-        path: the dataset folder (``datasets/quadrotor-reach/n250-s0-<hash>``).
+        path: the dataset folder (``datasets/quadrotor-reach/n250-s0-<hash>``), or a
+            dataset name (``quadrotor-maze-large-stitch-v0``, ``quadrotor-reach-v0``;
+            :func:`parse_name`): the newest built version under ``root/<name without
+            -v0>/`` (UserError naming the ``datagen build --spec`` command when it is not
+            built; unknown names are one-line errors too).
         as_: what to return:
 
             * ``"numpy"``: a dict of every column as NumPy arrays
@@ -116,14 +187,16 @@ def load_dataset(path: PathLike, as_: Literal["numpy", "torch", "lerobot"] = "nu
     """
     from aerohrl.datagen.dataset import open_dataset
 
-    root = Path(path)
     if as_ not in ("numpy", "torch", "lerobot"):
         raise UserError(f"unknown as_={as_!r} (choose from numpy, torch, lerobot)")
+    folder = Path(path)
+    if isinstance(path, str) and not folder.exists() and _NAME.match(path):  # a name, not a folder
+        folder = dataset_path(path, root)
     if as_ == "torch":
         from aerohrl.algorithms.data import load_dataset as load_torch
 
-        return load_torch(root)
-    ds = open_dataset(root, verify=validate)
+        return load_torch(folder)
+    ds = open_dataset(folder, verify=validate)
     if as_ == "numpy":
         return ds.columns()
     return _lerobot_dataset(ds.path, ds.manifest)
@@ -295,7 +368,9 @@ def evaluate(run: "Run | PathLike", task: str = "reach-desired", **opts: Any) ->
 
     Args:
         run: a :class:`Run` or a run folder.
-        task: ``reach-desired``, ``reach-intermediate``, ``ood`` or ``reach-novel``.
+        task: ``reach-desired``, ``reach-intermediate``, ``ood``, ``reach-novel`` or
+            ``fast`` (free-space runs), ``maze`` (runs on a maze dataset: the five frozen
+            tasks of its maze; the summary adds ``collision_mean`` / ``collision_std``).
         **opts: fields of :class:`aerohrl.eval.harness.EvalOptions`: ``checkpoints``
             (last K, default 10), ``episodes`` (default 250), ``planner`` (ood: ``none``,
             ``single`` = thesis Eq. 3.7, ``multi`` = Eq. 3.6), ``seed``, ``device``,
@@ -320,13 +395,26 @@ def evaluate(run: "Run | PathLike", task: str = "reach-desired", **opts: Any) ->
 
 
 def make_env(
-    num_envs: int | None = None, *, dataset: PathLike | None = None, normalize_actions: bool = False, **kwargs: Any
+    name: str | int | None = None,
+    num_envs: int | None = None,
+    *,
+    task: int | None = None,
+    dataset: PathLike | None = None,
+    normalize_actions: bool = False,
+    **kwargs: Any,
 ) -> Any:
-    """The reach task as a Gymnasium goal env (``aerohrl/QuadrotorReach-v0``).
+    """A Gymnasium goal env: the reach task (``aerohrl/QuadrotorReach-v0``), or by name the
+    env of a dataset (``make_env("quadrotor-maze-large-stitch-v0", task=1)``: the maze env
+    ``aerohrl/QuadrotorMaze-v0`` of that maze and task).
 
     Args:
+        name: None (the reach env), or an env/dataset name (:func:`parse_name`):
+            ``quadrotor-reach-v0`` -> the reach env; ``quadrotor-maze-<maze>-<family>-v0``
+            -> the maze env of ``<maze>`` (the family selects nothing for the env but
+            must be a known one). An integer here is ``num_envs`` (``make_env(4)``).
         num_envs: None for one vehicle (a ``gymnasium.Env``); N for a native
             ``gymnasium.vector.VectorEnv`` of N vehicles stepped in one batched call.
+        task: a maze env's task, 1-5 (default 1); the frozen tasks of docs/spec.md.
         dataset: draw goals from this dataset's desired goals (default: fresh goals from
             the spec's distribution rho_D).
         normalize_actions: rescale the action space to [-1, 1]^4 (Gymnasium's
@@ -340,6 +428,21 @@ def make_env(
     """
     from aerohrl.envs import reach
 
+    if isinstance(name, int) and not isinstance(name, bool):  # make_env(4): the number of vehicles
+        if num_envs is not None:
+            raise UserError("make_env(N) takes the number of vehicles once")
+        name, num_envs = None, name
+    world = parse_name(str(name)) if name is not None else {"maze": None}
+    if world["maze"] is not None:
+        from aerohrl.envs import maze as maze_env
+
+        if dataset is not None:
+            raise UserError("a maze env draws its goals from its task; it takes no dataset=")
+        kw = {"maze": world["maze"], "task": 1 if task is None else task, **kwargs}
+        env = maze_env.QuadrotorMazeEnv(**kw) if num_envs is None else maze_env.QuadrotorMazeVectorEnv(num_envs, **kw)
+        return reach.normalize_actions(env) if normalize_actions else env
+    if task is not None:
+        raise UserError(f"task= selects a maze task; {name or 'the reach env'} is free space")
     if dataset is not None:
         kwargs["dataset"] = str(dataset)
     if num_envs is None:
@@ -349,4 +452,16 @@ def make_env(
     return reach.normalize_actions(env) if normalize_actions else env
 
 
-__all__ = ["build_dataset", "load_dataset", "open_lerobot", "train", "Run", "load_policy", "Policy", "evaluate", "make_env"]
+__all__ = [
+    "build_dataset",
+    "load_dataset",
+    "parse_name",
+    "dataset_path",
+    "open_lerobot",
+    "train",
+    "Run",
+    "load_policy",
+    "Policy",
+    "evaluate",
+    "make_env",
+]

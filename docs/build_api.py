@@ -18,6 +18,7 @@ MODULES = [
     "aerohrl.algorithms.config",
     "aerohrl.eval.harness",
     "aerohrl.envs.reach",
+    "aerohrl.envs.maze",
 ]
 
 

@@ -34,9 +34,11 @@ class EpisodeSet:
         return len(self.goals)
 
     def kind(self) -> np.ndarray:
-        """Per episode: 'desired', 'intermediate' or 'ood'."""
-        if self.task == "ood":
-            return np.full(len(self), "ood")
+        """Per episode: 'desired', 'intermediate', 'ood', 'fast' or, for the maze tasks, 'task<k>' (k = 1..5)."""
+        if self.task in ("ood", "fast"):
+            return np.full(len(self), self.task)
+        if self.task == "maze":
+            return np.char.add("task", np.asarray(self.meta["maze_task"]).astype(str))
         return np.where(self.steps_ahead > 0, "intermediate", "desired")
 
 

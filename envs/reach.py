@@ -19,7 +19,9 @@ resetting ignore their action, whatever it holds. Reward (docs/spec.md): sparse,
 holds, else 0, batched over any leading dimensions (HER relabels with it). An episode
 *terminates* when the goal is reached (``tolerance_scale`` scales the test's
 tolerances for that; default 1) and is *truncated* at its horizon; ``info`` holds
-``is_success`` and ``near_success`` (tolerances x 2.5) per vehicle.
+``is_success``, ``near_success`` (tolerances x 2.5) and ``collision`` per vehicle (a
+crash ends an episode as a failure; free space has nothing to hit, the maze env of
+:mod:`aerohrl.envs.maze` has walls).
 
 Resetting: ``reset(seed=..., options=...)`` draws goals from the goal pool (the
 dataset's desired goals when built with ``dataset=``; otherwise rho_D sampled with
@@ -160,6 +162,17 @@ class QuadrotorReachVectorEnv(VectorEnv):
 
         return goal_vectors(sample_goals(self.np_random, k, **self.goal_ranges))
 
+    def _new_episodes(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Start states (k, 18), goals (k, 15) and horizons (k,) of ``k`` fresh episodes (reset
+        without options, and autoreset): hover at the origin, goals from the pool. A world
+        with its own tasks (:mod:`aerohrl.envs.maze`) overrides it."""
+        return hover_states(k), self._sample_goals(k), np.full(k, self.default_horizon, np.int64)
+
+    def _crashed(self, state: np.ndarray) -> np.ndarray:
+        """(n,) bool: the vehicles whose state is a crash, which ends their episode as a
+        failure (``info["collision"]``). Free space has nothing to hit."""
+        return np.zeros(len(state), bool)
+
     def _obs(self) -> dict:
         s = self.state
         return {"observation": s.copy(), "achieved_goal": task.achieved_goal(s).copy(), "desired_goal": self.goals.copy()}
@@ -184,11 +197,13 @@ class QuadrotorReachVectorEnv(VectorEnv):
         super().reset(seed=seed)
         options = options or {}
         n = self.num_envs
-        starts = options.get("start_states")
-        starts = hover_states(n) if starts is None else np.asarray(starts, np.float64).reshape(n, task.STATE_DIM)
-        goals = options.get("goals")
-        goals = self._sample_goals(n) if goals is None else np.asarray(goals, np.float64).reshape(n, task.GOAL_DIM)
-        hz = np.broadcast_to(np.asarray(options.get("horizons", self.default_horizon), np.int64), (n,))
+        given = [options.get(k) for k in ("start_states", "goals", "horizons")]
+        # fresh episodes only for what the options leave open (drawing none when they fix all keeps the seeded stream)
+        fresh = self._new_episodes(n) if any(x is None for x in given) else (None, None, None)
+        starts, goals, hz = (f if x is None else x for x, f in zip(given, fresh))
+        starts = np.asarray(starts, np.float64).reshape(n, task.STATE_DIM)
+        goals = np.asarray(goals, np.float64).reshape(n, task.GOAL_DIM)
+        hz = np.broadcast_to(np.asarray(hz, np.int64), (n,))
         self._reset_rows(np.arange(n), starts, goals, hz)
         return self._obs(), {}
 
@@ -229,23 +244,23 @@ class QuadrotorReachVectorEnv(VectorEnv):
         if bad.any():  # a diverged vehicle: back to its start, episode truncated
             self._reset_rows(np.flatnonzero(bad), self.start_states[bad], self.goals[bad], self.horizons[bad])
         ag = task.achieved_goal(self.state)
-        reached = task.goal_reached(ag, self.goals, self.tolerance)
-        near = task.near_success(ag, self.goals)
+        crash = self._crashed(self.state) & ~bad  # a crash ends the episode as a failure, whatever the goal test says
+        reached = task.goal_reached(ag, self.goals, self.tolerance) & ~crash
+        near = task.near_success(ag, self.goals) & ~crash
         active = ~self.done & ~resetting
-        terminated = reached & active
+        terminated = (reached | crash) & active
         truncated = active & ~terminated & ((self.elapsed >= self.horizons) | bad)
-        reward = compute_reward(ag, self.goals) * active
+        reward = compute_reward(ag, self.goals) * (active & ~crash)
         self.done |= terminated | truncated
         if resetting.any():
             rows = np.flatnonzero(resetting)
-            self._reset_rows(
-                rows, hover_states(len(rows)), self._sample_goals(len(rows)), np.full(len(rows), self.default_horizon)
-            )
+            self._reset_rows(rows, *self._new_episodes(len(rows)))
         if self.autoreset:
             self._needs_reset |= terminated | truncated
         info = {
-            "is_success": task.goal_reached(ag, self.goals),
+            "is_success": task.goal_reached(ag, self.goals) & ~crash,
             "near_success": near,
+            "collision": crash & active,
             "elapsed": self.elapsed.copy(),
             "diverged": bad,
         }

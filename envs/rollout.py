@@ -32,6 +32,7 @@ from aerohrl.envs.episodes import EpisodeSet, hover_states
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
     from aerohrl.planning.planner import ChainPlanner, Planner
+    from aerohrl.worlds.maze import Maze
 
 
 class PolicyFn:
@@ -71,6 +72,7 @@ def rollout(
     substeps: int = 5,
     progress: bool = False,
     desc: str = "rollout",
+    maze: Maze | None = None,
 ) -> dict:
     """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
 
@@ -88,6 +90,10 @@ def rollout(
     final_pos_err / final_vel_err / final_rot_err at the episode's last step,
     min_pos_err) plus the plan (``waypoints`` (E, n, 15), ``waypoint_frame``,
     ``plan_score``, ``legs_reached``) and, with ``record``, ``positions`` (E, T+1, 3).
+    In a ``maze`` (the episodes fly in :class:`~aerohrl.envs.maze.QuadrotorMazeVectorEnv`)
+    a collision at any step ends the episode as a failure: ``collision`` (E,) and
+    ``collision_step`` (E,; -1 for none) say which and when (every other array is
+    returned too, free space's ``collision`` all False).
     """
     from tqdm import tqdm
 
@@ -102,9 +108,13 @@ def rollout(
     T = int(total.max())
     nw = int(n_waypoints) if planner is not None else 0
     leg_h = int(leg_horizon or episodes.meta.get("leg_horizon", T))
-    env = QuadrotorReachVectorEnv(
-        E, vehicle=vehicle, fps=fps, substeps=substeps, autoreset=False, horizon=T, tolerance_scale=waypoint_tol
-    )
+    sim = dict(vehicle=vehicle, fps=fps, substeps=substeps, autoreset=False, horizon=T, tolerance_scale=waypoint_tol)
+    if maze is not None:  # the same closed loop; the maze env's collisions end episodes
+        from aerohrl.envs.maze import QuadrotorMazeVectorEnv
+
+        env: QuadrotorReachVectorEnv = QuadrotorMazeVectorEnv(E, maze=maze, **sim)  # type: ignore[arg-type]
+    else:
+        env = QuadrotorReachVectorEnv(E, **sim)  # type: ignore[arg-type]
     out: dict = {}
     t_plan = 0.0
     if nw:
@@ -136,6 +146,7 @@ def rollout(
     near = np.zeros(E, bool)
     first_success = np.full(E, -1, np.int64)
     first_near = np.full(E, -1, np.int64)
+    collision_step = np.full(E, -1, np.int64)
     finished = np.zeros(E, bool)
     steps = total.copy()
     final = np.zeros((E, 3))
@@ -152,20 +163,22 @@ def rollout(
             idx = np.flatnonzero(active)
             a[idx] = policy(obs["observation"][idx], obs["desired_goal"][idx])
             a[~active] = [9.81, 0.0, 0.0, 0.0]  # finished vehicles hover (their results are fixed)
-            obs, _, term, trunc, _ = env.step(a)
+            obs, _, term, trunc, info = env.step(a)
+            crash = info["collision"] & active
             ag = obs["achieved_goal"]
             if record:
                 assert pos is not None
                 pos[:, t + 1] = obs["observation"][:, :3]
             dp, dv, dr = task.goal_errors(ag, G)
             min_pos = np.where(active, np.minimum(min_pos, dp), min_pos)
-            hit = task.goal_reached(ag, G, tol) & active
-            nr = task.near_success(ag, G, tol) & active
+            hit = task.goal_reached(ag, G, tol) & active & ~crash
+            nr = task.near_success(ag, G, tol) & active & ~crash
             first_success[hit] = t + 1
             first_near[nr & ~near] = t + 1
+            collision_step[crash] = t + 1
             success |= hit
             near |= nr
-            ending = active & (hit | (t + 1 >= total))
+            ending = active & (hit | crash | (t + 1 >= total))
             final[ending] = np.stack([dp, dv, dr], 1)[ending]
             steps[ending] = t + 1
             finished |= ending
@@ -205,7 +218,7 @@ def rollout(
         algo.train(was_training)
     out.update(
         success=success,
-        near_success=near | success,
+        near_success=(near | success) & (collision_step < 0),  # a crash after coming near is a failure
         first_success_step=first_success,
         first_near_step=first_near,
         steps=steps,
@@ -213,6 +226,8 @@ def rollout(
         final_vel_err=final[:, 1],
         final_rot_err=final[:, 2],
         min_pos_err=min_pos,
+        collision=collision_step >= 0,
+        collision_step=collision_step,
         plan_seconds=np.full(E, t_plan / max(E, 1)),
     )
     if nw:

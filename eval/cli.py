@@ -5,6 +5,8 @@
     aerohrl eval --task reach-desired --run runs/<run>           # last 10 checkpoints, 250 episodes each
     aerohrl eval --task reach-intermediate --run runs/<run>
     aerohrl eval --task ood --run runs/<run> --planner single    # none | single (Eq. 3.7) | multi (Eq. 3.6)
+    aerohrl eval --task fast --run runs/<run>                    # free space: goals at |v_i| in [3.5, 7] m/s
+    aerohrl eval --task maze --run runs/<maze-run> [--planner single]   # the 5 frozen tasks of the run's maze
     aerohrl eval table runs/gcsl runs/td3bc runs/td3awbc runs/cql -o results/table   # Markdown + CSV
     aerohrl eval plot --task ood --run runs/<run> -o ood.png     # 3D trajectories (Fig. 3.5 / 3.6)
     aerohrl eval plot --curves runs/gcsl runs/td3bc -o curves.png   # learning curves (Fig. 3.3 / 3.4)
@@ -102,6 +104,10 @@ def cmd_eval(a: argparse.Namespace) -> int:
         f"({len(s['checkpoints'])} checkpoints x {s['episodes']} episodes, {s['seconds']:.0f} s)"
     )
     out = Path(a.out) if a.out else Path(a.run) / "eval" / s["name"]
+    if "collision_mean" in s:  # maze tasks: crashes end episodes as failures
+        print(f"collision {100 * s['collision_mean']:.1f} ± {100 * s['collision_std']:.1f} % (maze {s['maze']['name']})")
+        print(f"results:   {out}/summary.json, {out}/tasks.md, {out}/maze.png, {out}/episodes-step-*.csv")
+        return 0
     print(f"results:   {out}/summary.json, {out}/episodes-step-*.csv")
     return 0
 

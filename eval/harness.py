@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from aerohrl.planning.planner import ChainPlanner, Planner
 
 PLANNERS = ("none", "single", "multi")
+PLANNED_TASKS = ("ood", "maze")  # the tasks a planner may fly
 OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or not
 
 
@@ -57,7 +58,11 @@ class EvalOptions:
     task: str = param("reach-desired", "evaluation task (eval/tasks.py)", choices=TASKS)
     episodes: int = param(250, "episodes per checkpoint", ge=1)
     checkpoints: int = param(10, "newest checkpoints evaluated", ge=1)
-    planner: str = param("none", "ood only: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6)", choices=PLANNERS)
+    planner: str = param(
+        "none",
+        "ood and maze: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6); in a maze over the free cells' centres",
+        choices=PLANNERS,
+    )
     waypoints: int = param(2, "multi: intermediate goals (Eq. 3.6 n)", ge=1)
     beam: int = param(8, "multi: beam width", ge=1)
     alpha: float = _in_name(param(1.0, "variance penalty of Eq. 3.6/3.7", ge=0), 3, "-a{:g}", planned=True)
@@ -151,8 +156,10 @@ class EvalOptions:
         """The evaluation's folder name under ``RUN/eval/``: the task (for ood: ``ood``, a
         family ring's slug, the planner and, for multi, its waypoints), then the name part
         of every option that differs from its default, in rank order."""
-        planned = self.task == "ood" and self.planner != "none"
-        if self.task != "ood":
+        planned = self.task in PLANNED_TASKS and self.planner != "none"
+        if self.task == "maze":
+            head = "maze" + (f"-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") if planned else "")
+        elif self.task != "ood":
             head = self.task
         else:
             ring = self.ring_def()
@@ -227,10 +234,17 @@ def sim_kwargs(data: Dataset) -> dict:
 def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Planner | ChainPlanner | None, int]:
     """The planner of ``opt.planner`` over ``data``'s achieved goals (or synthetic offsets)
     and its number of intermediate goals; ``(None, 0)`` without one."""
-    from aerohrl.planning.planner import Planner, candidates_from_dataset
+    from aerohrl.planning.planner import Planner, candidates_from_dataset, candidates_from_maze
 
     if opt.planner == "none":
         return None, 0
+    if opt.task == "maze":  # waypoints: hover at the free cells' centres of the dataset's maze
+        from aerohrl.eval.tasks import dataset_maze
+
+        maze = dataset_maze(data)
+        assert maze is not None  # build_episodes refused --task maze on free space
+        n = 1 if opt.planner == "single" else opt.waypoints
+        return Planner(algo, candidates_from_maze(maze), n=n, alpha=opt.alpha, beam=opt.beam, min_leg=opt.min_leg), n
     if opt.candidate_source == "synthetic":  # C = --candidates offsets (0: 256) from the dataset spec's ranges
         from aerohrl.planning.planner import ChainPlanner, offsets_from_spec
 
@@ -246,8 +260,10 @@ def check_options(opt: EvalOptions) -> None:
     """UserError (one line) for a setting out of its declared range or choices
     (:func:`aerohrl.config.validate`), or options that contradict each other."""
     validate(opt)
-    if opt.planner != "none" and opt.task != "ood":
-        raise UserError(f"--planner {opt.planner} applies to --task ood only")
+    if opt.planner != "none" and opt.task not in PLANNED_TASKS:
+        raise UserError(f"--planner {opt.planner} applies to --task ood only (and to --task maze)")
+    if opt.task == "maze" and opt.candidate_source != "dataset":
+        raise UserError("--task maze plans over the maze's free cells; it takes no --candidate-source")
     if opt.planner == "multi" and opt.waypoints < 2:
         raise UserError(f"--planner multi needs --waypoints >= 2, got {opt.waypoints}")
     if opt.floor != "none" and opt.planner != "none":
@@ -261,8 +277,9 @@ def check_options(opt: EvalOptions) -> None:
 
 def build_episodes(data: Dataset, opt: EvalOptions) -> EpisodeSet:
     """The episode set of ``opt.task`` (starts, goals, horizons) on ``data``'s goals."""
-    from aerohrl.eval.tasks import make_episodes
+    from aerohrl.eval.tasks import check_fits, make_episodes
 
+    check_fits(opt.task, data)  # maze tasks on maze datasets, free-space tasks on free-space ones
     goals = int(data.rest_start_episodes().numel())
     if opt.task == "reach-desired" and opt.episodes > goals:  # a repeated goal would be flown the same way again
         raise UserError(
@@ -289,6 +306,7 @@ def fly(
     ``opt.leg_horizon`` steps, else the horizon shared among the legs) on the dataset's
     vehicle: :func:`aerohrl.envs.rollout.rollout`'s per-episode results."""
     from aerohrl.envs.rollout import rollout
+    from aerohrl.eval.tasks import dataset_maze
 
     planner, nw = make_planner(algo, data, opt)
     leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
@@ -306,6 +324,7 @@ def fly(
         record=record,
         progress=opt.progress,
         desc=desc,
+        maze=dataset_maze(data) if episodes.task == "maze" else None,
         **sim_kwargs(data),
     )
 
@@ -356,6 +375,7 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
                 "step": int(ck["step"]),
                 "success": float(r["success"].mean()),
                 "near_success": float(r["near_success"].mean()),
+                **({"collision": float(r["collision"].mean())} if episodes.task == "maze" else {}),
                 "seconds": wall,
                 **({"declined": float(r["declined"].mean())} if "declined" in r else {}),
                 **results.kind_rates(episodes, r, r["success"] if opt.floor == "hover" else hover_success),
@@ -364,10 +384,16 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
         if record:
             results.write_trajectories(out_dir, int(ck["step"]), episodes, r)
+            if episodes.task == "maze":  # the top-down maze with the flown paths
+                from aerohrl.eval.plots import plot_maze
+
+                plot_maze(episodes, r, out_dir / "maze.png", title=f"{opt.name()}, step {ck['step']}")
     summary = results.summarize(
         per_ckpt, run_dir=run.path, meta=meta, options=opt, episodes=episodes, seconds=time.perf_counter() - t_start
     )
     results.write_summary(out_dir, summary)
+    if episodes.task == "maze":
+        results.write_text(out_dir / "tasks.md", results.maze_table_markdown(summary))
     return summary
 
 

@@ -5,6 +5,8 @@
   two panels, each path drawn up to the episode's last step in its own colour, with its
   end point, its task goal (star) and its planned intermediate goals (triangles) in the
   same colour; starts in orange.
+* :func:`plot_maze` — a maze evaluation from above: walls, starts and goals of the
+  tasks, flown paths coloured by outcome (success, collision, out of time).
 * :func:`plot_learning_curves` — thesis Fig. 3.3 / 3.4 analogues: closed-loop success
   against training steps from the runs' ``metrics.jsonl`` (the trainer's periodic
   evaluations) and, dashed, the per-checkpoint results of ``aerohrl eval`` for
@@ -16,12 +18,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from aerohrl.atomic import save_figure
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    from aerohrl.envs.episodes import EpisodeSet
 
 
 def _plt():
@@ -54,6 +59,48 @@ def _eval_dir(run, task: str, planner: str | None) -> Path:
     if not d.is_dir():
         raise UserError(f"run {run} has no {d.name} evaluation (run `aerohrl eval --task {task} --run {run}` first)")
     return d
+
+
+def plot_maze(episodes: EpisodeSet, r: dict, out: str | Path, *, title: str = "", max_per_task: int = 10) -> Path:
+    """Top-down view of a maze evaluation: the walls (grey cells), every task's start
+    (circle) and goal (star) cells, and up to ``max_per_task`` flown paths per task
+    (``r["positions"]`` (E, T+1, 3), each up to its last step): successes green,
+    collisions red (a cross where it hit), the rest (out of time) orange."""
+    from aerohrl.worlds.maze import maze_from_dict
+
+    plt = _plt()
+    maze = maze_from_dict(episodes.meta["maze"])
+    rows, cols = maze.shape
+    c = maze.cell
+    fig, ax = plt.subplots(figsize=(1.0 + 0.45 * cols, 0.6 + 0.45 * rows))
+    ax.imshow(maze.walls, cmap="Greys", vmin=0, vmax=1.6, origin="lower", extent=(0, cols * c, 0, rows * c))
+    which = np.asarray(episodes.meta["maze_task"])
+    pos = r["positions"]
+    for k in np.unique(which):
+        idx = np.flatnonzero(which == k)[:max_per_task]
+        for i in idx:
+            p = pos[i, : int(r["steps"][i]) + 1]
+            color = "tab:green" if r["success"][i] else ("tab:red" if r["collision"][i] else "tab:orange")
+            ax.plot(p[:, 0], p[:, 1], color=color, lw=0.8, alpha=0.7)
+            if r["collision"][i]:
+                ax.plot(p[-1, 0], p[-1, 1], "x", color="tab:red", ms=5)
+        s, g = maze.tasks[int(k) - 1]
+        ps, pg = maze.cell_center(np.array(s)), maze.cell_center(np.array(g))
+        ax.plot(ps[0], ps[1], "o", color="tab:blue", ms=7, mec="k")
+        ax.plot(pg[0], pg[1], "*", color="gold", ms=13, mec="k")
+        ax.annotate(str(k), ps[:2], xytext=(4, 4), textcoords="offset points", fontsize=8)
+        ax.annotate(str(k), pg[:2], xytext=(4, 4), textcoords="offset points", fontsize=8)
+    ax.set_xlim(0, cols * c)
+    ax.set_ylim(0, rows * c)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    rate = f"success {100 * r['success'].mean():.0f} %, collision {100 * r['collision'].mean():.0f} %"
+    ax.set_title(f"{title}\n{rate}" if title else rate, fontsize=9)
+    fig.tight_layout()
+    out = _save(fig, out)
+    plt.close(fig)
+    return out
 
 
 def plot_trajectories(run: str | Path, task: str, out: str | Path, planner: str | None = None, max_per_panel: int = 12) -> Path:
@@ -192,4 +239,4 @@ def plot_learning_curves(runs: Sequence[str | Path], out: str | Path) -> Path:
     return out
 
 
-__all__ = ["plot_trajectories", "plot_learning_curves"]
+__all__ = ["plot_trajectories", "plot_learning_curves", "plot_maze"]

@@ -64,6 +64,9 @@ def episode_rows(episodes: EpisodeSet, r: dict) -> tuple[list[str], list[list]]:
         "final_rot_err",
         "min_pos_err",
     ]
+    maze = episodes.task == "maze"
+    if maze:  # which task, and the crash that ended an episode
+        head += ["maze_task", "collision", "collision_step"]
     wp = r.get("waypoints")
     nw = 0 if wp is None else wp.shape[1]
     for k in range(nw):
@@ -93,6 +96,8 @@ def episode_rows(episodes: EpisodeSet, r: dict) -> tuple[list[str], list[list]]:
             float(r["final_rot_err"][i]),
             float(r["min_pos_err"][i]),
         ]
+        if maze:
+            row += [int(episodes.meta["maze_task"][i]), int(r["collision"][i]), int(r["collision_step"][i])]
         for k in range(nw):
             assert wp is not None  # nw > 0 only with waypoints
             row += [int(r["waypoint_frame"][i, k])] + [float(x) for x in wp[i, k, :3]]
@@ -124,6 +129,8 @@ def write_trajectories(out_dir: str | Path, step: int, episodes: EpisodeSet, r: 
     path = Path(out_dir) / f"trajectories-step-{step:09d}.npz"
     buf = io.BytesIO()
     extra = {k: r[k] for k in ("waypoints", "planned_waypoints") if k in r}
+    if episodes.task == "maze":
+        extra.update(collision=r["collision"], maze_task=np.asarray(episodes.meta["maze_task"]))
     np.savez_compressed(
         buf,
         positions=r["positions"],
@@ -145,9 +152,10 @@ def kind_rates(episodes: EpisodeSet, r: dict, hover_success: np.ndarray | None =
     the goals at least ``FAR_AHEAD`` steps ahead, and, given the hover floor's per-episode
     outcomes on the same episodes (``hover_success``), on the goals hovering misses
     (``success_beyond_hover``: what the policy reaches that the constant command
-    ``[g, 0, 0, 0]`` does not; hover itself scores 0 there by construction)."""
+    ``[g, 0, 0, 0]`` does not; hover itself scores 0 there by construction); maze tasks:
+    success, collision and mean time to the goal (s, None without a success) per task."""
     kind = episodes.kind()
-    out = {}
+    out: dict[str, float | None] = {}
     if episodes.task == "reach-intermediate":
         for k in ("desired", "intermediate"):
             m = kind == k
@@ -159,6 +167,15 @@ def kind_rates(episodes: EpisodeSet, r: dict, hover_success: np.ndarray | None =
             out["success_intermediate_far"] = float(r["success"][far].mean())
         if hover_success is not None and not hover_success.all():
             out["success_beyond_hover"] = float(r["success"][~hover_success.astype(bool)].mean())
+    if episodes.task == "maze":  # per task: success, collision, mean time to the goal of the successes (s)
+        which = np.asarray(episodes.meta["maze_task"])
+        fps = float(episodes.meta.get("fps", 100))
+        for k in np.unique(which):
+            m = which == k
+            s = r["success"][m]
+            out[f"success_task{k}"] = float(s.mean())
+            out[f"collision_task{k}"] = float(r["collision"][m].mean())
+            out[f"time_to_goal_task{k}"] = float(r["first_success_step"][m][s].mean() / fps) if s.any() else None
     return out
 
 
@@ -188,10 +205,58 @@ def summarize(
         "success_std": float(s.std()),
         "near_success_mean": float(ns.mean()),
         "near_success_std": float(ns.std()),
+        **_collision_rates(per_ckpt, episodes),
         "dataset": meta.get("dataset"),
         "options": opts,
         "seconds": seconds,
     }
+
+
+def _collision_rates(per_ckpt: list[dict], episodes: EpisodeSet) -> dict:
+    """Maze tasks: collision mean/std over checkpoints, the maze and its tasks' definitions."""
+    if episodes.task != "maze":
+        return {}
+    c = np.array([x["collision"] for x in per_ckpt])
+    m = episodes.meta["maze"]
+    return {
+        "collision_mean": float(c.mean()),
+        "collision_std": float(c.std()),
+        "maze": {"name": m["name"], "tasks_version": m["tasks_version"], "tasks": m["tasks"]},
+        "task_horizons": {str(k): v for k, v in episodes.meta["task_horizons"].items()},
+    }
+
+
+def maze_table_markdown(summary: dict) -> str:
+    """The per-task table of a maze evaluation (``tasks.md``): per task its start and goal
+    cells, horizon, and success, collision (mean ± std over checkpoints, %) and mean time to
+    the goal of the successes (s)."""
+    maze = summary["maze"]
+    ck = summary["checkpoints"]
+    lines = [
+        f"# {summary['name']}: maze {maze['name']} (tasks v{maze['tasks_version']}), {summary['algo']}, "
+        f"{len(ck)} checkpoint(s), {summary['episodes']} episodes",
+        "",
+        "| task | start | goal | horizon (steps) | success % | collision % | time to goal (s) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def ms(key: str) -> str:
+        v = np.array([c[key] for c in ck if c.get(key) is not None], np.float64)
+        return f"{100 * v.mean():.1f} ± {100 * v.std():.1f}" if len(v) else "-"
+
+    for k, t in enumerate(maze["tasks"], 1):
+        if f"success_task{k}" not in ck[0]:
+            continue
+        tg = [c[f"time_to_goal_task{k}"] for c in ck if c.get(f"time_to_goal_task{k}") is not None]
+        lines.append(
+            f"| {k} | {tuple(t['start'])} | {tuple(t['goal'])} | {summary['task_horizons'][str(k)]} | "
+            f"{ms(f'success_task{k}')} | {ms(f'collision_task{k}')} | {f'{np.mean(tg):.2f}' if tg else '-'} |"
+        )
+    lines.append(
+        f"| all | | | | {100 * summary['success_mean']:.1f} ± {100 * summary['success_std']:.1f} | "
+        f"{100 * summary['collision_mean']:.1f} ± {100 * summary['collision_std']:.1f} | |"
+    )
+    return "\n".join(lines) + "\n"
 
 
 def write_summary(out_dir: str | Path, summary: dict) -> Path:
@@ -576,6 +641,7 @@ __all__ = [
     "evaluation_is_current",
     "write_results_page",
     "summarize",
+    "maze_table_markdown",
     "tables",
     "tables_markdown",
     "markdown",

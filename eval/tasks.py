@@ -26,6 +26,20 @@ seed alone, so every checkpoint of every algorithm flies the same episodes.
   seed stream ``NOVEL_SEED_OFFSET + seed``, horizon 500: Reach-Desired on goals the
   policy was not trained on, i.e. generalisation within the training distribution
   rather than recall of the dataset's 250 trajectories.
+* ``fast`` (free space): hover at the origin, goals with fast velocities, ``|v_i| ~ U(3.5,
+  7)`` m/s per axis with a random sign (beyond rho_D's 2.5 m/s), position and acceleration
+  from the dataset's ranges, attitude by flatness: a custom ring of the ``velocity`` family
+  (:func:`aerohrl.eval.families.sample_ring`, its own seed stream), horizon 1000 steps (the
+  velocity family's).
+* ``maze`` (maze datasets only): the five frozen tasks of the dataset's maze
+  (:func:`aerohrl.envs.maze.maze_episodes`: start hover at the start cell's centre with
+  +-0.2 m horizontal and +-0.1 m/s start noise, goal hover at the goal cell's centre,
+  horizon 2 s per cell of the shortest path + 2 s); ``n`` episodes split evenly among
+  the five tasks (a multiple of 5; the default 250 gives 50 per task). A collision ends
+  an episode as a failure.
+
+Every task but ``maze`` is a free-space task: :func:`check_fits` refuses a free-space task
+on a maze dataset and ``maze`` on a free-space one (one-line errors).
 """
 
 from __future__ import annotations
@@ -41,8 +55,11 @@ from aerohrl.errors import UserError
 if TYPE_CHECKING:
     from aerohrl.algorithms.data import Dataset
     from aerohrl.eval.families import Ring
+    from aerohrl.worlds.maze import Maze
 
-TASKS = ("reach-desired", "reach-intermediate", "ood", "reach-novel")
+TASKS = ("reach-desired", "reach-intermediate", "ood", "reach-novel", "fast", "maze")
+FAST_VEL_RANGE = (3.5, 7.0)  # m/s, |v_i| of the fast task's goals
+FAST_HORIZON = 1000  # steps: the velocity family's horizon (eval/families.py)
 HORIZON_DESIRED = 500
 HORIZON_INTERMEDIATE = 100
 MAX_AHEAD = 45
@@ -240,12 +257,81 @@ def ood_family(data: Dataset | None, n: int = 250, seed: int = 0, *, ring: Ring,
     )
 
 
+def fast(data: Dataset | None, n: int = 250, seed: int = 0) -> EpisodeSet:
+    """Fast (free space): origin -> a goal with ``|v_i|`` in [3.5, 7] m/s, 1000 steps."""
+    from aerohrl.eval.families import Ring
+
+    ring = Ring("velocity", 0, {"vel": FAST_VEL_RANGE})
+    eps = ood_family(data, n, seed, ring=ring, horizon=FAST_HORIZON)
+    eps.task = "fast"
+    eps.meta.pop("leg_horizon", None)
+    return eps
+
+
+def dataset_maze(data: Dataset | None) -> Maze | None:
+    """The maze a dataset was flown in (its spec's ``world``, the recorded layout), None for free space."""
+    from aerohrl.worlds.maze import world_maze
+
+    info = data.info if data is not None else {}
+    return world_maze(info.get("spec") or {}, info)
+
+
+def check_fits(name: str, data: Dataset | None) -> Maze | None:
+    """UserError (one line) when task ``name`` does not fit the dataset's world (``maze`` on
+    free space, a free-space task in a maze); returns the dataset's maze (None: free space)."""
+    maze = dataset_maze(data)
+    if name == "maze" and maze is None:
+        spec = (data.info.get("spec") or {}) if data is not None else {}
+        raise UserError(
+            f"--task maze needs a run trained on a maze dataset (world maze-*); "
+            f"dataset {spec.get('name') or (data.info.get('path') if data is not None else None)} flies in free space"
+        )
+    if name != "maze" and maze is not None:
+        raise UserError(f"--task {name} is a free-space task; the run's dataset flies in maze {maze.name}: use --task maze")
+    return maze
+
+
+def maze(data: Dataset | None, n: int = 250, seed: int = 0) -> EpisodeSet:
+    """Maze (module docstring): the five frozen tasks of the dataset's maze, ``n / 5`` episodes each."""
+    from aerohrl.envs.maze import maze_episodes
+
+    n = _check_n(n)
+    m = check_fits("maze", data)
+    assert m is not None  # check_fits refuses free space
+    k = len(m.tasks)
+    if n % k:
+        raise UserError(f"--task maze flies its {k} tasks equally: --episodes must be a multiple of {k}, got {n}")
+    spec = (data.info.get("spec") or {}) if data is not None else {}
+    return maze_episodes(m, n // k, seed, fps=int(spec.get("fps", 100)))
+
+
 def make_episodes(name: str, data: Dataset | None, n: int = 250, seed: int = 0, **kw: Any) -> EpisodeSet:
-    """The episode set of task ``name`` (one of :data:`TASKS`)."""
+    """The episode set of task ``name`` (one of :data:`TASKS`); UserError when it does not fit the dataset's world."""
     if name not in TASKS:
         raise UserError(f"unknown task {name!r} (choose from {', '.join(TASKS)})")
-    fn = {"reach-desired": reach_desired, "reach-intermediate": reach_intermediate, "ood": ood, "reach-novel": reach_novel}[name]
+    check_fits(name, data)
+    fn = {
+        "reach-desired": reach_desired,
+        "reach-intermediate": reach_intermediate,
+        "ood": ood,
+        "reach-novel": reach_novel,
+        "fast": fast,
+        "maze": maze,
+    }[name]
     return fn(data, n, seed, **kw)
 
 
-__all__ = ["TASKS", "make_episodes", "reach_desired", "reach_intermediate", "ood", "ood_family", "reach_novel", "ood_goals"]
+__all__ = [
+    "TASKS",
+    "make_episodes",
+    "fast",
+    "maze",
+    "check_fits",
+    "dataset_maze",
+    "reach_desired",
+    "reach_intermediate",
+    "ood",
+    "ood_family",
+    "reach_novel",
+    "ood_goals",
+]

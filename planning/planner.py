@@ -30,7 +30,8 @@ favours it whenever the critics value flying straight to G above any real detour
 
 The variance is the population variance over the ``m`` critics (``var_j``). Candidates:
 the achieved goals of the dataset (``next_state[:, :15]``) with the state in which they
-were achieved (``next_state``, 18) as ``s_g``; ``max_candidates`` draws a seeded subset
+were achieved (``next_state``, 18) as ``s_g``, or in a maze the hover states at the free
+cells' centres (:func:`candidates_from_maze`); ``max_candidates`` draws a seeded subset
 (the 52,530 achieved goals of the 250-goal dataset are 100 Hz samples of smooth
 trajectories, so neighbours are near-duplicates; the cost is E x C network passes).
 
@@ -71,6 +72,7 @@ from aerohrl import task
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
     from aerohrl.algorithms.data import Dataset
+    from aerohrl.worlds.maze import Maze
 
 DEFAULT_ALPHA = 1.0
 DEFAULT_CHUNK = 32768
@@ -99,6 +101,19 @@ def candidates_from_dataset(data: Dataset, max_candidates: int = 0, seed: int = 
         idx = np.sort(np.random.default_rng([seed, 7]).choice(F, size=int(max_candidates), replace=False))
     ns = data.next_state[torch.as_tensor(idx)].float()
     return Candidates(task.achieved_goal(ns).clone(), ns.clone(), idx)
+
+
+def candidates_from_maze(maze: Maze) -> Candidates:
+    """Hover states at the centres of every free cell of ``maze`` (flight altitude, ``v = 0``,
+    ``R = I``, ``w = 0``), in :attr:`~aerohrl.worlds.maze.Maze.free_cells` order (``frame`` =
+    that index). In a maze the critics see the absolute position, so these waypoints carry
+    the value of being at each maze position; the planner scores them as any candidates."""
+    free = maze.free_cells
+    states = np.zeros((len(free), task.STATE_DIM))
+    states[:, task.POS] = maze.cell_center(free)
+    states[:, task.ROT] = np.eye(3).ravel()
+    t = torch.as_tensor(states, dtype=torch.float32)
+    return Candidates(task.achieved_goal(t).clone(), t, np.arange(len(free)))
 
 
 @torch.no_grad()
@@ -440,6 +455,7 @@ class ChainPlanner:
 __all__ = [
     "Candidates",
     "candidates_from_dataset",
+    "candidates_from_maze",
     "leg_values",
     "Planner",
     "Plan",

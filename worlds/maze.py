@@ -176,6 +176,55 @@ def parse_layout(text: str) -> np.ndarray:
     return walls
 
 
+WORLDS = ("free",) + tuple(f"maze-{m}" for m in MAZES)  # a dataset spec's `world`
+
+
+def maze_from_dict(d: dict) -> Maze:
+    """The maze of :meth:`Maze.to_dict` data (a maze dataset's metadata); UserError when malformed."""
+    try:
+        walls = parse_layout("\n".join(d["layout"]) if isinstance(d["layout"], list) else str(d["layout"]))
+        tasks = tuple((tuple(int(x) for x in t["start"]), tuple(int(x) for x in t["goal"])) for t in d["tasks"])
+        maze = Maze(
+            name=str(d["name"]),
+            walls=walls,
+            cell=float(d["cell"]),
+            ceiling=float(d["ceiling"]),
+            altitude=float(d["altitude"]),
+            tasks=tasks,  # type: ignore[arg-type]  # pairs of (row, col)
+            tasks_version=int(d["tasks_version"]),
+        )
+    except (KeyError, TypeError, ValueError) as e:
+        raise UserError(f"malformed maze metadata ({type(e).__name__}: {e})") from None
+    _check_tasks(maze)
+    return maze
+
+
+def _check_tasks(maze: Maze) -> None:
+    for s, g in maze.tasks:
+        for rc in (s, g):
+            if maze.is_wall(np.array(rc)):
+                raise UserError(f"maze {maze.name}: task cell {tuple(rc)} is a wall")
+
+
+def world_maze(spec: dict | None, metadata: dict | None = None) -> Maze | None:
+    """The maze a dataset was flown in, or None for free space.
+
+    ``spec`` is the dataset's spec (its ``world``: ``free`` (the default when absent) or
+    ``maze-<name>``); the layout is the one recorded in the dataset (``maze`` in the spec
+    or in ``metadata``, :meth:`Maze.to_dict` data) when there is one, else the packaged
+    maze of that name. UserError for an unknown world or maze."""
+    spec = spec or {}
+    world = str(spec.get("world") or "free")
+    if world == "free":
+        return None
+    if not world.startswith("maze-"):
+        raise UserError(f"unknown world {world!r} (choose from {', '.join(WORLDS)})")
+    recorded = spec.get("maze") or (metadata or {}).get("maze")
+    if isinstance(recorded, dict):
+        return maze_from_dict(recorded)
+    return load_maze(world[len("maze-") :])
+
+
 @functools.cache
 def load_maze(name: str) -> Maze:
     """The maze ``name`` (one of :data:`MAZES`) from its data file; UserError for an unknown one."""
@@ -194,11 +243,19 @@ def load_maze(name: str) -> Maze:
         tasks=tasks,  # type: ignore[arg-type]  # pairs of (row, col) read from TOML
         tasks_version=int(d["tasks_version"]),
     )
-    for s, g in tasks:
-        for rc in (s, g):
-            if maze.is_wall(np.array(rc)):
-                raise UserError(f"maze {name}: task cell {tuple(rc)} is a wall")
+    _check_tasks(maze)
     return maze
 
 
-__all__ = ["Maze", "MAZES", "VEHICLE_RADIUS", "MAZE_DIR", "load_maze", "parse_layout", "corners"]
+__all__ = [
+    "Maze",
+    "MAZES",
+    "WORLDS",
+    "maze_from_dict",
+    "world_maze",
+    "VEHICLE_RADIUS",
+    "MAZE_DIR",
+    "load_maze",
+    "parse_layout",
+    "corners",
+]
