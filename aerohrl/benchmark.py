@@ -12,8 +12,8 @@ follow its world: a maze dataset is evaluated on the maze's five frozen tasks (`
 a free-space dataset on ``reach-novel`` and ``fast``.
 
 An agent is an algorithm (``train --algo``), or ``ALGO+planner``: the thesis's planner over
-that algorithm's skills and critics (Eq. 3.6/3.7 with the declining chain), which flies
-the same trained runs. Training and evaluation go through the sweep's Ray tasks
+that algorithm's skills and critics (Eq. 3.6 solved by shortest paths over the
+candidates, ``aerohrl eval --planner graph``), which flies the same trained runs. Training and evaluation go through the sweep's Ray tasks
 (aerohrl/sweep.py): every run resumable, a rerun does only what is missing.
 
 The leaderboard is the success rate at each run's final checkpoint, per agent x dataset x
@@ -38,9 +38,9 @@ from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl bench"
 PLANNER_SUFFIX = "+planner"
-# the planner an ALGO+planner agent evaluates with: the thesis's multi-waypoint plan (Eq. 3.6)
-# with the declining chain (fly straight where the plan does not score higher)
-PLANNER_ARGS = ("--planner", "multi", "--decline-margin", "0")
+# the planner an ALGO+planner agent evaluates with: Eq. 3.6 solved exactly over the candidates
+# (planning/graph.py), re-planned from the flown state at every intermediate goal reached
+PLANNER_ARGS = ("--planner", "graph")
 FREE_TASKS = ("reach-novel", "fast")
 MAZE_TASKS = ("maze",)
 DEFAULT_DATASETS = ("maze-medium-navigate", "maze-large-navigate", "maze-large-stitch", "maze-large-explore")

@@ -31,6 +31,7 @@ from aerohrl.envs.episodes import EpisodeSet, hover_states
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
+    from aerohrl.planning.graph import GraphPlanner
     from aerohrl.planning.planner import ChainPlanner, Planner
     from aerohrl.worlds.maze import Maze
 
@@ -58,7 +59,7 @@ def rollout(
     algo: Algorithm,
     episodes: EpisodeSet,
     *,
-    planner: Planner | ChainPlanner | None = None,
+    planner: Planner | ChainPlanner | GraphPlanner | None = None,
     n_waypoints: int = 0,
     leg_horizon: int | None = None,
     replan: bool = True,

@@ -31,9 +31,14 @@ if TYPE_CHECKING:
     from aerohrl.algorithms.run import Run
     from aerohrl.eval.families import Ring
     from aerohrl.envs.episodes import EpisodeSet
+    from aerohrl.planning.graph import GraphPlanner
     from aerohrl.planning.planner import ChainPlanner, Planner
 
-PLANNERS = ("none", "single", "multi")
+PLANNERS = ("none", "single", "multi", "graph")
+# graph: a plan has as many intermediate goals as its shortest path needs, up to this many
+# (a shorter plan repeats its last goal, reached at once), and each leg its own budget
+GRAPH_WAYPOINTS = 32
+GRAPH_LEG_HORIZON = 400  # steps (100 Hz): a leg of a few cells, with re-planning from the flown state
 PLANNED_TASKS = ("ood", "maze")  # the tasks a planner may fly
 OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or not
 
@@ -60,7 +65,8 @@ class EvalOptions:
     checkpoints: int = param(10, "newest checkpoints evaluated", ge=1)
     planner: str = param(
         "none",
-        "ood and maze: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6); in a maze over the free cells' centres",
+        "ood and maze: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6, beam search) | graph (Eq. 3.6 exactly, "
+        "shortest paths over the candidates, planning/graph.py); in a maze over the free cells' centres",
         choices=PLANNERS,
     )
     waypoints: int = param(2, "multi: intermediate goals (Eq. 3.6 n)", ge=1)
@@ -159,6 +165,9 @@ class EvalOptions:
         planned = self.task in PLANNED_TASKS and self.planner != "none"
         if self.task == "maze":
             head = "maze" + (f"-{self.planner}" + (f"{self.waypoints}" if self.planner == "multi" else "") if planned else "")
+        elif self.task == "ood" and self.planner == "graph":
+            ring = self.ring_def()
+            head = "ood-" + (ring.slug + "-" if ring is not None else "") + "graph"
         elif self.task != "ood":
             head = self.task
         else:
@@ -231,9 +240,15 @@ def sim_kwargs(data: Dataset) -> dict:
     }
 
 
-def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Planner | ChainPlanner | None, int]:
-    """The planner of ``opt.planner`` over ``data``'s achieved goals (or synthetic offsets)
-    and its number of intermediate goals; ``(None, 0)`` without one."""
+def graph_waypoints(opt: EvalOptions) -> int:
+    """The graph planner's bound on intermediate goals: ``--waypoints`` when given, else :data:`GRAPH_WAYPOINTS`."""
+    default = next(f.default for f in fields(EvalOptions) if f.name == "waypoints")
+    return opt.waypoints if opt.waypoints != default else GRAPH_WAYPOINTS
+
+
+def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Planner | ChainPlanner | GraphPlanner | None, int]:
+    """The planner of ``opt.planner`` over ``data``'s achieved goals (or synthetic offsets,
+    or a maze's free cells) and its number of intermediate goals; ``(None, 0)`` without one."""
     from aerohrl.planning.planner import Planner, candidates_from_dataset, candidates_from_maze
 
     if opt.planner == "none":
@@ -243,8 +258,20 @@ def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Plan
 
         maze = dataset_maze(data)
         assert maze is not None  # build_episodes refused --task maze on free space
+        if opt.planner == "graph":
+            from aerohrl.planning.graph import GraphPlanner
+
+            n = graph_waypoints(opt)
+            return GraphPlanner(algo, candidates_from_maze(maze), n=n, alpha=opt.alpha), n
         n = 1 if opt.planner == "single" else opt.waypoints
         return Planner(algo, candidates_from_maze(maze), n=n, alpha=opt.alpha, beam=opt.beam, min_leg=opt.min_leg), n
+    if opt.planner == "graph":
+        if opt.candidate_source == "synthetic":
+            raise UserError("--planner graph plans over the dataset's achieved goals; it takes no --candidate-source synthetic")
+        from aerohrl.planning.graph import GraphPlanner
+
+        n = graph_waypoints(opt)
+        return GraphPlanner(algo, candidates_from_dataset(data, opt.candidates, seed=opt.seed), n=n, alpha=opt.alpha), n
     if opt.candidate_source == "synthetic":  # C = --candidates offsets (0: 256) from the dataset spec's ranges
         from aerohrl.planning.planner import ChainPlanner, offsets_from_spec
 
@@ -309,7 +336,10 @@ def fly(
     from aerohrl.eval.tasks import dataset_maze
 
     planner, nw = make_planner(algo, data, opt)
-    leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
+    if opt.planner == "graph":  # legs of their own budget: the plan's length varies, re-planning at each goal reached
+        leg_h = opt.leg_horizon or GRAPH_LEG_HORIZON
+    else:
+        leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
     return rollout(
         algo,
         episodes,

@@ -265,13 +265,14 @@ def test_eval_maze_writes_results_table_and_plot(runs, capsys):
     assert "maze_task" in rows[0] and "collision_step" in rows[0] and len(rows) == 6
 
 
-def test_eval_maze_with_planner_over_free_cells(runs, capsys):
+@pytest.mark.parametrize("planner", ["single", "graph"])
+def test_eval_maze_with_planner_over_free_cells(runs, capsys, planner):
     from aerohrl.cli import main
 
     run = runs["maze"]
-    argv = ["eval", "--task", "maze", "--planner", "single", "--run", str(run), "--episodes", "5", "--checkpoints", "1"]
+    argv = ["eval", "--task", "maze", "--planner", planner, "--run", str(run), "--episodes", "5", "--checkpoints", "1"]
     assert main([*argv, "--quiet"]) == 0
-    d = run / "eval" / "maze-single"
+    d = run / "eval" / f"maze-{planner}"
     rows = (d / "episodes-step-000000020.csv").read_text().splitlines()
     head = rows[0].split(",")
     m = load_maze("medium")
