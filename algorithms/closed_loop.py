@@ -1,4 +1,4 @@
-"""The trainer's periodic closed-loop evaluation hook (Reach-Desired).
+"""The trainer's periodic closed-loop evaluation hooks (Reach-Desired; the maze tasks on a maze dataset).
 
 The rollout itself is the evaluation harness's (:func:`aerohrl.envs.rollout.rollout`,
 through the Gymnasium vector environment), so training-time and ``aerohrl eval``
@@ -6,6 +6,10 @@ numbers come from the same code. Reach-Desired (docs/spec.md "Evaluation tasks")
 vehicle starts at hover at the origin, gets one of the dataset's desired goals and
 flies the policy for ``horizon`` steps; success = the goal-reached test holds at some
 step (the episode ends there), near success = the same with every tolerance x 2.5.
+
+On a dataset flown in a maze, the hook flies the maze's five frozen tasks instead
+(``aerohrl eval --task maze``, envs/maze.py), ``eval_episodes / 5`` episodes each (at
+least one), with collisions ending episodes as failures.
 
 A Reach-Intermediate hook needs the evaluation tasks, so it sits above, with them
 (:func:`aerohrl.eval.harness.make_reach_intermediate_evaluator`).
@@ -46,4 +50,33 @@ def make_reach_desired_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[A
     return evaluate
 
 
-__all__ = ["make_reach_desired_evaluator"]
+def make_maze_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[Algorithm, int], dict[str, float]] | None:
+    """The maze tasks of the dataset's maze (None for a free-space dataset): success,
+    near success and collision rates over ``cfg.eval_episodes`` episodes spread over the five tasks."""
+    from aerohrl.envs.maze import maze_episodes
+    from aerohrl.envs.rollout import rollout
+    from aerohrl.worlds.maze import world_maze
+
+    maze = world_maze(data.info.get("spec") or {}, data.info)
+    if maze is None:
+        return None
+    spec = data.info.get("spec") or {}
+    kw = {
+        "vehicle": spec.get("vehicle", "hummingbird"),
+        "fps": int(spec.get("fps", 100)),
+        "substeps": int(spec.get("substeps", 5)),
+    }
+    episodes = maze_episodes(maze, max(1, cfg.eval_episodes // 5), seed=cfg.seed, fps=kw["fps"])
+
+    def evaluate(algo, step):
+        r = rollout(algo, episodes, maze=maze, **kw)
+        return {
+            "success": float(r["success"].mean()),
+            "near_success": float(r["near_success"].mean()),
+            "collision": float(r["collision"].mean()),
+        }
+
+    return evaluate
+
+
+__all__ = ["make_reach_desired_evaluator", "make_maze_evaluator"]

@@ -188,8 +188,11 @@ class Trainer:
     def _default_evaluators(self) -> dict[str, Evaluator]:
         if self.cfg.eval_every <= 0:
             return {}
-        from aerohrl.algorithms.closed_loop import make_reach_desired_evaluator
+        from aerohrl.algorithms.closed_loop import make_maze_evaluator, make_reach_desired_evaluator
 
+        maze = make_maze_evaluator(self.data, self.cfg)
+        if maze is not None:
+            return {"maze": maze}
         return {"reach_desired": make_reach_desired_evaluator(self.data, self.cfg)}
 
     def evaluate(self) -> dict:

@@ -368,3 +368,14 @@ def test_maze_env_passes_gymnasium_checks_and_seeds_its_starts():
     a, _ = venv.reset(seed=7)
     b, _ = venv.reset(seed=7)
     assert a["observation"].shape == (4, 18) and np.array_equal(a["observation"], b["observation"])
+
+
+def test_training_on_a_maze_dataset_evaluates_the_maze_tasks(runs, tmp_path):
+    from aerohrl.algorithms.config import make_config
+    from aerohrl.algorithms.trainer import start_run
+
+    cfg = make_config("cpu", algo="gcsl", dataset=str(runs["maze_ds"]), **{**TINY, "eval_every": 10, "eval_episodes": 5})
+    tr = start_run(cfg, tmp_path / "run", progress=False)
+    tr.train()
+    keys = set().union(*(json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()))
+    assert {"eval/maze/success", "eval/maze/collision"} <= keys and not any("reach_desired" in k for k in keys)
