@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from aerohrl import cli_types as T
 from aerohrl.cli_common import add_common, progress, set_threads
 from aerohrl.errors import ArgumentParser, UserError, run_cli, warn
-from aerohrl.datagen.spec import EXPERTS, SOLVERS, START_STATES, DatasetSpec
+from aerohrl.datagen.spec import EXPERTS, FAMILIES, SOLVERS, START_STATES, WORLDS, DatasetSpec
 
 if TYPE_CHECKING:
     from aerohrl.datagen.dataset import DatasetHandle
@@ -24,7 +24,14 @@ if TYPE_CHECKING:
 PROG = "datagen"
 # the spec fields whose values are a fixed set (DatasetSpec.check), shown and checked by argparse
 # (vehicles: sim/params.py PRESETS, not imported here to keep --help fast; tests/test_cli_vocabulary.py checks them)
-SPEC_CHOICES = {"vehicle": ("hummingbird", "crazyflie"), "solver": SOLVERS, "expert": EXPERTS, "start_states": START_STATES}
+SPEC_CHOICES = {
+    "vehicle": ("hummingbird", "crazyflie"),
+    "solver": SOLVERS,
+    "expert": EXPERTS,
+    "start_states": START_STATES,
+    "world": WORLDS,
+    "family": FAMILIES,
+}
 
 
 def _spec_flags(p: argparse.ArgumentParser) -> None:
@@ -35,7 +42,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
     }
     # parse-time checks (aerohrl.cli_types); ranges are any finite LOW < HIGH (DatasetSpec.check)
     nonneg = {"seed", "continuations"}
-    nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate"}  # 0 switches the part off
+    nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate", "min_path", "settle", "explore_climb"}  # 0: off
     for f in fields(DatasetSpec):
         if f.name == "seed":  # a common flag (aerohrl.cli_common), added with them
             continue
@@ -46,7 +53,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
         elif isinstance(default, tuple):
             p.add_argument(
                 flag,
-                type=T.finite_float,
+                type=T.positive_int if isinstance(default[0], int) else T.finite_float,
                 nargs=2,
                 metavar=("LOW", "HIGH"),
                 default=None,
