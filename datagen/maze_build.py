@@ -110,18 +110,23 @@ def blocks(length: np.ndarray) -> np.ndarray:
     return np.array(bounds, np.int64)
 
 
-def _sub(ref: mx.PiecewiseReference, sl: slice) -> mx.PiecewiseReference:
-    """The episodes ``sl`` of a piecewise reference."""
+def _sub(ref: mx.PiecewiseReference, rows: np.ndarray) -> mx.PiecewiseReference:
+    """The episodes ``rows`` (index array) of a piecewise reference."""
     r = object.__new__(mx.PiecewiseReference)
-    r.coeffs, r.T, r.start, r.duration = ref.coeffs[sl], ref.T[sl], ref.start[sl], ref.duration[sl]
-    r._rows = np.arange(len(r.T))
+    r.coeffs, r.T, r.start, r.duration = ref.coeffs[rows], ref.T[rows], ref.start[rows], ref.duration[rows]
+    r._rows = np.arange(len(rows))
     return r
 
 
 def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress: bool = False) -> dict[str, np.ndarray]:
     """Episodes ``lo..hi-1`` of the plan flown at once -> their recorded frames,
     episode-major (``state``, ``action``, ``next_state``, ``expert_action`` with noise),
-    ``length`` (N,) and ``collided`` (N,) per episode. A function of its arguments alone."""
+    ``length`` (N,) and ``collided`` (N,) per episode. A function of its arguments alone.
+
+    The batch shrinks as episodes end (their lengths differ several-fold in a maze): when
+    a quarter of the vehicles still flown have ended, the simulator keeps only the others
+    (:meth:`aerohrl.sim.BatchedQuadrotor.select`, bit for bit), and so do the reference,
+    noise and command arrays; the cost is that of the recorded steps, not of the longest."""
     maze = world_maze(spec)
     params = get_preset(spec.vehicle)
     n = hi - lo
@@ -134,47 +139,54 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
     actions = np.empty((kmax, n, task.ACTION_DIM))
     expert = np.empty_like(actions) if spec.noisy else None
     collided = np.zeros(n, bool)
-    states[0] = sim.reset(p.start[lo:hi])
+    s = states[0] = sim.reset(p.start[lo:hi])
+    act = np.arange(n)  # the episodes (of this block) in the simulator's batch, in order
     explore = spec.family == "explore"
     if explore:
         rng = np.random.default_rng([spec.seed, EXPLORE_STREAM, block])
         climb = spec.explore_climb if maze is None else 0.0
         cmds = mx.explore_commands(rng, n, kmax, dt, speed=spec.explore_speed, climb=climb, hold=spec.explore_hold)
         v_ref = np.zeros((n, 3))
-        zero = np.zeros((n, 3))
     else:
         assert p.ref is not None
-        ref = _sub(p.ref, slice(lo, hi))
+        ref = _sub(p.ref, np.arange(lo, hi))
         if spec.noisy:
-            noise = recipes.OUNoise(
-                spec.action_noise, spec.noise_tau, dt, n, np.random.default_rng([spec.seed, NOISE_STREAM, 0, block])
-            )
+            noise_rng = np.random.default_rng([spec.seed, NOISE_STREAM, 0, block])
+            noise = recipes.OUNoise(spec.action_noise, spec.noise_tau, dt, n, noise_rng)
             box_lo, box_hi = ctrl.action_box
-    alive = np.ones(n, bool)  # explore in a maze: not yet collided
     for k in tqdm(range(kmax), desc="maze rollouts", unit="step", disable=None if progress else True, leave=False):
-        s = states[k]
+        ended = length[act] <= k
+        if 4 * ended.sum() >= len(act):
+            if ended.all():  # every episode of the block has ended (explore: by collisions)
+                break
+            keep = np.flatnonzero(~ended)
+            sim, act, s = sim.select(keep), act[keep], s[keep]
+            if explore:
+                v_ref = v_ref[keep]
+            else:
+                ref = _sub(p.ref, lo + act)
+                if spec.noisy:
+                    noise.eta = noise.eta[keep]
         if explore:
-            v_ref, acc = mx.velocity_reference_step(v_ref, cmds[k], spec.a_max, dt)
+            v_ref, acc = mx.velocity_reference_step(v_ref, cmds[k, act], spec.a_max, dt)
             pos_ref = s[:, task.POS].copy()  # no horizontal position term: a velocity controller
             if maze is not None:
                 pos_ref[:, 2] = maze.altitude
-            a = ctrl(s, pos_ref, v_ref, acc, zero, yaw=0.0)
+            a = ctrl(s, pos_ref, v_ref, acc, np.zeros_like(acc), yaw=0.0)
         else:
             a = ctrl(s, *ref(k * dt), yaw=0.0)
             if spec.noisy:
                 assert expert is not None
-                expert[k] = a
+                expert[k, act] = a
                 a = np.clip(a + noise(), box_lo, box_hi)
-        actions[k] = a
-        states[k + 1] = sim.step(a)
+        actions[k, act] = a
+        s = sim.step(a)
+        states[k + 1, act] = s
         if maze is not None:
-            hit = maze.collides(states[k + 1][:, task.POS]) & (k < length) & alive
-            collided |= hit
-            if explore and hit.any():
-                length[hit] = k + 1  # the colliding step is the episode's last
-                alive &= ~hit
-                if not alive.any():  # every episode has ended: nothing more is recorded
-                    break
+            hit = maze.collides(s[:, task.POS]) & (k < length[act])
+            collided[act[hit]] = True
+            if explore:
+                length[act[hit]] = k + 1  # the colliding step is the episode's last
     e = np.repeat(np.arange(n), length)
     kk = np.arange(int(length.sum())) - np.repeat(np.concatenate([[0], np.cumsum(length)[:-1]]), length)
     out = {
