@@ -159,6 +159,10 @@ def cmd_build(a: argparse.Namespace) -> int:
             f"built {res.path}: {res.episodes} episodes, {res.frames} frames, "
             f"{res.resampled} goals resampled, in {res.seconds:.1f} s"
         )
+    if spec.family == "explore":  # no expert: the desired goal is each episode's last achieved goal
+        print(f"explore: {res.episodes} random-velocity flights (no expert; see the dataset card)")
+        print(res.path)
+        return 0
     print(
         f"expert success rate: {100 * res.expert_success:.1f}% ({round(res.expert_success * res.episodes)}/{res.episodes} "
         "episodes reach the goal: 0.15 m, 0.35 m/s, 0.15 rad)"
@@ -191,7 +195,13 @@ def cmd_info(a: argparse.Namespace) -> int:
         f"dataset      {meta['name']} / {meta['version']}   ({a.path})",
         f"generator    aerohrl.datagen v{meta['generator']['generator_version']} (aerohrl {meta['generator']['aerohrl_version']})",
         f"episodes     {meta['episodes']}   frames {meta['frames']}   fps {s['fps']}   size {sizes / 1e6:.2f} MB",
-        f"goals        seed {meta['seed']}; |p_i| {s['pos_range']} m, v_i {s['vel_range']} m/s, a_i {s['acc_range']} m/s^2; resampled {meta['resampled_goals']}",
+        *(
+            [
+                f"goals        seed {meta['seed']}; |p_i| {s['pos_range']} m, v_i {s['vel_range']} m/s, a_i {s['acc_range']} m/s^2; resampled {meta['resampled_goals']}"
+            ]
+            if "family" not in meta
+            else [_family_line(meta)]
+        ),
         *(
             [
                 f"continuations {meta['continuations']['episodes']} (episodes {meta['continuations']['first_episode']}.."
@@ -208,6 +218,16 @@ def cmd_info(a: argparse.Namespace) -> int:
     ]
     print("\n".join(lines))
     return 0
+
+
+def _family_line(meta: dict) -> str:
+    """``datagen info``'s line for a maze or explore dataset: world, family and what was measured."""
+    parts = [f"world        {meta['world']}, family {meta['family']}, seed {meta['seed']}"]
+    if "collisions" in meta:
+        parts.append(f"collisions {meta['collisions']}")
+    if "task_coverage" in meta:
+        parts.append(f"frozen-task coverage {meta['task_coverage']['fraction']:.2f}")
+    return "; ".join(parts)
 
 
 def cmd_validate(a: argparse.Namespace) -> int:

@@ -114,7 +114,7 @@ def _sub(ref: mx.PiecewiseReference, rows: np.ndarray) -> mx.PiecewiseReference:
     """The episodes ``rows`` (index array) of a piecewise reference."""
     r = object.__new__(mx.PiecewiseReference)
     r.coeffs, r.T, r.start, r.duration = ref.coeffs[rows], ref.T[rows], ref.start[rows], ref.duration[rows]
-    r._rows = np.arange(len(rows))
+    r._rows, r._falling = np.arange(len(rows)), ref._falling
     return r
 
 
