@@ -29,8 +29,8 @@ Exploration (family explore)
 Piecewise-constant velocity commands: each held for a time drawn from ``hold`` (s); the
 horizontal part has a uniform heading and a speed uniform in ``[0, speed]``; in free
 space the vertical part is uniform in ``[-climb, climb]``, in a maze it is 0 and the
-altitude is held. The reference velocity follows the command with every axis's
-acceleration bounded by ``a_max`` (:func:`velocity_reference_step`); the geometric
+altitude is held. The reference velocity follows the command with its acceleration's
+norm bounded by ``a_max`` (:func:`velocity_reference_step`); the geometric
 controller tracks that velocity with no horizontal position term (its reference position
 is the vehicle's own, so it is a stabilising velocity controller), and in a maze the
 reference altitude is the maze's flight altitude.
@@ -215,10 +215,13 @@ def explore_commands(
 
 
 def velocity_reference_step(v_ref: np.ndarray, cmd: np.ndarray, a_max: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """One step of the reference velocity toward the command with every axis's
-    acceleration bounded: ``acc = clip((cmd - v_ref) / dt, -a_max, a_max)``,
-    ``v_ref' = v_ref + acc dt`` -> ``(v_ref', acc)`` (N, 3) each."""
-    acc = np.clip((cmd - v_ref) / dt, -a_max, a_max)
+    """One step of the reference velocity toward the command with its acceleration's norm
+    bounded: ``acc = (cmd - v_ref) / dt`` scaled down to norm ``a_max`` if longer,
+    ``v_ref' = v_ref + acc dt`` -> ``(v_ref', acc)`` (N, 3) each. A norm bound (not per
+    axis) keeps the demanded tilt within ``atan(a_max / g)`` plus the feedback's share."""
+    acc = (cmd - v_ref) / dt
+    norm = np.linalg.norm(acc, axis=1, keepdims=True)
+    acc *= np.minimum(1.0, a_max / np.maximum(norm, 1e-12))
     return v_ref + acc * dt, acc
 
 
