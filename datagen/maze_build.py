@@ -140,13 +140,13 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
     expert = np.empty_like(actions) if spec.noisy else None
     collided = np.zeros(n, bool)
     s = states[0] = sim.reset(p.start[lo:hi])
-    act = np.arange(n)  # the episodes (of this block) in the simulator's batch, in order
+    act: np.ndarray = np.arange(n)  # the episodes (of this block) in the simulator's batch, in order
     explore = spec.family == "explore"
     if explore:
         rng = np.random.default_rng([spec.seed, EXPLORE_STREAM, block])
         climb = spec.explore_climb if maze is None else 0.0
         cmds = mx.explore_commands(rng, n, kmax, dt, speed=spec.explore_speed, climb=climb, hold=spec.explore_hold)
-        v_ref = np.zeros((n, 3))
+        v_ref: np.ndarray = np.zeros((n, 3))
     else:
         assert p.ref is not None
         ref = _sub(p.ref, np.arange(lo, hi))
