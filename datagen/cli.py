@@ -212,7 +212,11 @@ def cmd_info(a: argparse.Namespace) -> int:
         ),
         f"reference    degree {s['degree']}, {s['solver']}, a_max {s['a_max']} m/s^2; T min/mean/max {d['min']:.2f}/{d['mean']:.2f}/{d['max']:.2f} s",
         f"vehicle      {meta['vehicle']['name']} (mass {meta['vehicle']['mass']} kg), {s['substeps']} RK4 substeps per step",
-        f"expert       {100 * meta['expert_success_rate']:.1f}% success (goal-reached test 0.15 m, 0.35 m/s, 0.15 rad)",
+        (
+            "expert       none (explore: random velocity commands; the desired goal is each episode's last achieved goal)"
+            if meta.get("family") == "explore"
+            else f"expert       {100 * meta['expert_success_rate']:.1f}% success (goal-reached test 0.15 m, 0.35 m/s, 0.15 rad)"
+        ),
         f"checksums    {len(meta['checksums'])} files, SHA-256: "
         + ("all match" if not problems else f"{len(problems)} PROBLEM(S), run `datagen validate`"),
     ]

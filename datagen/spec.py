@@ -62,7 +62,7 @@ class DatasetSpec:
     ``datagen build`` flag of the same name and a key of a spec TOML file."""
 
     name: str = param("quadrotor-reach", "dataset name (folder under --out)")
-    goals: int = param(250, "number of desired goals / expert episodes", ge=1)
+    goals: int = param(250, "number of desired goals / expert episodes (maze worlds and explore: episodes)", ge=1)
     seed: int = param(0, "goal and noise seed", ge=0)
     pos_range: tuple[float, float] = param((1.0, 2.0), "|p_i| range per axis, random sign", unit="m", ge=0)
     vel_range: tuple[float, float] = param((-2.5, 2.5), "v_i range", unit="m/s")
