@@ -105,7 +105,9 @@ def main():
             wall = time.perf_counter() - t0
             if p.returncode != 0:
                 sys.exit(f"build failed: {p.stderr.strip()}")
-            frames = p.stdout.split(" frames")[0].rsplit(" ", 1)[-1]
+            # the "built ...: N episodes, F frames" line (the estimate line before it is a guess)
+            built = next((ln for ln in p.stdout.splitlines() if ln.startswith("built ")), p.stdout)
+            frames = built.split(" frames")[0].rsplit(" ", 1)[-1]
         ru = resource.getrusage(resource.RUSAGE_CHILDREN)
         rss = ru.ru_maxrss / 1e6  # KB -> GB, max over children so far
         cpu = ru.ru_utime + ru.ru_stime - cpu0  # user + system seconds of this build (less sensitive to load than wall)
