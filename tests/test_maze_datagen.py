@@ -175,3 +175,17 @@ def test_maze_legs_run_along_corridor_centre_lines():
     sh, gh = mx.sample_pairs(maze, rng, 50, hops=(1, 4))
     hop = maze.distances()[maze.cell_index(sh), maze.cell_index(gh)]
     assert ((hop >= 1) & (hop <= 4)).all()
+
+
+def test_cli_builds_validates_describes_and_exports_a_maze_dataset(tmp_path):
+    def run(*args):
+        r = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", *args], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    out = run("build", "--quiet", "--out", str(tmp_path), "--name", "mz", "--goals", "3", "--world", "maze-medium")
+    path = out.strip().splitlines()[-1]
+    assert run("validate", path).strip().endswith("OK")
+    assert "world        maze-medium, family navigate" in run("info", path)
+    run("export", path, "--format", "ogbench", "--out", str(tmp_path / "mz.npz"))
+    assert (tmp_path / "mz.npz").is_file()
