@@ -803,7 +803,7 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
     succ = data.episode_success
     return {
         "format": FORMAT,
-        "repo_id": REPO_ID,
+        "repo_id": REPO_ID if spec.reach else f"aerohrl/{spec.name}",  # the reach datasets keep their bytes
         "name": spec.name,
         "version": version,
         "generator": {"name": "aerohrl.datagen", "generator_version": GENERATOR_VERSION, "aerohrl_version": AEROHRL_VERSION},
@@ -1039,16 +1039,19 @@ def _family_intro(meta: dict) -> str:
     else:
         e = meta["explore"]
         body = (
-            "explore: not goal-directed. A stabilising velocity controller (the geometric controller with no horizontal "
-            f"position term) follows random piecewise-constant velocity commands (speed up to {s['explore_speed']} m/s, "
+            "explore: not goal-directed. A stabilising velocity controller (the geometric controller with no position "
+            f"term{' but the altitude' if maze else ''}) follows random piecewise-constant velocity commands (speed up to {s['explore_speed']} m/s, "
             f"each held {s['explore_hold'][0]}-{s['explore_hold'][1]} s) for up to {s['explore_duration']} s"
             + (
                 ", at the maze's flight altitude; an episode ends at its first colliding step (kept as its last frame)"
                 if maze
                 else ""
             )
+            + ("" if maze else f" (vertical commands up to {s['explore_climb']} m/s)")
             + ". `action` is what was flown (there is no `action.expert`); the desired goal is the episode's last "
-            f"achieved goal (relabel for other goals). Episodes ended by a collision: {e['episodes_ended_by_collision']}.\n"
+            "achieved goal (relabel for other goals)."
+            + (f" Episodes ended by a collision: {e['episodes_ended_by_collision']}." if maze else "")
+            + "\n"
         )
     stats = f"\n- episodes: {meta['episodes']}, frames: {meta['frames']}\n"
     if "expert" in meta:
