@@ -13,6 +13,13 @@ the child's user + system time, steadier than the wall time on a loaded machine.
 
 Targets: 250 goals <= 10 s; 10,000 goals <= 3 min, cost linear in goals.
 
+    python bench/bench_datagen.py --goals 1500                                   # free space, then
+    python bench/bench_datagen.py --goals 250 --recipe --world maze-large --family navigate --action-noise 1 0.5
+
+A maze dataset (``goals`` = episodes, each several times longer than a reach flight) is
+compared with a free-space build of a similar frame count by the ``frames/s`` column;
+target: a maze build at no less than half the free-space frames per second.
+
     python bench/bench_datagen.py --goals 20000 --workers 1 2     # sharded builds
 
 ``--workers`` runs every size with each worker count (``datagen build --workers N``:
@@ -83,7 +90,7 @@ def main():
     from aerohrl.hardware import describe_cpu
 
     print(f"cpu: {describe_cpu()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}")
-    print(f"{'goals':>7} {'wall s':>8} {'ms/goal':>8} {'cpu s':>8} {'peak RSS GB':>12}  frames")
+    print(f"{'goals':>7} {'wall s':>8} {'ms/goal':>8} {'cpu s':>8} {'peak RSS GB':>12} {'frames/s':>9}  frames")
     rows = []
     for n in sorted(a.goals):
         with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_TMP")) as d:
@@ -98,12 +105,15 @@ def main():
             wall = time.perf_counter() - t0
             if p.returncode != 0:
                 sys.exit(f"build failed: {p.stderr.strip()}")
-            frames = p.stdout.split(" frames")[0].rsplit(" ", 1)[-1]
+            # the "built ...: N episodes, F frames" line (the estimate line before it is a guess)
+            built = next((ln for ln in p.stdout.splitlines() if ln.startswith("built ")), p.stdout)
+            frames = built.split(" frames")[0].rsplit(" ", 1)[-1]
         ru = resource.getrusage(resource.RUSAGE_CHILDREN)
         rss = ru.ru_maxrss / 1e6  # KB -> GB, max over children so far
         cpu = ru.ru_utime + ru.ru_stime - cpu0  # user + system seconds of this build (less sensitive to load than wall)
         rows.append((n, wall))
-        print(f"{n:>7} {wall:>8.2f} {1000 * wall / n:>8.2f} {cpu:>8.1f} {rss:>12.2f}  {frames}", flush=True)
+        rate = int(frames) / wall if frames.isdigit() else float("nan")
+        print(f"{n:>7} {wall:>8.2f} {1000 * wall / n:>8.2f} {cpu:>8.1f} {rss:>12.2f} {rate:>9.0f}  {frames}", flush=True)
     if len(rows) >= 2:
         (n0, w0), (n1, w1) = rows[0], rows[-1]
         print(f"marginal cost {1000 * (w1 - w0) / (n1 - n0):.2f} ms/goal between {n0} and {n1} goals")

@@ -43,7 +43,7 @@ from aerohrl.datagen.dataset import FORMAT
 from aerohrl.datagen.lerobot_reader import read_info
 from aerohrl.datagen.lerobot_writer import DatasetWriter
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
-from aerohrl.datagen.spec import GENERATOR_VERSION, TASK, DatasetSpec, spec_hash, version_name
+from aerohrl.datagen.spec import EXPLORE_TASK, GENERATOR_VERSION, MAZE_TASK, TASK, DatasetSpec, spec_hash, version_name
 from aerohrl.sim import BatchedQuadrotor, get_preset
 
 if TYPE_CHECKING:
@@ -592,9 +592,14 @@ def stream_dataset(spec: DatasetSpec, root: Path, progress: bool = True, runner:
     (:class:`DatasetWriter`), and only per-episode results stay in memory, so the peak
     is a few blocks' frames whatever the number of goals. With continuations the
     rest-start flights are kept whole (their starts are drawn from those frames)."""
-    writer = DatasetWriter(root, fps=spec.fps, task=TASK, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
+    task_text = TASK if spec.reach else (EXPLORE_TASK if spec.family == "explore" else MAZE_TASK)
+    writer = DatasetWriter(root, fps=spec.fps, task=task_text, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
     try:
-        if spec.continuations:
+        if not spec.reach:  # the maze families and exploration (datagen/maze_build.py)
+            from aerohrl.datagen import maze_build
+
+            summary = maze_build.stream(spec, writer, progress)
+        elif spec.continuations:
             data = generate(spec, progress=progress, runner=runner)
             writer.append(frame_columns(data), data.length)
             summary = summarize(data)
@@ -715,6 +720,10 @@ class EpisodeSummary:
     source_episode: np.ndarray | None = None
     source_frame: np.ndarray | None = None
     goal_index: np.ndarray | None = None
+    extra: dict | None = None  # maze and explore families: world, family and their measurements (metadata)
+    collided: np.ndarray | None = None  # (N,) bool, maze worlds: the episode touched a wall, floor or ceiling
+    start_cell: np.ndarray | None = None  # (N, 2) maze expert families: start and goal cells (row, col)
+    goal_cell: np.ndarray | None = None
 
     @property
     def frames(self) -> int:
@@ -776,6 +785,11 @@ def episode_table(data: "EpisodeSummary | ExpertData") -> pa.Table:
         cols["start_source_frame"] = pa.array(data.source_frame)
     if data.goal_index is not None:  # rollouts_per_goal > 1: several flights of one goal
         cols["goal_index"] = pa.array(data.goal_index)
+    if data.start_cell is not None and data.goal_cell is not None:  # maze expert families: (row, col)
+        for key, rc in (("start_cell", data.start_cell), ("goal_cell", data.goal_cell)):
+            cols[key] = pa.FixedSizeListArray.from_arrays(pa.array(np.asarray(rc, np.int64).reshape(-1)), 2)
+    if data.collided is not None:  # maze worlds
+        cols["collided"] = pa.array(data.collided)
     return pa.table(cols)
 
 
@@ -789,19 +803,33 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
     succ = data.episode_success
     return {
         "format": FORMAT,
-        "repo_id": REPO_ID,
+        "repo_id": REPO_ID if spec.reach else f"aerohrl/{spec.name}",  # the reach datasets keep their bytes
         "name": spec.name,
         "version": version,
         "generator": {"name": "aerohrl.datagen", "generator_version": GENERATOR_VERSION, "aerohrl_version": AEROHRL_VERSION},
         "spec": spec.to_dict(),
         "spec_sha256": spec_hash(spec),
         "seed": spec.seed,
-        "goal_ranges": {"pos_abs": list(spec.pos_range), "vel": list(spec.vel_range), "acc": list(spec.acc_range), "yaw": 0.0},
+        **(
+            {
+                "goal_ranges": {
+                    "pos_abs": list(spec.pos_range),
+                    "vel": list(spec.vel_range),
+                    "acc": list(spec.acc_range),
+                    "yaw": 0.0,
+                }
+            }
+            if spec.reach
+            else {}
+        ),
         "start_state": (
             "origin, zero velocity, hover attitude (R = I), zero body rates"
-            if spec.start_states == "rest"
+            if spec.start_states == "rest" and (spec.reach or not spec.maze)
+            else "hover (zero velocity, R = I, zero body rates) at a free cell's centre at flight altitude"
+            if spec.maze
             else "perturbed at the origin (recipe.start_states)"
         ),
+        **(data.extra or {}),
         **(
             {
                 "continuations": {
@@ -840,8 +868,23 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
                 if spec.noisy
                 else {}
             ),
+            **(_family_layouts(spec) if not spec.reach else {}),
         },
         "environment": {"python": platform.python_version(), "numpy": np.__version__, "pyarrow": pa.__version__},
+    }
+
+
+def _family_layouts(spec: DatasetSpec) -> dict:
+    """The layout notes that change with a maze or explore family."""
+    if spec.family == "explore":
+        return {
+            "action": "CTBR as flown by the velocity controller following random velocity commands (no expert)",
+            "observation.desired_goal": "[p(3), v(3), R(9)] of the episode's last achieved goal, absolute",
+            "next.done": "last recorded step of the episode (its length, or its first colliding step in a maze)",
+        }
+    return {
+        "observation.desired_goal": "[p(3), 0, 0, 0, I(9)]: hover at the centre of the episode's goal cell, absolute",
+        "next.done": "last recorded step of the episode (the reference's end plus the settle time)",
     }
 
 
@@ -908,7 +951,7 @@ def dataset_card(meta: dict, features: dict | None = None) -> str:
     fill the dtype and shape columns of the feature table."""
     # The card is one of the dataset's files, so its text is part of the version's bytes:
     # it changes only with GENERATOR_VERSION (its module path for read_columns included).
-    s = meta["spec"]
+    intro = _family_intro(meta) if "family" in meta else _reach_intro(meta)
     return (
         f"""---
 license: mit
@@ -917,19 +960,7 @@ tags: [LeRobot, quadrotor, goal-conditioned, offline-rl, aerohrl]
 ---
 # {meta["name"]} — {meta["version"]}
 
-Expert quadrotor trajectories for offline goal-conditioned RL (thesis §3.4.1), generated
-by `aerohrl.datagen` (generator version {meta["generator"]["generator_version"]}). A
-{meta["vehicle"]["name"]} vehicle starts at rest in hover at the origin and flies to each of
-{meta["episodes"]} desired goals (position, velocity, attitude){_continuation_note(meta)} under a minimum-time,
-minimum-jerk reference (|a_i| <= {s["a_max"]} m/s^2, {s["solver"]} solver, degree {s["degree"]})
-tracked by a Lee/Mellinger geometric controller that outputs CTBR actions, recorded at
-{s["fps"]} Hz.
-
-- episodes: {meta["episodes"]}, frames: {meta["frames"]}
-- expert success rate (goal-reached test: 0.15 m, 0.35 m/s, 0.15 rad): {100 * meta["expert_success_rate"]:.1f}%
-- goals resampled for infeasibility: {meta["resampled_goals"]}
-- seed: {meta["seed"]}; goal ranges: |p_i| in {s["pos_range"]} m (random sign), v_i in {s["vel_range"]} m/s, a_i in {s["acc_range"]} m/s^2
-{_recipe_note(meta)}
+{intro}{_recipe_note(meta)}
 ## Load
 ```python
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -951,6 +982,84 @@ SHA-256 of every file; `meta/aerohrl_episodes.parquet` holds per-episode goals,
 durations and expert outcomes. `datagen validate <this folder>` checks integrity.
 """
     )
+
+
+def _reach_intro(meta: dict) -> str:
+    s = meta["spec"]
+    return f"""Expert quadrotor trajectories for offline goal-conditioned RL (thesis §3.4.1), generated
+by `aerohrl.datagen` (generator version {meta["generator"]["generator_version"]}). A
+{meta["vehicle"]["name"]} vehicle starts at rest in hover at the origin and flies to each of
+{meta["episodes"]} desired goals (position, velocity, attitude){_continuation_note(meta)} under a minimum-time,
+minimum-jerk reference (|a_i| <= {s["a_max"]} m/s^2, {s["solver"]} solver, degree {s["degree"]})
+tracked by a Lee/Mellinger geometric controller that outputs CTBR actions, recorded at
+{s["fps"]} Hz.
+
+- episodes: {meta["episodes"]}, frames: {meta["frames"]}
+- expert success rate (goal-reached test: 0.15 m, 0.35 m/s, 0.15 rad): {100 * meta["expert_success_rate"]:.1f}%
+- goals resampled for infeasibility: {meta["resampled_goals"]}
+- seed: {meta["seed"]}; goal ranges: |p_i| in {s["pos_range"]} m (random sign), v_i in {s["vel_range"]} m/s, a_i in {s["acc_range"]} m/s^2
+"""
+
+
+def _family_intro(meta: dict) -> str:
+    """The card's opening for the maze families and exploration (datagen/README.md "Maze families")."""
+    from aerohrl.datagen.spec import RECIPE_DEFAULTS
+
+    s = {**RECIPE_DEFAULTS, **meta["spec"]}  # the spec's dict leaves out settings at their defaults
+    maze = meta.get("maze")
+    where = (
+        f"the {maze['name']} maze ({len(maze['layout'])} x {len(maze['layout'][0])} cells of {maze['cell']} m, "
+        f"ceiling {maze['ceiling']} m, flight altitude {maze['altitude']} m; layout and frozen tasks in `meta/aerohrl.json` "
+        "under `maze`)"
+        if maze
+        else "free space"
+    )
+    head = (
+        f"Quadrotor flights in {where} for offline goal-conditioned RL, generated by `aerohrl.datagen` "
+        f"(generator version {meta['generator']['generator_version']}), family **{meta['family']}**, "
+        f"{meta['vehicle']['name']} vehicle, CTBR actions recorded at {s['fps']} Hz.\n\n"
+    )
+    expert = (
+        "The expert flies the shortest path on the maze's cell graph as rest-to-rest minimum-time minimum-jerk legs "
+        f"between its corners along the corridor centre lines (|a_i| <= {s['a_max']} m/s^2, {s['solver']} solver), "
+        f"chained in time, then hovers {s['settle']} s at the goal; a Lee/Mellinger geometric controller tracks it. "
+        "Each episode starts in hover at its start cell's centre; its desired goal is hover at its goal cell's centre.\n\n"
+    )
+    if meta["family"] == "navigate":
+        body = expert + (
+            f"navigate: long flights between random free cells (path at least {s['min_path']} of the maze's diameter).\n"
+        )
+    elif meta["family"] == "stitch":
+        c = meta["task_coverage"]
+        body = expert + (
+            f"stitch: short hops of {s['hop_cells'][0]}-{s['hop_cells'][1]} cells from random free cells, so that no "
+            "single episode joins a frozen task's start to its goal (a policy must stitch them); fraction of the frozen "
+            f"tasks whose start and then goal one episode passes within {c['tolerance_m']} m of: {c['fraction']}.\n"
+        )
+    else:
+        e = meta["explore"]
+        body = (
+            "explore: not goal-directed. A stabilising velocity controller (the geometric controller with no position "
+            f"term{' but the altitude' if maze else ''}) follows random piecewise-constant velocity commands (speed up to {s['explore_speed']} m/s, "
+            f"each held {s['explore_hold'][0]}-{s['explore_hold'][1]} s) for up to {s['explore_duration']} s"
+            + (
+                ", at the maze's flight altitude; an episode ends at its first colliding step (kept as its last frame)"
+                if maze
+                else ""
+            )
+            + ("" if maze else f" (vertical commands up to {s['explore_climb']} m/s)")
+            + ". `action` is what was flown (there is no `action.expert`); the desired goal is the episode's last "
+            "achieved goal (relabel for other goals)."
+            + (f" Episodes ended by a collision: {e['episodes_ended_by_collision']}." if maze else "")
+            + "\n"
+        )
+    stats = f"\n- episodes: {meta['episodes']}, frames: {meta['frames']}\n"
+    if "expert" in meta:
+        stats += (
+            f"- expert success rate (goal-reached test: 0.15 m, 0.35 m/s, 0.15 rad): {100 * meta['expert_success_rate']:.1f}%; "
+            f"expert collisions: {meta['collisions']}\n"
+        )
+    return head + body + stats + f"- seed: {meta['seed']}\n"
 
 
 def _continuation_note(meta: dict) -> str:

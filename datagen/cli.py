@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 from aerohrl import cli_types as T
 from aerohrl.cli_common import add_common, progress, set_threads
 from aerohrl.errors import ArgumentParser, UserError, run_cli, warn
-from aerohrl.datagen.spec import EXPERTS, SOLVERS, START_STATES, DatasetSpec
+from aerohrl.datagen.spec import EXPERTS, FAMILIES, SOLVERS, START_STATES, WORLDS, DatasetSpec
 
 if TYPE_CHECKING:
     from aerohrl.datagen.dataset import DatasetHandle
@@ -24,7 +24,14 @@ if TYPE_CHECKING:
 PROG = "datagen"
 # the spec fields whose values are a fixed set (DatasetSpec.check), shown and checked by argparse
 # (vehicles: sim/params.py PRESETS, not imported here to keep --help fast; tests/test_cli_vocabulary.py checks them)
-SPEC_CHOICES = {"vehicle": ("hummingbird", "crazyflie"), "solver": SOLVERS, "expert": EXPERTS, "start_states": START_STATES}
+SPEC_CHOICES = {
+    "vehicle": ("hummingbird", "crazyflie"),
+    "solver": SOLVERS,
+    "expert": EXPERTS,
+    "start_states": START_STATES,
+    "world": WORLDS,
+    "family": FAMILIES,
+}
 
 
 def _spec_flags(p: argparse.ArgumentParser) -> None:
@@ -35,7 +42,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
     }
     # parse-time checks (aerohrl.cli_types); ranges are any finite LOW < HIGH (DatasetSpec.check)
     nonneg = {"seed", "continuations"}
-    nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate"}  # 0 switches the part off
+    nonneg_float = {"replan_endgame", "start_vel", "start_tilt", "start_rate", "min_path", "settle", "explore_climb"}  # 0: off
     for f in fields(DatasetSpec):
         if f.name == "seed":  # a common flag (aerohrl.cli_common), added with them
             continue
@@ -46,7 +53,7 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
         elif isinstance(default, tuple):
             p.add_argument(
                 flag,
-                type=T.finite_float,
+                type=T.positive_int if isinstance(default[0], int) else T.finite_float,
                 nargs=2,
                 metavar=("LOW", "HIGH"),
                 default=None,
@@ -152,6 +159,10 @@ def cmd_build(a: argparse.Namespace) -> int:
             f"built {res.path}: {res.episodes} episodes, {res.frames} frames, "
             f"{res.resampled} goals resampled, in {res.seconds:.1f} s"
         )
+    if spec.family == "explore":  # no expert: the desired goal is each episode's last achieved goal
+        print(f"explore: {res.episodes} random-velocity flights (no expert; see the dataset card)")
+        print(res.path)
+        return 0
     print(
         f"expert success rate: {100 * res.expert_success:.1f}% ({round(res.expert_success * res.episodes)}/{res.episodes} "
         "episodes reach the goal: 0.15 m, 0.35 m/s, 0.15 rad)"
@@ -184,7 +195,13 @@ def cmd_info(a: argparse.Namespace) -> int:
         f"dataset      {meta['name']} / {meta['version']}   ({a.path})",
         f"generator    aerohrl.datagen v{meta['generator']['generator_version']} (aerohrl {meta['generator']['aerohrl_version']})",
         f"episodes     {meta['episodes']}   frames {meta['frames']}   fps {s['fps']}   size {sizes / 1e6:.2f} MB",
-        f"goals        seed {meta['seed']}; |p_i| {s['pos_range']} m, v_i {s['vel_range']} m/s, a_i {s['acc_range']} m/s^2; resampled {meta['resampled_goals']}",
+        *(
+            [
+                f"goals        seed {meta['seed']}; |p_i| {s['pos_range']} m, v_i {s['vel_range']} m/s, a_i {s['acc_range']} m/s^2; resampled {meta['resampled_goals']}"
+            ]
+            if "family" not in meta
+            else [_family_line(meta)]
+        ),
         *(
             [
                 f"continuations {meta['continuations']['episodes']} (episodes {meta['continuations']['first_episode']}.."
@@ -195,12 +212,26 @@ def cmd_info(a: argparse.Namespace) -> int:
         ),
         f"reference    degree {s['degree']}, {s['solver']}, a_max {s['a_max']} m/s^2; T min/mean/max {d['min']:.2f}/{d['mean']:.2f}/{d['max']:.2f} s",
         f"vehicle      {meta['vehicle']['name']} (mass {meta['vehicle']['mass']} kg), {s['substeps']} RK4 substeps per step",
-        f"expert       {100 * meta['expert_success_rate']:.1f}% success (goal-reached test 0.15 m, 0.35 m/s, 0.15 rad)",
+        (
+            "expert       none (explore: random velocity commands; the desired goal is each episode's last achieved goal)"
+            if meta.get("family") == "explore"
+            else f"expert       {100 * meta['expert_success_rate']:.1f}% success (goal-reached test 0.15 m, 0.35 m/s, 0.15 rad)"
+        ),
         f"checksums    {len(meta['checksums'])} files, SHA-256: "
         + ("all match" if not problems else f"{len(problems)} PROBLEM(S), run `datagen validate`"),
     ]
     print("\n".join(lines))
     return 0
+
+
+def _family_line(meta: dict) -> str:
+    """``datagen info``'s line for a maze or explore dataset: world, family and what was measured."""
+    parts = [f"world        {meta['world']}, family {meta['family']}, seed {meta['seed']}"]
+    if "collisions" in meta:
+        parts.append(f"collisions {meta['collisions']}")
+    if "task_coverage" in meta:
+        parts.append(f"frozen-task coverage {meta['task_coverage']['fraction']:.2f}")
+    return "; ".join(parts)
 
 
 def cmd_validate(a: argparse.Namespace) -> int:

@@ -99,6 +99,17 @@ class DatasetHandle:
         return self.manifest.get("spec") or {}
 
     @property
+    def world(self) -> str:
+        """The world the flights are in: ``free`` or ``maze-<name>`` (``spec["world"]``; a spec
+        leaves it out at its default, free space)."""
+        return self.spec.get("world", "free")
+
+    @property
+    def maze(self) -> dict | None:
+        """A maze dataset's layout and frozen tasks (:meth:`aerohrl.worlds.maze.Maze.to_dict`), else None."""
+        return self.manifest.get("maze")
+
+    @property
     def checksum(self) -> str | None:
         """The manifest's self-hash: one SHA-256 that changes with any file."""
         return self.manifest.get(_manifest.SELF_HASH_KEY)

@@ -65,6 +65,8 @@ def estimate(spec: DatasetSpec, workers: int = 1) -> Estimate:
     goals) with ``workers`` processes flying the blocks."""
     from aerohrl.datagen.build import ROLLOUT_BLOCK, block_bounds, plan_references
 
+    if not spec.reach:
+        return _estimate_maze(spec)
     n = min(spec.goals, SAMPLE_GOALS)
     _, T, _, _, _ = plan_references(spec, np.random.default_rng([spec.seed, 99]), n)
     steps = np.ceil(T * spec.fps - 1e-9)
@@ -86,6 +88,19 @@ def estimate(spec: DatasetSpec, workers: int = 1) -> Estimate:
             + frames * STATS_BYTES_PER_FRAME
         )
     return Estimate(episodes, frames, frames * DISK_BYTES_PER_FRAME, memory, spill)
+
+
+def _estimate_maze(spec: DatasetSpec) -> Estimate:
+    """The maze families and exploration (datagen/maze_build.py): the episode lengths of a
+    sample of the spec's own episodes (explore: the full flight length, an upper bound);
+    memory is one block of :data:`aerohrl.datagen.maze_build.BLOCK_STEPS` episode-steps."""
+    from aerohrl.datagen import maze_build
+
+    steps = maze_build.plan(spec, min(spec.goals, SAMPLE_GOALS)).length
+    frames = int(round(spec.goals * float(steps.mean())))
+    block = min(maze_build.BLOCK_STEPS, spec.goals * int(steps.max())) * BLOCK_BYTES_PER_EPISODE_STEP
+    memory = MEMORY_BASE + block + spec.goals * EPISODE_BYTES + frames * STATS_BYTES_PER_FRAME
+    return Estimate(spec.goals, frames, frames * DISK_BYTES_PER_FRAME, memory, frames * 4 * SPILL_DIMS)
 
 
 def available_memory() -> float:

@@ -26,6 +26,10 @@ TASK = "Fly the quadrotor from hover at the origin to the desired goal state (po
 SOLVERS = ("closed-form", "qp")
 EXPERTS = ("open-loop", "replan")
 START_STATES = ("rest", "perturbed")
+WORLDS = ("free", "maze-medium", "maze-large", "maze-giant")
+FAMILIES = ("navigate", "stitch", "explore")
+MAZE_TASK = "Fly the quadrotor through the maze from hover at one cell centre to hover at another (the desired goal state)."
+EXPLORE_TASK = "Random-velocity flights (not goal-directed); the desired goal is the episode's last achieved goal."
 # Recipe fields added after datasets were published: left out of the spec's dict (and so
 # of its hash, version name and metadata bytes) while they hold their defaults.
 RECIPE_DEFAULTS = {
@@ -40,6 +44,15 @@ RECIPE_DEFAULTS = {
     "start_tilt": 0.3,
     "start_rate": 1.0,
     "rollouts_per_goal": 1,
+    "world": "free",
+    "family": "navigate",
+    "min_path": 0.5,
+    "hop_cells": (1, 4),
+    "settle": 1.0,
+    "explore_speed": 2.0,
+    "explore_climb": 1.0,
+    "explore_hold": (0.5, 1.0),
+    "explore_duration": 10.0,
 }
 
 
@@ -49,7 +62,7 @@ class DatasetSpec:
     ``datagen build`` flag of the same name and a key of a spec TOML file."""
 
     name: str = param("quadrotor-reach", "dataset name (folder under --out)")
-    goals: int = param(250, "number of desired goals / expert episodes", ge=1)
+    goals: int = param(250, "number of desired goals / expert episodes (maze worlds and explore: episodes)", ge=1)
     seed: int = param(0, "goal and noise seed", ge=0)
     pos_range: tuple[float, float] = param((1.0, 2.0), "|p_i| range per axis, random sign", unit="m", ge=0)
     vel_range: tuple[float, float] = param((-2.5, 2.5), "v_i range", unit="m/s")
@@ -107,11 +120,28 @@ class DatasetSpec:
     start_rate: float = param(1.0, "perturbed: |w_i| bound", unit="rad/s", ge=0, le=5.0)
     # Each goal flown this many times (with noise or perturbed starts, each flight differs).
     rollouts_per_goal: int = param(1, "flights per goal (each with its own noise / start)", ge=1)
+    # Worlds and dataset families (datagen/README.md "Maze families"). In a maze world
+    # ``goals`` counts the episodes; the goal ranges and t_max do not apply there.
+    world: str = param("free", "free (open space, the thesis) | maze-medium | maze-large | maze-giant", choices=WORLDS)
+    family: str = param(
+        "navigate",
+        "navigate (expert flights to goals) | stitch (maze: short expert hops) | explore (random velocity commands)",
+        choices=FAMILIES,
+    )
+    min_path: float = param(0.5, "maze navigate: least start-goal path length, fraction of the maze's diameter", ge=0, le=1)
+    hop_cells: tuple[int, int] = param((1, 4), "stitch: hop length range, cells along the shortest path", unit="cells", ge=1)
+    settle: float = param(1.0, "maze navigate/stitch: hover at the goal after the last leg", unit="s", ge=0)
+    explore_speed: float = param(2.0, "explore: horizontal speed bound of the velocity commands", unit="m/s", gt=0, le=10)
+    explore_climb: float = param(1.0, "free-space explore: vertical speed bound of the velocity commands", unit="m/s", ge=0, le=5)
+    explore_hold: tuple[float, float] = param((0.5, 1.0), "explore: range of each command's hold time", unit="s", gt=0)
+    explore_duration: float = param(10.0, "explore: flight length (a maze flight ends earlier at a collision)", unit="s", gt=0)
 
     def __post_init__(self):
         for f in ("pos_range", "vel_range", "acc_range"):
             object.__setattr__(self, f, tuple(float(x) for x in getattr(self, f)))
         object.__setattr__(self, "action_noise", _four_floats(self.action_noise))
+        object.__setattr__(self, "hop_cells", _pair(self.hop_cells, "hop_cells", int))
+        object.__setattr__(self, "explore_hold", _pair(self.explore_hold, "explore_hold", float))
         self.check()
 
     def check(self) -> None:
@@ -146,6 +176,40 @@ class DatasetSpec:
             raise UserError(
                 "--rollouts-per-goal > 1 repeats identical flights without --action-noise or --start-states perturbed"
             )
+        self._check_family()
+
+    def _check_family(self) -> None:
+        """The world/family combinations that exist, and no free-space-only recipe in them."""
+        if self.family == "stitch" and not self.maze:
+            raise UserError("--family stitch needs a maze world (--world maze-medium | maze-large | maze-giant)")
+        if self.hop_cells[0] > self.hop_cells[1]:
+            raise UserError(f"hop_cells is inverted: {self.hop_cells[0]} .. {self.hop_cells[1]} (need LOW <= HIGH)")
+        if self.explore_hold[0] > self.explore_hold[1]:
+            raise UserError(f"explore_hold is inverted: {self.explore_hold[0]} .. {self.explore_hold[1]} s (need LOW <= HIGH)")
+        if not self.reach:
+            # the continuation, replanning, perturbed-start and repeated-goal recipes are
+            # built on free-space goals from rho_D: they have no meaning between maze cells
+            # or in goal-less exploration
+            what = f"world {self.world}, family {self.family}"
+            for f, bad in (
+                ("continuations", self.continuations > 0),
+                ("expert", self.expert != "open-loop"),
+                ("start_states", self.start_states != "rest"),
+                ("rollouts_per_goal", self.rollouts_per_goal > 1),
+                ("action_noise", self.family == "explore" and self.noisy),
+            ):
+                if bad:
+                    raise UserError(f"--{f.replace('_', '-')} is a free-space reach recipe; it does not apply to {what}")
+
+    @property
+    def maze(self) -> str | None:
+        """The maze's name (``large``) in a maze world, else None."""
+        return self.world.removeprefix("maze-") if self.world != "free" else None
+
+    @property
+    def reach(self) -> bool:
+        """True for the free-space reach datasets of the thesis (world free, family navigate)."""
+        return self.world == "free" and self.family == "navigate"
 
     @property
     def noisy(self) -> bool:
@@ -156,7 +220,7 @@ class DatasetSpec:
         """The spec as a JSON-ready dict (tuples as lists); fields added after datasets were
         published are left out at their defaults, so the hashes of those datasets hold."""
         d = dataclasses.asdict(self)
-        for f in ("pos_range", "vel_range", "acc_range", "action_noise"):
+        for f in ("pos_range", "vel_range", "acc_range", "action_noise", "hop_cells", "explore_hold"):
             d[f] = list(d[f])
         # Fields added after datasets were published are left out at their defaults, so
         # every earlier spec keeps its hash, version name and metadata bytes. A recipe's
@@ -168,6 +232,13 @@ class DatasetSpec:
             "start_vel": self.start_states == "perturbed",
             "start_tilt": self.start_states == "perturbed",
             "start_rate": self.start_states == "perturbed",
+            "min_path": self.maze is not None and self.family == "navigate",
+            "hop_cells": self.family == "stitch",
+            "settle": self.maze is not None and self.family != "explore",
+            "explore_speed": self.family == "explore",
+            "explore_climb": self.family == "explore" and self.maze is None,
+            "explore_hold": self.family == "explore",
+            "explore_duration": self.family == "explore",
         }
         for f, default in RECIPE_DEFAULTS.items():
             if not on.get(f, True) or d[f] == (list(default) if isinstance(default, tuple) else default):
@@ -189,6 +260,16 @@ def _four_floats(x) -> tuple[float, float, float, float]:
         t = (t[0], t[1], t[1], t[1])
     if len(t) != 4:
         raise UserError(f"--action-noise needs 4 numbers (c, wx, wy, wz) or 2 (c, rates), got {list(t)}")
+    return t
+
+
+def _pair(x, name: str, kind: type) -> tuple:
+    try:
+        t = tuple(kind(v) for v in x)
+    except (TypeError, ValueError):
+        raise UserError(f"{name} needs two numbers LOW HIGH, got {x!r}") from None
+    if len(t) != 2:
+        raise UserError(f"{name} needs two numbers LOW HIGH, got {list(t)}")
     return t
 
 

@@ -314,6 +314,18 @@ class BatchedQuadrotor:
         self._run("step_speeds")
         return self.state
 
+    def select(self, rows) -> "BatchedQuadrotor":
+        """A new single-process simulator of the vehicles ``rows`` (index array) with their
+        whole state (pose, velocities, body rates, rotor speeds) copied bit for bit: stepping
+        it gives exactly what stepping them here would. Lets a batch drop finished vehicles."""
+        rows = np.asarray(rows, dtype=np.int64)
+        X = np.concatenate([c.X for c in self._chunks], axis=1)[:, rows]
+        new = BatchedQuadrotor(self.params, len(rows), dt=self.dt, substeps=self.substeps)
+        new._chunks[0].X[:] = X
+        new._chunks[0].cmd[:] = X[dyn.OMEGA]
+        new.t = self.t
+        return new
+
     def close(self) -> None:
         """Stop the worker processes (if any) and free their shared memory; idempotent."""
         for c in self._chunks:

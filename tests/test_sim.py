@@ -274,3 +274,21 @@ def test_process_split_matches_one_process():
         assert not p.is_alive()
     with pytest.raises(ValueError, match="threads or processes"):
         BatchedQuadrotor(HB, n, threads=2, processes=2)
+
+
+def test_select_keeps_a_subset_bit_for_bit():
+    import numpy as np
+
+    from aerohrl.sim import BatchedQuadrotor, get_preset
+
+    rng = np.random.default_rng(0)
+    full = BatchedQuadrotor(get_preset("hummingbird"), 10)
+    u = np.tile([9.81, 0.0, 0.0, 0.0], (10, 1)) + rng.normal(0.0, 1.0, (10, 4))
+    for _ in range(20):
+        full.step(u)
+    rows = np.array([1, 4, 7])
+    part = full.select(rows)
+    for _ in range(20):
+        a, b = full.step(u), part.step(u[rows])
+    np.testing.assert_array_equal(a[rows], b)
+    np.testing.assert_array_equal(full.rotor_speeds[rows], part.rotor_speeds)

@@ -82,26 +82,46 @@ class Maze:
         inside = (r >= 0) & (r < self.shape[0]) & (c >= 0) & (c < self.shape[1])
         return ~inside | self.walls[np.clip(r, 0, self.shape[0] - 1), np.clip(c, 0, self.shape[1] - 1)]
 
+    @functools.cached_property
+    def _neighbour_walls(self) -> np.ndarray:
+        """(rows * cols, 8) per cell (row-major): 0 where its neighbour (W, E, S, N, SW, SE,
+        NW, NE) is a wall or outside the grid, inf where it is free."""
+        rows, cols = self.shape
+        rc = np.stack(np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij"), axis=-1).reshape(-1, 2)
+        offsets = np.array([(0, -1), (0, 1), (-1, 0), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)])  # (dr, dc)
+        wall = self.is_wall(rc[:, None, :] + offsets)
+        return np.where(wall, 0.0, np.inf)
+
+    def _wall_distance_sq(self, p: np.ndarray) -> np.ndarray:
+        """Squared :meth:`wall_distance` (the collision test compares it with radius^2)."""
+        x, y = p[..., 0] / self.cell, p[..., 1] / self.cell
+        c, r = np.floor(x), np.floor(y)
+        rows, cols = self.shape
+        inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+        flat = np.where(inside, r * cols + c, 0).astype(np.int64)
+        solid = ~inside | self.walls.reshape(-1)[flat]  # in a wall cell or outside the grid: distance 0
+        # distances to the four sides of the point's cell, squared; a corner is the sum of two
+        u0, v0 = (x - c) * self.cell, (y - r) * self.cell
+        u1, v1 = self.cell - u0, self.cell - v0
+        u0, u1, v0, v1 = u0 * u0, u1 * u1, v0 * v0, v1 * v1
+        d = np.stack([u0, u1, v0, v1, u0 + v0, u1 + v0, u0 + v1, u1 + v1], axis=-1)
+        return np.where(solid, 0.0, (d + self._neighbour_walls[flat]).min(axis=-1))
+
     def wall_distance(self, p: np.ndarray) -> np.ndarray:
         """(...) horizontal distance (m) from points ``p`` (..., 3) to the nearest wall box.
 
-        Distance to a box ``[lo, hi]``: ``|max(lo - p, 0, p - hi)|`` per axis. Only the 3x3
-        cells around ``p``'s cell are checked: a wall farther away is at least one cell
-        (``cell`` > any radius asked about) away. Inside a wall the distance is 0."""
+        For a point in a free cell only the 8 neighbouring cells can hold the nearest wall (a
+        wall farther away is at least one cell, ``cell`` > any radius asked about, away): a
+        side neighbour's box is as far as the cell's side, a corner neighbour's as the cell's
+        corner. Which neighbours are walls is tabulated per cell once (:attr:`_neighbour_walls`),
+        so a query is a table lookup and eight squared distances. Inside a wall the distance is 0."""
         p = np.asarray(p, dtype=np.float64)
-        rc = self.cell_of(p)
-        nb = rc[..., None, :] + _NEIGHBOURS  # (..., 9, 2)
-        wall = self.is_wall(nb)
-        lo_x, lo_y = nb[..., 1] * self.cell, nb[..., 0] * self.cell
-        dx = np.maximum(np.maximum(lo_x - p[..., None, 0], 0.0), p[..., None, 0] - (lo_x + self.cell))
-        dy = np.maximum(np.maximum(lo_y - p[..., None, 1], 0.0), p[..., None, 1] - (lo_y + self.cell))
-        d = np.where(wall, np.hypot(dx, dy), np.inf)
-        return d.min(axis=-1)
+        return np.sqrt(self._wall_distance_sq(p))
 
     def collides(self, p: np.ndarray, radius: float = VEHICLE_RADIUS) -> np.ndarray:
         """(...) bool: a sphere of ``radius`` at ``p`` (..., 3) touches a wall, the floor or the ceiling."""
         p = np.asarray(p, dtype=np.float64)
-        return (self.wall_distance(p) < radius) | (p[..., 2] < radius) | (p[..., 2] > self.ceiling - radius)
+        return (self._wall_distance_sq(p) < radius * radius) | (p[..., 2] < radius) | (p[..., 2] > self.ceiling - radius)
 
     @functools.cached_property
     def _distances(self) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,191 @@
+"""The maze dataset families (navigate, stitch, explore) and free-space explore: tiny builds
+that validate and load, the maze expert's guarantees, stitch's coverage of the frozen tasks,
+explore's terminal collisions, spec round-trips and one-line errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from aerohrl import task
+from aerohrl.config import ConfigError
+from aerohrl.datagen import maze_expert as mx
+from aerohrl.datagen.build import build
+from aerohrl.datagen.dataset import open_dataset
+from aerohrl.datagen.manifest import read_manifest, validate
+from aerohrl.datagen.spec import DatasetSpec, load_spec, version_name
+from aerohrl.errors import UserError
+from aerohrl.worlds import load_maze
+
+TINY = {
+    "navigate": DatasetSpec(name="m-nav", goals=4, world="maze-medium", family="navigate", action_noise=(1.0, 0.5, 0.5, 0.5)),
+    "stitch": DatasetSpec(name="m-stitch", goals=12, world="maze-medium", family="stitch", action_noise=(1.0, 0.5, 0.5, 0.5)),
+    "explore": DatasetSpec(name="m-explore", goals=6, world="maze-medium", family="explore", explore_duration=3.0),
+    "free-explore": DatasetSpec(
+        name="f-explore", goals=3, family="explore", explore_speed=7.0, explore_climb=2.0, explore_duration=2.0
+    ),
+}
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    out = tmp_path_factory.mktemp("maze")
+    return {k: build(s, out, progress=False, log=lambda _: None) for k, s in TINY.items()}
+
+
+@pytest.mark.parametrize("family", list(TINY))
+def test_each_family_builds_validates_and_loads(built, family):
+    from aerohrl.algorithms.data import load_dataset
+
+    res = built[family]
+    assert validate(res.path) == []
+    ds = open_dataset(res.path)
+    c = ds.columns()
+    assert c["observation.state"].shape == (res.frames, task.STATE_DIM)
+    assert c["observation.desired_goal"].shape == (res.frames, task.GOAL_DIM)
+    assert ("action.expert" in c) == (family in ("navigate", "stitch"))
+    assert ds.world == TINY[family].world == ds.spec.get("world", "free")
+    assert (ds.maze is not None) == (TINY[family].maze is not None)
+    data = load_dataset(res.path)
+    assert len(data) == res.frames and data.info["spec"].get("world", "free") == TINY[family].world
+    assert (data.action_expert is not None) == (family in ("navigate", "stitch"))
+    # transitions chain within episodes; every episode starts in hover
+    ep, s, ns = c["episode_index"], c["observation.state"], c["next.observation.state"]
+    same = ep[1:] == ep[:-1]
+    np.testing.assert_array_equal(ns[:-1][same], s[1:][same])
+    first = s[c["frame_index"] == 0]
+    np.testing.assert_allclose(first[:, 3:6], 0.0, atol=1e-7)
+    np.testing.assert_allclose(first[:, task.ROT], np.broadcast_to(np.eye(3).reshape(9), (len(first), 9)), atol=1e-7)
+
+
+@pytest.mark.parametrize("family", ["navigate", "stitch"])
+def test_expert_flights_are_collision_free_and_reach_hover_at_the_goal(built, family):
+    meta = read_manifest(built[family].path)
+    maze = load_maze("medium")
+    assert meta["collisions"] == 0 and meta["maze"] == maze.to_dict()
+    assert meta["expert"]["success_rate"] == 1.0
+    c = open_dataset(built[family].path).columns()
+    assert not maze.collides(c["next.observation.state"][:, :3].astype(np.float64)).any()
+    g = c["observation.desired_goal"]
+    # the goal is hover at a cell centre: zero velocity, R = I, the centre at flight altitude
+    np.testing.assert_allclose(g[:, 3:6], 0.0)
+    np.testing.assert_allclose(g[:, 2], maze.altitude)
+    np.testing.assert_allclose((g[:, :2] / maze.cell) % 1.0, 0.5, atol=1e-6)
+
+
+def test_stitch_covers_no_frozen_task(built):
+    meta = read_manifest(built["stitch"].path)
+    assert meta["task_coverage"]["fraction"] == 0.0
+    # the test itself: a flight through a task's start and then its goal counts
+    maze = load_maze("medium")
+    (s, g) = maze.tasks[0]
+    path = maze.cell_center(maze.shortest_path(s, g))
+    passes = mx.passes_tasks(maze, path, np.zeros(len(path), np.int64), 1)
+    assert passes[0, 0] and not mx.passes_tasks(maze, path[::-1], np.zeros(len(path), np.int64), 1)[0, 0]
+
+
+def test_explore_episodes_end_at_their_first_collision(built):
+    maze = load_maze("medium")
+    c = open_dataset(built["explore"].path).columns()
+    meta = read_manifest(built["explore"].path)
+    ep = c["episode_index"]
+    hit = maze.collides(c["next.observation.state"][:, :3].astype(np.float64))
+    last = np.r_[ep[1:] != ep[:-1], True]
+    assert not hit[~last].any()  # no colliding step before an episode's last
+    assert hit[last].sum() == meta["explore"]["episodes_ended_by_collision"] == meta["collisions"]
+    full = int(round(TINY["explore"].explore_duration * TINY["explore"].fps))
+    lengths = np.bincount(ep)
+    assert ((lengths == full) | hit[last]).all()
+    # the desired goal is each episode's last achieved goal
+    np.testing.assert_array_equal(c["observation.desired_goal"][last], c["next.observation.state"][last][:, :15])
+
+
+def test_free_space_explore_flies_fast_and_stays_upright(built):
+    c = open_dataset(built["free-explore"].path).columns()
+    s = c["observation.state"]
+    assert np.linalg.norm(s[:, 3:5], axis=1).max() > 3.0
+    assert np.degrees(np.arccos(s[:, 14].min())) < 60.0
+
+
+def test_same_spec_same_bytes(built, tmp_path):
+    res = build(TINY["stitch"], tmp_path, progress=False, log=lambda _: None)
+    assert read_manifest(res.path)["checksums"] == read_manifest(built["stitch"].path)["checksums"]
+
+
+def test_spec_round_trips_through_toml_and_free_space_names_hold(tmp_path):
+    from aerohrl.config import to_toml
+
+    spec = TINY["stitch"]
+    p = tmp_path / "s.toml"
+    p.write_text(to_toml(spec))
+    assert load_spec(p) == spec and version_name(load_spec(p)) == version_name(spec)
+    assert load_spec("datasets/quadrotor-maze-large-stitch.toml").name == "quadrotor-maze-large-stitch"
+    # free-space specs keep their version names (and so their bytes' identity)
+    assert version_name(DatasetSpec()) == "n250-s0-dbb240c0"
+    assert version_name(load_spec(None, goals=25000, action_noise=[1.0, 0.5])) == "n25000-s0-81b96355"
+    assert "world" not in DatasetSpec().to_dict() and "hop_cells" not in DatasetSpec().to_dict()
+    # a family's sub-settings enter the identity only where they apply
+    assert version_name(DatasetSpec(world="maze-large", hop_cells=(2, 3))) == version_name(DatasetSpec(world="maze-large"))
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"world": "maze-tiny"}, "world must be one of"),
+        ({"family": "wander"}, "family must be one of"),
+        ({"family": "stitch"}, "stitch needs a maze world"),
+        ({"world": "maze-medium", "continuations": 5}, "--continuations is a free-space reach recipe"),
+        ({"world": "maze-medium", "expert": "replan"}, "--expert is a free-space reach recipe"),
+        ({"world": "maze-large", "family": "stitch", "hop_cells": (4, 2)}, "hop_cells is inverted"),
+        ({"family": "explore", "action_noise": (1.0, 0.5)}, "--action-noise is a free-space reach recipe"),
+    ],
+)
+def test_bad_inputs_are_one_line_errors(kwargs, message):
+    with pytest.raises((UserError, ConfigError), match=message) as e:
+        DatasetSpec(**kwargs)
+    assert "\n" not in str(e.value)
+
+
+def test_cli_refuses_an_unknown_world_in_one_line():
+    r = subprocess.run(
+        [sys.executable, "-m", "aerohrl.datagen.cli", "build", "--world", "maze-tiny"], capture_output=True, text=True
+    )
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) <= 2 and "maze-tiny" in r.stderr
+
+
+def test_maze_legs_run_along_corridor_centre_lines():
+    maze = load_maze("large")
+    rng = np.random.default_rng(3)
+    s, g = mx.sample_pairs(maze, rng, 20, min_path=0.5)
+    d = maze.distances()[maze.cell_index(s), maze.cell_index(g)]
+    assert (d >= np.ceil(0.5 * maze.distances().max())).all()
+    legs = mx.plan_legs(maze, s, g)
+    T, coeffs = mx.leg_references(legs.a, legs.b, a_max=5.0, solver="closed-form", degree=5, tol=0.02)
+    ref = mx.PiecewiseReference(legs.ep, T, coeffs, len(s))
+    for t in np.linspace(0.0, ref.duration.max() + 1.0, 400):
+        p = ref(t)[0]
+        assert not maze.collides(p).any()
+    end = ref(ref.duration.max() + 1.0)
+    np.testing.assert_allclose(end[0], maze.cell_center(g), atol=1e-9)
+    for x in end[1:]:
+        np.testing.assert_allclose(x, 0.0, atol=1e-9)
+    sh, gh = mx.sample_pairs(maze, rng, 50, hops=(1, 4))
+    hop = maze.distances()[maze.cell_index(sh), maze.cell_index(gh)]
+    assert ((hop >= 1) & (hop <= 4)).all()
+
+
+def test_cli_builds_validates_describes_and_exports_a_maze_dataset(tmp_path):
+    def run(*args):
+        r = subprocess.run([sys.executable, "-m", "aerohrl.datagen.cli", *args], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    out = run("build", "--quiet", "--out", str(tmp_path), "--name", "mz", "--goals", "3", "--world", "maze-medium")
+    path = out.strip().splitlines()[-1]
+    assert run("validate", path).strip().endswith("OK")
+    assert "world        maze-medium, family navigate" in run("info", path)
+    run("export", path, "--format", "ogbench", "--out", str(tmp_path / "mz.npz"))
+    assert (tmp_path / "mz.npz").is_file()
