@@ -343,6 +343,8 @@ def check(cfg: TrainConfig) -> None:
     validate(cfg)
     if not cfg.hidden:
         raise ConfigError("hidden needs at least one layer size")
+    if cfg.algo in GOAL_AGENTS and cfg.gamma >= 1:
+        raise ConfigError(f"{cfg.algo} needs gamma < 1 (its values map to discounted success gamma^steps)")
     for name in GOAL_AGENTS:
         sec = getattr(cfg, name)
         for use in ("value", "actor"):

@@ -58,9 +58,13 @@ def straight_columns(n_eps: int = 4, length: int = 30, seed: int = 0) -> dict:
     return out
 
 
-def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version: str = "synthetic-1", fps: int = 100) -> Path:
+def write_synthetic_dataset(
+    root: str | Path, cols: dict | None = None, version: str = "synthetic-1", fps: int = 100, spec: dict | None = None
+) -> Path:
     """Write ``cols`` (default: :func:`straight_columns`) as a dataset folder the way
-    ``datagen build`` does (LeRobot v3.0 files + meta/aerohrl.json with checksums)."""
+    ``datagen build`` does (LeRobot v3.0 files + meta/aerohrl.json with checksums);
+    ``spec`` adds keys to the manifest's spec (``{"world": "maze"}``: a dataset flown
+    among obstacles, whose policies see the absolute position)."""
     from pathlib import Path
 
     from aerohrl.datagen.dataset import FORMAT
@@ -84,7 +88,7 @@ def write_synthetic_dataset(root: str | Path, cols: dict | None = None, version:
             "format": FORMAT,
             "name": "synthetic",
             "version": version,
-            "spec": {"name": "synthetic", "vehicle": "hummingbird", "fps": fps, "substeps": 5},
+            "spec": {"name": "synthetic", "vehicle": "hummingbird", "fps": fps, "substeps": 5, **(spec or {})},
         },
     )
     return Path(root)
