@@ -58,7 +58,7 @@ class Algorithm(nn.Module):
     critic_loss: nn.Module
 
     @classmethod
-    def sampler_options(cls, cfg) -> dict:
+    def sampler_options(cls, cfg: TrainConfig) -> dict:
         """Extra keyword arguments of :class:`~aerohrl.algorithms.data.GoalBatchSampler`
         this algorithm's batches need (OGBench-style ``goal_mixes``, HIQL's
         ``subgoal_steps``); none for the thesis's four, whose batches stay as they were."""

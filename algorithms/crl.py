@@ -53,6 +53,8 @@ from aerohrl.algorithms.networks import ACT_DIM, frozen, gaussian_log_prob, ln_m
 if TYPE_CHECKING:
     from tensordict import TensorDict
 
+    from aerohrl.algorithms.config import TrainConfig
+
     from aerohrl.algorithms.networks import Normalizer
 
 
@@ -102,7 +104,7 @@ class CRL(Algorithm):
     name = "crl"
 
     @classmethod
-    def sampler_options(cls, cfg) -> dict:
+    def sampler_options(cls, cfg: TrainConfig) -> dict:
         """Critic goals and actor goals from their OGBench mixes (``crl_value_p_*``, ``crl_actor_p_*``)."""
         return {"goal_mixes": {"value": goal_mix(cfg, "value"), "actor": goal_mix(cfg, "actor")}}
 

@@ -64,6 +64,8 @@ from aerohrl.algorithms.networks import (
 if TYPE_CHECKING:
     from tensordict import TensorDict
 
+    from aerohrl.algorithms.config import TrainConfig
+
 AWR_MAX_WEIGHT = 100.0  # OGBench's clip of exp(alpha A)
 
 
@@ -84,7 +86,7 @@ class GCIQL(Algorithm):
     name = "gciql"
 
     @classmethod
-    def sampler_options(cls, cfg) -> dict:
+    def sampler_options(cls, cfg: TrainConfig) -> dict:
         """Value goals and actor goals from their OGBench mixes (``gciql_value_p_*``, ``gciql_actor_p_*``)."""
         return {"goal_mixes": {"value": goal_mix(cfg, "value"), "actor": goal_mix(cfg, "actor")}}
 

@@ -65,6 +65,8 @@ from aerohrl.algorithms.networks import ACT_DIM, gaussian_log_prob, ln_mlp, make
 if TYPE_CHECKING:
     from tensordict import TensorDict
 
+    from aerohrl.algorithms.config import TrainConfig
+
 AWR_MAX_WEIGHT = 100.0  # OGBench's clip of exp(alpha A)
 
 
@@ -131,7 +133,7 @@ class HIQL(Algorithm):
     name = "hiql"
 
     @classmethod
-    def sampler_options(cls, cfg) -> dict:
+    def sampler_options(cls, cfg: TrainConfig) -> dict:
         """Value goals and high-level goals from their OGBench mixes (``hiql_value_p_*``,
         ``hiql_actor_p_*``), the subgoals ``hiql_subgoal_steps`` ahead (the sampler's
         ``"subgoal"`` batch and the actor batch's ``target_*`` keys)."""

@@ -62,6 +62,8 @@ from aerohrl.algorithms.networks import ACT_DIM, frozen, gaussian_log_prob, ln_m
 if TYPE_CHECKING:
     from tensordict import TensorDict
 
+    from aerohrl.algorithms.config import TrainConfig
+
 NEG_SCALE, NEG_OFFSET = 100.0, 5.0  # OGBench's soft push: 100 softplus(5 - d / 100)
 
 
@@ -118,7 +120,7 @@ class QRL(Algorithm):
     name = "qrl"
 
     @classmethod
-    def sampler_options(cls, cfg) -> dict:
+    def sampler_options(cls, cfg: TrainConfig) -> dict:
         """Distance goals and actor goals from their OGBench mixes (``qrl_value_p_*``, ``qrl_actor_p_*``)."""
         return {"goal_mixes": {"value": goal_mix(cfg, "value"), "actor": goal_mix(cfg, "actor")}}
 
