@@ -332,3 +332,18 @@ def test_bad_hyperparameters_are_one_line_errors():
         with pytest.raises(ConfigError, match=msg) as e:
             make_config("cpu", **kw)
         assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("algo", ["hiql", "qrl"])
+def test_eval_and_planner_read_an_agent_run(algo, dataset_dir, tmp_path):
+    """The trainer's closed-loop evaluation, `aerohrl eval` and the planner take these agents'
+    runs as any other (QRL's critics have one row, HIQL's two)."""
+    from aerohrl.cli import main
+
+    torch.set_num_threads(1)
+    cfg = make_config("cpu", algo=algo, dataset=str(dataset_dir), **dict(TINY, eval_every=20, eval_episodes=2, eval_horizon=20))
+    start_run(cfg, tmp_path / "run", progress=False).train()
+    common = ["--run", str(tmp_path / "run"), "--checkpoints", "1", "--quiet"]
+    assert main(["eval", "--task", "reach-desired", "--episodes", "2", *common]) == 0
+    ood = ["--task", "ood", "--episodes", "2", "--horizon", "40", "--candidates", "20", *common]
+    assert main(["eval", *ood, "--planner", "single", "--alpha", "0.5"]) == 0
