@@ -34,7 +34,9 @@ of two points of one space, so states enter through their achieved goal ``[p, v,
 points are expressed in the frame of the transition's state as the toolkit's inputs are:
 ``E`` reads the goal part of ``inputs(s, y)`` (``[p_y - p_s, v_y, R_y]``, plus ``p_s`` in a
 world with obstacles), ``y = `` the state's own achieved goal, the next state's, or a goal.
-Translation invariance makes the frame change harmless.
+:class:`PointEncoder` is linear in ``p_y - p_s``, so a change of reference shifts all
+latents alike and leaves ``d`` unchanged: the distance seen from s and from s' is one
+quasimetric, and the one-step constraints chain into multi-step bounds.
 
 Differences from OGBench: the constants 100 and 5 of the soft push are OGBench's, read
 in steps: at 100 Hz a 500-step (5 s) flight sits where the push flattens, so distances
@@ -84,6 +86,30 @@ def iqe(u: torch.Tensor, v: torch.Tensor, components: int) -> torch.Tensor:
     return (gaps * (coverage[..., :-1] > 0.5).to(gaps.dtype)).sum(-1)
 
 
+class PointEncoder(nn.Module):
+    """``E(y)``: a goal-space point y seen from a reference state s -> latent (D), equivariant
+    to the reference: ``E(y) = h(v_y, R_y[, p_s]) + W (p_y - p_s)`` with h an MLP and W linear.
+    Moving the reference adds the same vector ``-W dp`` to every point's latent, and the
+    quasimetric heads do not see such a shift (MRN: differences only; IQE: W gives every
+    coordinate of a component the same shift, which moves the component's intervals
+    together), so ``d`` is the same from any reference and chains across transitions: the
+    triangle inequality holds between ``d(s, s')`` (seen from s) and ``d(s', g)`` (seen from s').
+    An encoder of ``p_y - p_s`` through the MLP would give each reference its own geometry,
+    and the one-step constraints would bound nothing beyond one step."""
+
+    def __init__(self, goal_dim: int, latent: int, hidden, kind: str, components: int):
+        super().__init__()
+        self.h = ln_mlp(goal_dim - 3, latent, hidden)  # [v_y, R_y] (+ the reference's p in a world with obstacles)
+        self.repeat = latent // components if kind == "iqe" else 1
+        self.w = nn.Linear(3, latent // self.repeat, bias=False)  # one shift per IQE component, per coordinate for MRN
+
+    def forward(self, point: torch.Tensor) -> torch.Tensor:
+        """Latents (B, D) of points given as the goal part of the normalised input (its first
+        3 columns are the standardised ``p_y - p_s``)."""
+        shift = self.w(point[..., :3])
+        return self.h(point[..., 3:]) + shift.repeat_interleave(self.repeat, dim=-1)
+
+
 class Quasimetric(nn.Module):
     """The quasimetric head ``q(u, v)`` on latents (module docstring): IQE with the
     maxmean reduction and a learned mix ``alpha = sigmoid(a)``, or MRN."""
@@ -128,7 +154,7 @@ class QRL(Algorithm):
         super().__init__(cfg, normalizer)
         c = cfg.qrl
         hv, latent = critic_sizes(cfg), c.qrl_latent_dim
-        self.encoder = ln_mlp(normalizer.goal_dim, latent, hv)  # E: goal-space point -> latent
+        self.encoder = PointEncoder(normalizer.goal_dim, latent, hv, c.qrl_quasimetric, c.qrl_components)
         self.head = Quasimetric(c.qrl_quasimetric, c.qrl_components)
         self.dynamics = ln_mlp(latent + ACT_DIM, latent, hv)  # f: z' = z + f(z, a)
         self.log_lambda = nn.Parameter(torch.zeros(()))  # the Lagrange multiplier, lambda = exp(.) (OGBench: 1 at start)
@@ -211,4 +237,4 @@ class QRL(Algorithm):
         return torch.pow(self.cfg.gamma, self.distance(state, goal).float()).unsqueeze(0)
 
 
-__all__ = ["QRL", "QRLConfig", "Quasimetric", "iqe", "qrl_value_loss"]
+__all__ = ["QRL", "QRLConfig", "PointEncoder", "Quasimetric", "iqe", "qrl_value_loss"]

@@ -151,6 +151,22 @@ def test_quasimetric_heads_by_hand():
         assert (h2(x, y) >= 0).all() and (h2(x, z) <= h2(x, y) + h2(y, z) + 1e-5).all()
 
 
+@pytest.mark.parametrize("kind", ["iqe", "mrn"])
+def test_qrl_distance_does_not_depend_on_the_reference(kind):
+    """Moving the reference state (the first 3 input columns, p_y - p_s, of every point
+    alike) leaves d unchanged, so d(s, s') and d(s', g) chain through the triangle inequality."""
+    from aerohrl.algorithms.qrl import PointEncoder
+
+    torch.manual_seed(0)
+    enc, head = PointEncoder(15, 16, (8,), kind, 4), Quasimetric(kind, 4)
+    y1, y2 = torch.randn(64, 15), torch.randn(64, 15)
+    shift = torch.zeros(64, 15)
+    shift[:, :3] = torch.randn(64, 3)
+    with torch.no_grad():
+        assert torch.allclose(head(enc(y1 + shift), enc(y2 + shift)), head(enc(y1), enc(y2)), atol=1e-5)
+        assert not torch.allclose(head(enc(y1 + shift), enc(y2)), head(enc(y1), enc(y2)), atol=1e-3)
+
+
 def test_qrl_objective_by_hand():
     d_neg, d_pos = torch.tensor([0.0, 1000.0]), torch.tensor([0.5, 2.0])
     log_lam = torch.tensor(math.log(2.0), requires_grad=True)
