@@ -14,7 +14,8 @@ One step, all three losses on the same batch, one backward (OGBench's joint upda
 * critics (the same goals): ``L_Q = sum_j E[(Q_j(s, a, g) - (r + gamma mask V(s', g)))^2]``;
 * actor (goals from the ``"actor"`` mix), ``gciql_actor_loss``:
   ``ddpgbc`` (OGBench's default): ``-min_j Q_j(s, pi(s, g), g) / mean|Q| + alpha * (-log N(a; pi(s, g), I))``;
-  ``awr``: ``-E[min(exp(alpha (min_j Q'_j(s, a, g) - V(s, g))), 100) log N(a; pi(s, g), I)]``;
+  ``awr``: ``-E[min(exp(alpha (min_j Q'_j(s, a, g) - V(s, g))), 100) log N(a; pi(s, g), I)]``
+  (the advantage from the target critics, as IQL and torchrl's ``IQLLoss`` take it);
 * target critics: Polyak averaging with ``tau``.
 
 Why not torchrl's ``IQLLoss`` as a whole: it is IQL with an AWR actor only (no DDPG+BC,

@@ -170,7 +170,13 @@ def test_choices_are_shown_and_checked(capsys):
     from aerohrl.algorithms.cli import parser
 
     text = parser().format_help()
-    for choice in ("{gcsl,td3bc,td3awbc,cql,gciql,crl,qrl,hiql}", "{constant,cosine}", "{auto,none,bf16}", "{expert,executed}", "{cpu,thesis}"):
+    for choice in (
+        "{gcsl,td3bc,td3awbc,cql,gciql,crl,qrl,hiql}",
+        "{constant,cosine}",
+        "{auto,none,bf16}",
+        "{expert,executed}",
+        "{cpu,thesis}",
+    ):
         assert choice in text, choice
     with pytest.raises(SystemExit):
         parser().parse_args(["--algo", "sac"])
