@@ -13,7 +13,7 @@ USAGE = """usage: aerohrl COMMAND [ARGS...]
 
 commands:
   datagen   expert quadrotor datasets (build, info, validate, export, push, plot)
-  train     offline goal-conditioned RL on a dataset (gcsl, td3bc, td3awbc, cql)
+  train     offline goal-conditioned RL on a dataset (gcsl, td3bc, td3awbc, cql; OGBench agents gciql, crl, qrl, hiql)
   runs      inspect training runs (runs show RUN)
   ipp       informative path planning on motion primitives (lattice, bench, ...)
   eval      evaluate runs in the simulator (reach-desired, reach-intermediate, ood + planner; table, plot)

@@ -57,6 +57,13 @@ class Algorithm(nn.Module):
     # the TD3BCLoss holding the critic ensemble (see networks.make_critic_loss)
     critic_loss: nn.Module
 
+    @classmethod
+    def sampler_options(cls, cfg: TrainConfig) -> dict:
+        """Extra keyword arguments of :class:`~aerohrl.algorithms.data.GoalBatchSampler`
+        this algorithm's batches need (OGBench-style ``goal_mixes``, HIQL's
+        ``subgoal_steps``); none for the thesis's four, whose batches stay as they were."""
+        return {}
+
     # --- shared -------------------------------------------------------------------
     def setup_ema(self) -> None:
         """With ``cfg.ema_decay > 0``, keep an exponential moving average of the policy's
@@ -117,13 +124,27 @@ class Algorithm(nn.Module):
 
 
 def algorithm_class(name: str) -> type[Algorithm]:
-    """The :class:`Algorithm` subclass named ``name`` (gcsl, td3bc, td3awbc, cql)."""
+    """The :class:`Algorithm` subclass named ``name`` (gcsl, td3bc, td3awbc, cql, gciql, crl, qrl, hiql)."""
     from aerohrl.algorithms.cql import CQL
+    from aerohrl.algorithms.crl import CRL
+    from aerohrl.algorithms.gciql import GCIQL
     from aerohrl.algorithms.gcsl import GCSL
+    from aerohrl.algorithms.hiql import HIQL
+    from aerohrl.algorithms.qrl import QRL
     from aerohrl.algorithms.td3awbc import TD3AWBC
     from aerohrl.algorithms.td3bc import TD3BC
 
-    return {"gcsl": GCSL, "td3bc": TD3BC, "td3awbc": TD3AWBC, "cql": CQL}[name]
+    classes: dict[str, type[Algorithm]] = {
+        "gcsl": GCSL,
+        "td3bc": TD3BC,
+        "td3awbc": TD3AWBC,
+        "cql": CQL,
+        "gciql": GCIQL,
+        "crl": CRL,
+        "qrl": QRL,
+        "hiql": HIQL,
+    }
+    return classes[name]
 
 
 def build_algorithm(cfg: TrainConfig, normalizer: Normalizer) -> Algorithm:
@@ -140,7 +161,7 @@ def load_policy(ckpt_path: str | Path, device: str | torch.device = "cpu", run: 
     ck = run.load_checkpoint(ckpt_path, map_location=device) if run is not None else load_checkpoint(ckpt_path, device)
     try:
         cfg = C.from_dict(ck["config"])
-        algo = build_algorithm(cfg, Normalizer()).to(device)
+        algo = build_algorithm(cfg, Normalizer.for_state_dict(ck["model"])).to(device)
         algo.load_state_dict(ck["model"])
     except (KeyError, RuntimeError, ValueError, TypeError) as e:
         raise UserError(f"checkpoint {ckpt_path} cannot be loaded as a policy: {e}") from None

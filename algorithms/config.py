@@ -8,7 +8,9 @@ allowed values); validation, the ``train`` flags and their help, the TOML of
 - :class:`TrainConfig`: data, optimisation, relabelling, critics and bookkeeping, shared
   by every algorithm;
 - :class:`TD3BCConfig` (``cfg.td3bc``: TD3-BC, and TD3-AWBC's actor-critic part),
-  :class:`TD3AWBCConfig` (``cfg.td3awbc``), :class:`CQLConfig` (``cfg.cql``): each
+  :class:`TD3AWBCConfig` (``cfg.td3awbc``), :class:`CQLConfig` (``cfg.cql``),
+  :class:`GCIQLConfig`, :class:`CRLConfig`, :class:`QRLConfig`, :class:`HIQLConfig`
+  (``cfg.gciql`` ... ``cfg.hiql``, OGBench's reference goal-conditioned agents): each
   algorithm's own settings, re-exported by its module (``aerohrl.algorithms.td3bc``, ...).
   They are declared here rather than in the algorithm modules because those import torch
   and ``train --help`` must not.
@@ -45,7 +47,13 @@ from aerohrl.config import (
 from aerohrl.config import to_toml as _flat_toml
 from aerohrl.hardware import AMP_MODES  # auto | none | bf16
 
-ALGORITHMS = ("gcsl", "td3bc", "td3awbc", "cql")
+# the thesis's four (a 5-critic torchrl ensemble each) and OGBench's reference goal-conditioned agents
+ENSEMBLE_ALGORITHMS = ("gcsl", "td3bc", "td3awbc", "cql")
+GOAL_AGENTS = ("gciql", "crl", "qrl", "hiql")
+ALGORITHMS = ENSEMBLE_ALGORITHMS + GOAL_AGENTS
+GCIQL_ACTOR_LOSSES = ("ddpgbc", "awr")
+CRL_CONTRASTIVE = ("binary", "symmetric")
+QUASIMETRICS = ("iqe", "mrn")
 ALPHA_SCHEDULES = ("constant", "linear")
 AWR_NORMALIZE = ("std", "none")
 LR_SCHEDULES = ("constant", "cosine")
@@ -97,6 +105,96 @@ class CQLConfig:
     cql_num_random: int = param(4, "CQL: random actions per state in the logsumexp", ge=1)
     # "CQL(H) with Lagrange": the penalty weight is tuned so that the gap stays near this
     cql_lagrange_thresh: float = param(0.0, "CQL: Lagrange variant, target gap logsumexp Q - Q_data (0: off)", ge=0)
+
+
+# OGBench's goal sampling (GCDataset): the share of value (critic) and actor goals that are
+# the transition's own achieved goal (curgoal), a later state of its trajectory (trajgoal,
+# geometric with mean 1 / (1 - gamma) when geom_sample, else uniform over the rest of the
+# episode) or a random dataset state (randomgoal); the shares sum to at most 1, the rest
+# keeps the transition's own (desired or relabelled) goal. Each agent's defaults are
+# OGBench's published ones for that agent (relabel.GoalMix has the index convention).
+
+
+@dataclass
+class GCIQLConfig:
+    """GCIQL (OGBench): expectile value V(s, g), twin Q(s, a, g) with targets, actor by DDPG+BC or AWR."""
+
+    gciql_expectile: float = param(0.9, "GCIQL: expectile of the value regression (OGBench 0.9)", gt=0, lt=1)
+    gciql_actor_loss: str = param("ddpgbc", "GCIQL actor: ddpgbc (-Q/mean|Q| + alpha BC) | awr", choices=GCIQL_ACTOR_LOSSES)
+    gciql_alpha: float = param(0.3, "GCIQL: ddpgbc BC weight | awr inverse temperature exp(alpha A) (OGBench 0.3)", ge=0)
+    gciql_value_p_curgoal: float = param(0.2, "GCIQL value goals: share of the transition's own achieved goal", ge=0, le=1)
+    gciql_value_p_trajgoal: float = param(0.5, "GCIQL value goals: share of later states of the trajectory", ge=0, le=1)
+    gciql_value_p_randomgoal: float = param(0.3, "GCIQL value goals: share of random dataset states", ge=0, le=1)
+    gciql_value_geom_sample: bool = param(True, "GCIQL value goals: trajectory offset geometric (mean 1/(1-gamma)), else uniform")
+    gciql_actor_p_curgoal: float = param(0.0, "GCIQL actor goals: share of the transition's own achieved goal", ge=0, le=1)
+    gciql_actor_p_trajgoal: float = param(1.0, "GCIQL actor goals: share of later states of the trajectory", ge=0, le=1)
+    gciql_actor_p_randomgoal: float = param(0.0, "GCIQL actor goals: share of random dataset states", ge=0, le=1)
+    gciql_actor_geom_sample: bool = param(False, "GCIQL actor goals: trajectory offset geometric, else uniform")
+
+
+@dataclass
+class CRLConfig:
+    """CRL (Eysenbach et al. 2022, OGBench's version): contrastive critic phi(s, a) . psi(g), actor by DDPG+BC."""
+
+    crl_alpha: float = param(0.1, "CRL: BC weight of the DDPG+BC actor (OGBench 0.1)", ge=0)
+    # OGBench: 512 with 4 x 512 networks; the cpu preset's critics are 2 x 128
+    crl_latent_dim: int = param(64, "CRL: width of the phi(s, a) and psi(g) representations (OGBench 512)", ge=1)
+    crl_contrastive: str = param(
+        "binary",
+        "CRL critic loss: binary (sigmoid cross-entropy, OGBench) | symmetric (InfoNCE both ways)",
+        choices=CRL_CONTRASTIVE,
+    )
+    crl_value_p_curgoal: float = param(0.0, "CRL critic goals: share of the transition's own achieved goal", ge=0, le=1)
+    crl_value_p_trajgoal: float = param(
+        1.0, "CRL critic goals: share of later states of the trajectory (the positives)", ge=0, le=1
+    )
+    crl_value_p_randomgoal: float = param(0.0, "CRL critic goals: share of random dataset states", ge=0, le=1)
+    crl_value_geom_sample: bool = param(True, "CRL critic goals: trajectory offset geometric (mean 1/(1-gamma)), else uniform")
+    crl_actor_p_curgoal: float = param(0.0, "CRL actor goals: share of the transition's own achieved goal", ge=0, le=1)
+    crl_actor_p_trajgoal: float = param(1.0, "CRL actor goals: share of later states of the trajectory", ge=0, le=1)
+    crl_actor_p_randomgoal: float = param(0.0, "CRL actor goals: share of random dataset states", ge=0, le=1)
+    crl_actor_geom_sample: bool = param(False, "CRL actor goals: trajectory offset geometric, else uniform")
+
+
+@dataclass
+class QRLConfig:
+    """QRL (Wang et al. 2023, OGBench's version): quasimetric distance d(s, g), latent dynamics, DDPG+BC actor."""
+
+    qrl_alpha: float = param(0.003, "QRL: BC weight of the DDPG+BC actor (OGBench 0.003)", ge=0)
+    qrl_quasimetric: str = param("iqe", "QRL distance head: iqe (interval quasimetric embedding) | mrn", choices=QUASIMETRICS)
+    # OGBench: 512 with 4 x 512 networks; the cpu preset's critics are 2 x 128
+    qrl_latent_dim: int = param(64, "QRL: latent width (IQE: components x their size; OGBench 512)", ge=2)
+    qrl_components: int = param(8, "QRL IQE: number of components (divides the latent width; OGBench 8)", ge=1)
+    qrl_eps: float = param(0.05, "QRL: tolerance of the transition constraint E[relu(d(s, s') - 1)^2] <= eps", gt=0)
+    qrl_value_p_curgoal: float = param(0.0, "QRL distance goals: share of the transition's own achieved goal", ge=0, le=1)
+    qrl_value_p_trajgoal: float = param(0.0, "QRL distance goals: share of later states of the trajectory", ge=0, le=1)
+    qrl_value_p_randomgoal: float = param(1.0, "QRL distance goals: share of random dataset states (pushed apart)", ge=0, le=1)
+    qrl_value_geom_sample: bool = param(True, "QRL distance goals: trajectory offset geometric, else uniform")
+    qrl_actor_p_curgoal: float = param(0.0, "QRL actor goals: share of the transition's own achieved goal", ge=0, le=1)
+    qrl_actor_p_trajgoal: float = param(1.0, "QRL actor goals: share of later states of the trajectory", ge=0, le=1)
+    qrl_actor_p_randomgoal: float = param(0.0, "QRL actor goals: share of random dataset states", ge=0, le=1)
+    qrl_actor_geom_sample: bool = param(False, "QRL actor goals: trajectory offset geometric, else uniform")
+
+
+@dataclass
+class HIQLConfig:
+    """HIQL (Park et al. 2023, OGBench's version): value V(s, phi([s, g])), high-level subgoal policy, low-level policy."""
+
+    hiql_expectile: float = param(0.7, "HIQL: expectile of the value regression (OGBench 0.7)", gt=0, lt=1)
+    hiql_low_alpha: float = param(3.0, "HIQL: low-level AWR inverse temperature exp(alpha A) (OGBench 3)", ge=0)
+    hiql_high_alpha: float = param(3.0, "HIQL: high-level AWR inverse temperature (OGBench 3)", ge=0)
+    # OGBench's 25 steps are at 10-50 Hz control; at 100 Hz 25 steps are 0.25 s (see hiql.py)
+    hiql_subgoal_steps: int = param(25, "HIQL: subgoal horizon k (the state k steps ahead)", unit="steps", ge=1)
+    hiql_rep_dim: int = param(10, "HIQL: width of the goal representation phi([s, g]) (OGBench 10)", ge=1)
+    hiql_low_actor_rep_grad: bool = param(False, "HIQL: the low-level actor's loss also trains the goal representation")
+    hiql_value_p_curgoal: float = param(0.2, "HIQL value goals: share of the transition's own achieved goal", ge=0, le=1)
+    hiql_value_p_trajgoal: float = param(0.5, "HIQL value goals: share of later states of the trajectory", ge=0, le=1)
+    hiql_value_p_randomgoal: float = param(0.3, "HIQL value goals: share of random dataset states", ge=0, le=1)
+    hiql_value_geom_sample: bool = param(True, "HIQL value goals: trajectory offset geometric (mean 1/(1-gamma)), else uniform")
+    hiql_actor_p_curgoal: float = param(0.0, "HIQL high-level goals: share of the transition's own achieved goal", ge=0, le=1)
+    hiql_actor_p_trajgoal: float = param(1.0, "HIQL high-level goals: share of later states of the trajectory", ge=0, le=1)
+    hiql_actor_p_randomgoal: float = param(0.0, "HIQL high-level goals: share of random dataset states", ge=0, le=1)
+    hiql_actor_geom_sample: bool = param(False, "HIQL high-level goals: trajectory offset geometric, else uniform")
 
 
 @dataclass
@@ -169,6 +267,10 @@ class TrainConfig:
     td3bc: TD3BCConfig = section(TD3BCConfig, "TD3-BC and TD3-AWBC")
     td3awbc: TD3AWBCConfig = section(TD3AWBCConfig, "TD3-AWBC")
     cql: CQLConfig = section(CQLConfig, "CQL")
+    gciql: GCIQLConfig = section(GCIQLConfig, "GCIQL")
+    crl: CRLConfig = section(CRLConfig, "CRL")
+    qrl: QRLConfig = section(QRLConfig, "QRL")
+    hiql: HIQLConfig = section(HIQLConfig, "HIQL")
     # bookkeeping
     log_every: int = param(200, "metric line every N steps", ge=1)
     # a checkpoint every steps / 30: the last 10 checkpoints are the final third (Table 3.1 protocol)
@@ -241,6 +343,18 @@ def check(cfg: TrainConfig) -> None:
     validate(cfg)
     if not cfg.hidden:
         raise ConfigError("hidden needs at least one layer size")
+    if cfg.algo in GOAL_AGENTS and cfg.gamma >= 1:
+        raise ConfigError(f"{cfg.algo} needs gamma < 1 (its values map to discounted success gamma^steps)")
+    for name in GOAL_AGENTS:
+        sec = getattr(cfg, name)
+        for use in ("value", "actor"):
+            keys = [f"{name}_{use}_p_{src}" for src in ("curgoal", "trajgoal", "randomgoal")]
+            if sum(getattr(sec, k) for k in keys) > 1 + 1e-9:
+                raise ConfigError(f"{' + '.join(keys)} must be at most 1 (the rest keeps the transition's own goal)")
+    if cfg.qrl.qrl_quasimetric == "iqe" and cfg.qrl.qrl_latent_dim % cfg.qrl.qrl_components:
+        raise ConfigError(
+            f"qrl_latent_dim ({cfg.qrl.qrl_latent_dim}) must be a multiple of qrl_components ({cfg.qrl.qrl_components})"
+        )
 
 
 def to_dict(cfg: TrainConfig) -> dict:
@@ -292,6 +406,23 @@ def critic_sizes(cfg: TrainConfig) -> tuple[int, ...]:
     return cfg.critic_hidden or cfg.hidden
 
 
+def goal_mix(cfg: TrainConfig, use: str) -> Any:
+    """The :class:`~aerohrl.algorithms.relabel.GoalMix` of a goal-conditioned agent's
+    ``use`` ("value" or "actor") goals: its ``NAME_USE_p_*`` shares, the geometric mean
+    ``1 / (1 - gamma)`` as OGBench's ``geom_sample`` (``relabel_mean_offset`` when gamma is 1)."""
+    from aerohrl.algorithms.relabel import GoalMix
+
+    sec, n = getattr(cfg, cfg.algo), f"{cfg.algo}_{use}_"
+    mean = 1.0 / (1.0 - cfg.gamma) if cfg.gamma < 1 else cfg.relabel_mean_offset
+    return GoalMix(
+        p_cur=getattr(sec, n + "p_curgoal"),
+        p_traj=getattr(sec, n + "p_trajgoal"),
+        p_rand=getattr(sec, n + "p_randomgoal"),
+        geometric=bool(getattr(sec, n + "geom_sample")),
+        mean=mean,
+    )
+
+
 def relabel_future(cfg: TrainConfig) -> dict:
     """Keyword arguments of ``relabel.sample_future_index`` for this config."""
     return {"strategy": cfg.relabel_offset, "window": cfg.relabel_window, "mean": cfg.relabel_mean_offset}
@@ -302,7 +433,14 @@ __all__ = [
     "TD3BCConfig",
     "TD3AWBCConfig",
     "CQLConfig",
+    "GCIQLConfig",
+    "CRLConfig",
+    "QRLConfig",
+    "HIQLConfig",
     "ALGORITHMS",
+    "ENSEMBLE_ALGORITHMS",
+    "GOAL_AGENTS",
+    "goal_mix",
     "PRESET_DIR",
     "presets",
     "preset_base",

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 from aerohrl.algorithms.config import CQLConfig, critic_sizes
 from aerohrl.algorithms.base import Algorithm
-from aerohrl.algorithms.networks import EnsembleSoftUpdate, ACT_DIM, IN_DIM, make_critic, make_critic_loss, mlp, use_clipped_td0
+from aerohrl.algorithms.networks import EnsembleSoftUpdate, ACT_DIM, make_critic, make_critic_loss, mlp, use_clipped_td0
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -70,7 +70,7 @@ class CQL(Algorithm):
 
     def __init__(self, cfg, normalizer):
         super().__init__(cfg, normalizer)
-        net = nn.Sequential(mlp(IN_DIM, 2 * ACT_DIM, cfg.hidden), NormalParamExtractor())
+        net = nn.Sequential(mlp(normalizer.in_dim, 2 * ACT_DIM, cfg.hidden), NormalParamExtractor())
         params = TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"])
         spec = Bounded(-torch.ones(ACT_DIM), torch.ones(ACT_DIM), (ACT_DIM,))
         self.actor = ProbabilisticActor(
@@ -87,7 +87,7 @@ class CQL(Algorithm):
         )
         self.cql_loss = CQLLoss(
             self.actor,
-            [make_critic(critic_sizes(cfg)) for _ in range(2)],
+            [make_critic(critic_sizes(cfg), normalizer.in_dim) for _ in range(2)],
             loss_function="l2",
             action_spec=spec,
             min_q_weight=cfg.cql.cql_min_q_weight,
@@ -105,6 +105,7 @@ class CQL(Algorithm):
             delay_actor=False,
             policy_noise=0.0,
             noise_clip=0.0,
+            in_dim=normalizer.in_dim,
         )
         self.cql_updater = EnsembleSoftUpdate(self.cql_loss, tau=cfg.tau)
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)

@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from torchrl.data import TensorDictReplayBuffer
 
     from aerohrl.algorithms.networks import Normalizer
+    from aerohrl.algorithms.relabel import GoalMix
 
 REQUIRED = {
     "observation.state": (task.STATE_DIM,),
@@ -224,6 +225,8 @@ class GoalBatchSampler:
         augment: str = "none",
         critic_random_goal_prob: float = 0.0,
         bc_target: str = "expert",
+        goal_mixes: dict[str, GoalMix] | None = None,
+        subgoal_steps: int = 0,
     ):
         from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
@@ -254,6 +257,19 @@ class GoalBatchSampler:
         # clean command the policy imitates, Algorithm.actor_batch); "action" stays the
         # flown one, which the critics learn from
         self.bc_expert = bc_target == "expert" and data.action_expert is not None
+        # OGBench-style goal sampling (the goal-conditioned agents gciql, crl, qrl, hiql):
+        # for each name, the batch also carries a sub-batch td[name] (the same transitions)
+        # whose goals come from the mix's sources (relabel.GoalMix: current, trajectory,
+        # random, keep), with their rewards and done flags, e.g. "value" and "actor"
+        self.goal_mixes = dict(goal_mixes or {})
+        # > 0 (HIQL): every mix sub-batch also carries "target_state", the state
+        # min(t + subgoal_steps, a trajectory goal's step, episode end) ahead (the high
+        # level's target), "target_observation" (that state's input for the mix's goal) and
+        # "subgoal_observation" (the current state's input for the target's achieved goal);
+        # and td["subgoal"] holds the transitions with the achieved goal of the state
+        # min(t + subgoal_steps, episode end) as goal (the low level's)
+        self.subgoal_steps = int(subgoal_steps)
+        self.next_states = data.next_state
 
     def sample(self) -> TensorDict:
         """One training batch: uniform frames with hindsight-relabelled goals and their
@@ -288,6 +304,23 @@ class GoalBatchSampler:
             if "mc_lower_bound" in extra:  # the data's return for a random goal: none observed
                 cextra["mc_lower_bound"] = torch.where(coin.unsqueeze(-1), creward.unsqueeze(-1), extra["mc_lower_bound"])
             critic = (cgoal, creward, cdone, cextra)
+        mixed = {}  # name -> [goal, reward, done, target state or None]
+        if self.goal_mixes or self.subgoal_steps > 0:
+            from aerohrl.algorithms.relabel import GOAL_CUR, GOAL_KEEP, GOAL_TRAJ, sample_goal_index, subgoal_index
+
+            ep_end = b.get("episode_end")
+            sub = subgoal_index(index, ep_end, self.subgoal_steps) if self.subgoal_steps > 0 else None
+            for name, mix in self.goal_mixes.items():
+                kk, src = sample_goal_index(index, ep_end, len(self.achieved_goals), mix, self.generator)
+                mgoal = torch.where((src == GOAL_KEEP).unsqueeze(-1), goal, self.achieved_goals[kk])
+                target = None
+                if sub is not None:  # k steps ahead, but not past a trajectory goal (OGBench's high_traj_target)
+                    along = (src == GOAL_TRAJ) | (src == GOAL_CUR)
+                    target = self.next_states[torch.where(along, torch.minimum(sub, kk), sub)]
+                mixed[name] = [mgoal, *self._reward_done(next_state, mgoal), target]
+            if sub is not None:
+                lgoal = self.achieved_goals[sub]
+                mixed["subgoal"] = [lgoal, *self._reward_done(next_state, lgoal), None]
         action = b.get("action")
         bc_action = b.get("action_expert") if self.bc_expert else None
         if self.augment == "mirror":
@@ -300,6 +333,9 @@ class GoalBatchSampler:
                 bc_action = mirror_action(bc_action, m)
             if critic is not None:
                 critic = (mirror_goal(critic[0], m), *critic[1:])
+            for v in mixed.values():
+                v[0] = mirror_goal(v[0], m)
+                v[3] = None if v[3] is None else mirror_state(v[3], m)
         more = {"index": index, "relabelled": relabelled}
         if bc_action is not None:
             more["bc_action"] = bc_action
@@ -307,6 +343,16 @@ class GoalBatchSampler:
         if critic is not None:
             cgoal, creward, cdone, cextra = critic
             td.set("critic", self._batch(state, action, next_state, cgoal, creward, cdone, cextra, {}))
+        for name, (mgoal, mreward, mdone, target) in mixed.items():
+            mmore = {} if bc_action is None else {"bc_action": bc_action}
+            if target is not None:
+                mmore["target_state"] = target
+            sub_td = self._batch(state, action, next_state, mgoal, mreward, mdone, {}, mmore)
+            if target is not None:
+                ts = sub_td.get("target_state")
+                sub_td.set("target_observation", self.normalizer.inputs(ts, sub_td.get("goal")))
+                sub_td.set("subgoal_observation", self.normalizer.inputs(sub_td.get("state"), task.achieved_goal(ts)))
+            td.set(name, sub_td)
         return td
 
     def _batch(self, state, action, next_state, goal, reward, done, extra: dict, more: dict) -> TensorDict:
@@ -361,16 +407,10 @@ def fit_normalizer(
     if len(data) > NORMALIZER_FRAMES:  # large datasets: the statistics of a seeded subset (bounded memory)
         idx = torch.randperm(len(data), generator=g)[:NORMALIZER_FRAMES].sort().values
     later, _ = relabel_goals(data.goal[idx], idx, data.episode_end[idx], data.achieved_goal, 1.0, g, **(future or {}))
-    norm = Normalizer()
+    norm = Normalizer.for_dataset_spec(data.info.get("spec"))  # 33-d input in a world with obstacles
     state = data.state[idx]
-    o1, r1 = _task_inputs(state, data.goal[idx])
-    o2, r2 = _task_inputs(state, later)
-    x = torch.cat([torch.cat([o1, r1], -1), torch.cat([o2, r2], -1)])
+    x = torch.cat([norm.raw_inputs(state, data.goal[idx]), norm.raw_inputs(state, later)])
     return norm.fit(x, data.bc_actions(bc_target))  # action bounds: every frame (min/max, no copy)
 
 
 NORMALIZER_FRAMES = 4_000_000  # frames the input statistics are fitted on at most
-
-
-def _task_inputs(state, goal):
-    return task.policy_inputs(state, goal)

@@ -32,7 +32,7 @@ class GCSL(Algorithm):
 
     def __init__(self, cfg, normalizer):
         super().__init__(cfg, normalizer)
-        self.actor = make_actor(cfg.hidden)
+        self.actor = make_actor(cfg.hidden, normalizer.in_dim)
         with warnings.catch_warnings():  # torchrl: "target_actor_network_params wasn't part of the annotations"
             warnings.filterwarnings("ignore", message=".*target_actor_network_params.*")
             self.bc_loss = BCLoss(self.actor, loss_function="l2")
@@ -44,6 +44,7 @@ class GCSL(Algorithm):
             delay_actor=False,
             policy_noise=0.0,
             noise_clip=0.0,
+            in_dim=normalizer.in_dim,
         )
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr_actor)

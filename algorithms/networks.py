@@ -3,14 +3,15 @@ ensemble of goal-conditioned critics and the TD3-style clipped critic loss on it
 
 Key names (torchrl conventions, so torchrl's losses read the batches directly):
 ``"observation"`` the normalised 30-d input ``[o(15), relative goal(15)]``
-(:func:`aerohrl.task.policy_inputs`), ``"action"`` the action scaled to ``[-1, 1]``,
+(:func:`aerohrl.task.policy_inputs`; 33-d ``[o, relative goal, p]`` for a dataset flown in
+a world with obstacles, :class:`Normalizer`), ``"action"`` the action scaled to ``[-1, 1]``,
 ``"state_action_value"`` a critic's output, ``("next", ...)`` the next step.
 """
 
 from __future__ import annotations
 
 import warnings
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import torch
 from tensordict import TensorDict
@@ -28,7 +29,8 @@ if TYPE_CHECKING:
 
 quiet_torchrl()  # every algorithm imports this module, right after torchrl
 
-IN_DIM = task.OBS_DIM + task.GOAL_DIM  # 30
+IN_DIM = task.OBS_DIM + task.GOAL_DIM  # 30: the free-space input
+POS_DIM = 3  # the absolute position appended in a world with obstacles
 ACT_DIM = task.ACTION_DIM  # 4
 ACTION_MARGIN = 0.1  # action bounds = data range widened by 10% on each side
 STD_FLOOR = 1e-2
@@ -37,10 +39,18 @@ STD_FLOOR = 1e-2
 class Normalizer(nn.Module):
     """Dataset statistics (saved in every checkpoint through the state dict).
 
-    Inputs: ``(x - mean) / std`` on the translation-invariant 30-d input. Actions: an
-    affine map of the data range (widened by :data:`ACTION_MARGIN`) onto ``[-1, 1]``, so
-    thrust (~10 m/s^2) and rates (~1 rad/s) weigh alike and TD3's/CQL's ``[-1, 1]``
-    bounds, noise and random actions are meaningful.
+    Inputs: ``(x - mean) / std`` on the translation-invariant 30-d input
+    ``x = [o(15), rel(15)] = [v, R, w, p_g - p, v_g, R_g]``. In a world with obstacles (a
+    dataset whose spec names a ``world`` other than ``"free"``) the same place is not the
+    same situation everywhere, so the absolute position ``p`` (3) is appended:
+    ``x = [o, rel, p]`` (33-d, ``absolute_position=True``). The layout is recorded by the
+    length of the ``in_mean``/``in_std`` buffers in the state dict (30 or 33), which is how
+    :meth:`for_state_dict` rebuilds the right size from a checkpoint; a free-space
+    normaliser's state dict is exactly what it was before the layout existed.
+
+    Actions: an affine map of the data range (widened by :data:`ACTION_MARGIN`) onto
+    ``[-1, 1]``, so thrust (~10 m/s^2) and rates (~1 rad/s) weigh alike and TD3's/CQL's
+    ``[-1, 1]`` bounds, noise and random actions are meaningful.
     """
 
     # buffers, registered in __init__ (declared: nn.Module's __getattr__ types them Tensor | Module)
@@ -49,16 +59,54 @@ class Normalizer(nn.Module):
     act_center: torch.Tensor
     act_half: torch.Tensor
 
-    def __init__(self):
+    def __init__(self, absolute_position: bool = False):
         super().__init__()
-        self.register_buffer("in_mean", torch.zeros(IN_DIM))
-        self.register_buffer("in_std", torch.ones(IN_DIM))
+        self.absolute_position = bool(absolute_position)
+        self.in_dim = IN_DIM + (POS_DIM if absolute_position else 0)
+        self.register_buffer("in_mean", torch.zeros(self.in_dim))
+        self.register_buffer("in_std", torch.ones(self.in_dim))
         self.register_buffer("act_center", torch.zeros(ACT_DIM))
         self.register_buffer("act_half", torch.ones(ACT_DIM))
+        # column indices of the normalised input: what describes the state alone ([o] and,
+        # with absolute position, [p]) and what describes the goal relative to it ([rel] and [p])
+        extra = list(range(IN_DIM, self.in_dim))
+        self.state_index = [*range(task.OBS_DIM), *extra]
+        self.goal_index = [*range(task.OBS_DIM, IN_DIM), *extra]
+
+    @staticmethod
+    def for_dataset_spec(spec: dict | None) -> "Normalizer":
+        """An unfitted normaliser with the input layout of a dataset with this spec: the
+        absolute position appended when ``spec["world"]`` names a world other than ``"free"``."""
+        return Normalizer(absolute_position=(spec or {}).get("world", "free") != "free")
+
+    @staticmethod
+    def for_state_dict(state: dict, prefix: str = "normalizer.") -> "Normalizer":
+        """An unfitted normaliser with the input layout of a saved model state dict (the
+        length of its ``in_mean``), to load that state into."""
+        mean = state.get(prefix + "in_mean")
+        return Normalizer(absolute_position=mean is not None and mean.shape[-1] == IN_DIM + POS_DIM)
+
+    @property
+    def state_dim(self) -> int:
+        """Width of :meth:`state_part` (15, or 18 with the absolute position)."""
+        return len(self.state_index)
+
+    @property
+    def goal_dim(self) -> int:
+        """Width of :meth:`goal_part` (15, or 18 with the absolute position)."""
+        return len(self.goal_index)
+
+    def state_part(self, x: torch.Tensor) -> torch.Tensor:
+        """The columns of a normalised input that describe the state alone (``[o]``, plus ``p``)."""
+        return x[..., self.state_index]
+
+    def goal_part(self, x: torch.Tensor) -> torch.Tensor:
+        """The columns of a normalised input that describe the goal relative to the state (``[rel]``, plus ``p``)."""
+        return x[..., self.goal_index]
 
     @torch.no_grad()
     def fit(self, inputs: torch.Tensor, actions: torch.Tensor) -> "Normalizer":
-        """Fit the input mean/std over ``inputs`` (F, 30) and the action bounds over
+        """Fit the input mean/std over ``inputs`` (F, in_dim) and the action bounds over
         ``actions`` (F, 4); returns ``self``."""
         self.in_mean.copy_(inputs.mean(0))
         self.in_std.copy_(inputs.std(0).clamp_min(STD_FLOOR))
@@ -69,11 +117,17 @@ class Normalizer(nn.Module):
         self.act_half.copy_((hi - lo) / 2)
         return self
 
-    def inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        """Standardised network inputs ``([v, R, w], [p_g - p, v_g, R_g])`` (B, 30) from
-        states (B, 18) and goals (B, 15)."""
+    def raw_inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Unnormalised inputs ``[v, R, w, p_g - p, v_g, R_g]`` (B, 30), ``+ [p]`` (B, 33)
+        with the absolute position, from states (B, 18) and goals (B, 15)."""
         o, rel = task.policy_inputs(state, goal)
-        return (torch.cat([o, rel], -1) - self.in_mean) / self.in_std
+        parts = [o, rel, state[..., task.POS]] if self.absolute_position else [o, rel]
+        return torch.cat(parts, -1)
+
+    def inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Standardised network inputs (B, in_dim) from states (B, 18) and goals (B, 15):
+        :meth:`raw_inputs` minus the dataset mean, over the dataset std."""
+        return (self.raw_inputs(state, goal) - self.in_mean) / self.in_std
 
     def action_to_unit(self, a: torch.Tensor) -> torch.Tensor:
         """Physical actions (B, 4) -> [-1, 1] (affine map of the fitted bounds)."""
@@ -89,14 +143,76 @@ def mlp(in_features: int, out_features: int, hidden: Sequence[int]) -> MLP:
     return MLP(in_features=in_features, out_features=out_features, num_cells=list(hidden), activation_class=nn.ReLU)
 
 
-def make_actor(hidden: Sequence[int]) -> TensorDictModule:
-    """Deterministic actor: observation -> tanh(MLP) = action in [-1, 1]."""
-    return TensorDictModule(nn.Sequential(mlp(IN_DIM, ACT_DIM, hidden), nn.Tanh()), in_keys=["observation"], out_keys=["action"])
+def make_actor(hidden: Sequence[int], in_dim: int = IN_DIM) -> TensorDictModule:
+    """Deterministic actor: observation (``in_dim``: the normaliser's) -> tanh(MLP) = action in [-1, 1]."""
+    return TensorDictModule(nn.Sequential(mlp(in_dim, ACT_DIM, hidden), nn.Tanh()), in_keys=["observation"], out_keys=["action"])
 
 
-def make_critic(hidden: Sequence[int]) -> ValueOperator:
+def make_critic(hidden: Sequence[int], in_dim: int = IN_DIM) -> ValueOperator:
     """One goal-conditioned critic Q(o, g, a) (the MLP concatenates its inputs)."""
-    return ValueOperator(mlp(IN_DIM + ACT_DIM, 1, hidden), in_keys=["observation", "action"])
+    return ValueOperator(mlp(in_dim + ACT_DIM, 1, hidden), in_keys=["observation", "action"])
+
+
+# --- pieces of OGBench's goal-conditioned agents (gciql, crl, qrl, hiql) ---------------
+
+
+def ln_mlp(in_features: int, out_features: int, hidden: Sequence[int]) -> MLP:
+    """A ReLU MLP with a LayerNorm on every hidden layer (OGBench's value networks use
+    ``layer_norm=True``; torchrl's MLP puts the norm before the activation, OGBench after)."""
+    return MLP(
+        in_features=in_features,
+        out_features=out_features,
+        num_cells=list(hidden),
+        activation_class=nn.ReLU,
+        norm_class=nn.LayerNorm,
+        norm_kwargs=[{"normalized_shape": h} for h in hidden],
+    )
+
+
+class Twin(nn.Module):
+    """Two independently initialised copies of a network, called together: ``(2, B, ...)``
+    (OGBench's ``ensemble=True`` value and critic heads, whose minimum or mean is taken)."""
+
+    def __init__(self, make: Callable[[], nn.Module]):
+        super().__init__()
+        self.nets = nn.ModuleList([make(), make()])
+
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        """Both networks' outputs on the same inputs, stacked on a leading dimension of 2."""
+        return torch.stack([net(*inputs) for net in self.nets])
+
+
+def frozen(module: nn.Module, *inputs: torch.Tensor) -> torch.Tensor:
+    """``module(*inputs)`` with its parameters detached: gradients reach the inputs only
+    (an actor loss through a critic, which in OGBench's one joint step never moves the
+    critic: the critic's loss owns its parameters)."""
+    params = {k: v.detach() for k, v in module.named_parameters()}
+    return torch.func.functional_call(module, params, inputs)
+
+
+def make_target(module: nn.Module, tau: float) -> nn.Module:
+    """A target network: torch's ``AveragedModel`` of ``module`` with the EMA update
+    ``phi' <- (1 - tau) phi' + tau phi`` (``update_parameters(module)`` after each step;
+    in the state dict). torchrl's ``SoftUpdate`` does the same on a torchrl ``LossModule``'s
+    functional target parameters; these agents' losses are not torchrl losses, so torch's
+    EMA holds their targets, as it holds the policy's EMA."""
+    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+
+    target = AveragedModel(module, multi_avg_fn=get_ema_multi_avg_fn(1.0 - tau))
+    target.requires_grad_(False)
+    return target
+
+
+def gaussian_log_prob(mean: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``log N(x; mean, I)`` summed over the last dimension: the log-likelihood of OGBench's
+    actors with a constant unit std (``const_std=True``), whose BC and AWR terms weigh it."""
+    return torch.distributions.Normal(mean, torch.ones_like(mean)).log_prob(x).sum(-1)
+
+
+def success_value(v: torch.Tensor, gamma: float) -> torch.Tensor:
+    """OGBench-unit value (reward -1 per step, 0 on reaching the goal: ``V = -(1 - gamma^d) / (1 - gamma)``
+    for a goal ``d`` steps away) -> this toolkit's discounted success ``1 + (1 - gamma) V = gamma^d``, clipped to [0, 1]."""
+    return (1.0 + (1.0 - gamma) * v).clamp(0.0, 1.0)
 
 
 class ClippedTD0Estimator(TD0Estimator):
@@ -137,6 +253,7 @@ def make_critic_loss(
     noise_clip: float,
     alpha: float = 2.5,
     loss_cls: type[TD3BCLoss] = TD3BCLoss,
+    in_dim: int = IN_DIM,
 ) -> TD3BCLoss:
     """torchrl's ``TD3BCLoss`` over an ensemble of ``num_critics`` critics, each with its
     own initialisation and target network, targets ``clip(r + gamma (1 - done)
@@ -147,7 +264,7 @@ def make_critic_loss(
     with ``delay_actor=False, policy_noise=0``, the learned policy's own action (Alg. 2,
     used by GCSL and CQL).
     """
-    critics = [make_critic(hidden) for _ in range(num_critics)]
+    critics = [make_critic(hidden, in_dim) for _ in range(num_critics)]
     with warnings.catch_warnings():  # torchrl warns that target_actor_network_params is unannotated when delay_actor=False
         warnings.filterwarnings("ignore", message=".*target_actor_network_params.*")
         loss = _make_td3bc(loss_cls, actor, critics, num_critics, policy_noise, noise_clip, alpha, delay_actor)
@@ -235,7 +352,14 @@ __all__ = [
     "ensemble_values",
     "EnsembleSoftUpdate",
     "mlp",
+    "ln_mlp",
+    "Twin",
+    "frozen",
+    "make_target",
+    "gaussian_log_prob",
+    "success_value",
     "IN_DIM",
+    "POS_DIM",
     "ACT_DIM",
     "TensorDictSequential",
 ]

@@ -18,6 +18,7 @@ per-transition version, which is three tensor ops here.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -89,6 +90,69 @@ def relabel_goals(
     return (new, mask, k) if return_index else (new, mask)
 
 
+@dataclass(frozen=True)
+class GoalMix:
+    """Where a batch's goals come from, OGBench's way (``GCDataset.sample_goals``): with
+    probability ``p_cur`` the transition's own achieved goal (the goal its action reaches:
+    reward 1, done), ``p_traj`` a later achieved goal of the same trajectory
+    (:func:`sample_future_index`: ``geometric`` with mean ``mean`` or uniform over the rest
+    of the episode), ``p_rand`` the achieved goal of a uniformly random dataset frame; the
+    rest of the probability (``1 - p_cur - p_traj - p_rand``, 0 in OGBench's settings)
+    keeps the transition's own goal (its desired goal, or the goal ``relabel_prob``
+    relabelled it with).
+
+    Index convention: OGBench's goal ``obs[idx + m]`` (``m >= 0``; ``m = 0`` its "current
+    goal") is here the achieved goal of step ``j + m - 1``, i.e. the state after step
+    ``j + m - 1``. OGBench's rewards count a goal as reached at the state itself; here,
+    as everywhere in this toolkit, at the transition into it (reward 1 when the next state
+    reaches the goal). So OGBench's current goal (value 0, reached) is this toolkit's
+    achieved goal of step ``j`` (value 1 reached by this action) and its trajectory goals
+    are strictly later steps, the offsets shifted by one."""
+
+    p_cur: float = 0.0
+    p_traj: float = 1.0
+    p_rand: float = 0.0
+    geometric: bool = True
+    mean: float = 100.0  # geometric mean offset: OGBench's 1 / (1 - discount)
+
+
+GOAL_KEEP, GOAL_CUR, GOAL_TRAJ, GOAL_RAND = 0, 1, 2, 3  # the sources of sample_goal_index
+
+
+def sample_goal_index(
+    index: torch.Tensor,
+    episode_end: torch.Tensor,
+    num_frames: int,
+    mix: GoalMix,
+    generator: torch.Generator | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(k, source): per transition ``j`` the frame ``k`` whose achieved goal becomes its
+    goal and the source it came from (``GOAL_CUR``: ``k = j``; ``GOAL_TRAJ``: a later step
+    of the episode, ``j`` itself for an episode's last step; ``GOAL_RAND``: a uniform frame;
+    ``GOAL_KEEP``: ``k = j`` and the goal stays the transition's own). Three draws from
+    ``generator`` (the future offset, the random frame, the source), always in this order."""
+    strategy = "geometric" if mix.geometric else "uniform"
+    traj = sample_future_index(index, episode_end, generator, strategy=strategy, mean=mix.mean)
+    rand = torch.randint(0, num_frames, index.shape, generator=generator, device=index.device)
+    u = torch.rand(index.shape, generator=generator, device=index.device)
+    # u in [0, p_cur): current, [p_cur, p_cur + p_traj): trajectory, then random, then keep
+    c1, c2, c3 = mix.p_cur, mix.p_cur + mix.p_traj, mix.p_cur + mix.p_traj + mix.p_rand
+    source = torch.full_like(index, GOAL_KEEP)
+    source = torch.where(u < c3, torch.full_like(index, GOAL_RAND), source)
+    source = torch.where(u < c2, torch.full_like(index, GOAL_TRAJ), source)
+    source = torch.where(u < c1, torch.full_like(index, GOAL_CUR), source)
+    k = torch.where(source == GOAL_TRAJ, traj, index)
+    k = torch.where(source == GOAL_RAND, rand, k)
+    return k, source
+
+
+def subgoal_index(index: torch.Tensor, episode_end: torch.Tensor, steps: int) -> torch.Tensor:
+    """The frame whose next state is the state ``steps`` steps after step ``j``'s state:
+    ``min(j + steps - 1, end)`` (HIQL's ``min(idx + subgoal_steps, final_state_idx)`` in
+    this toolkit's convention, where frame ``k`` holds the state after it as ``next_state``)."""
+    return torch.minimum(index + max(int(steps), 1) - 1, episode_end)
+
+
 def first_hit_index(next_state: torch.Tensor, goal: torch.Tensor, episode_end: torch.Tensor) -> torch.Tensor:
     """For every frame ``j``: the first step ``t >= j`` of its episode whose achieved goal
     reaches the frame's own goal (the episode's desired goal), or -1 when none does.
@@ -122,4 +186,18 @@ def reward_done(next_state: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Ten
     return reached.to(next_state.dtype), reached
 
 
-__all__ = ["FUTURE_STRATEGIES", "sample_future_index", "relabel_goals", "first_hit_index", "mc_lower_bound", "reward_done"]
+__all__ = [
+    "GoalMix",
+    "sample_goal_index",
+    "subgoal_index",
+    "GOAL_KEEP",
+    "GOAL_CUR",
+    "GOAL_TRAJ",
+    "GOAL_RAND",
+    "FUTURE_STRATEGIES",
+    "sample_future_index",
+    "relabel_goals",
+    "first_hit_index",
+    "mc_lower_bound",
+    "reward_done",
+]

@@ -63,7 +63,8 @@ def write_synthetic_dataset(
 ) -> Path:
     """Write ``cols`` (default: :func:`straight_columns`) as a dataset folder the way
     ``datagen build`` does (LeRobot v3.0 files + meta/aerohrl.json with checksums);
-    ``spec`` adds fields to the recorded spec (``{"world": "maze-medium"}``)."""
+    ``spec`` adds fields to the recorded spec (``{"world": "maze-medium"}``: a dataset flown
+    in a maze, whose policies see the absolute position)."""
     from pathlib import Path
 
     from aerohrl.datagen.dataset import FORMAT

@@ -98,6 +98,7 @@ class TD3AWBC(TD3BC):
             noise_clip=cfg.td3bc.noise_clip,
             alpha=cfg.td3bc.alpha,
             loss_cls=TD3AWBCLoss,
+            in_dim=self.normalizer.in_dim,
         )
         loss.awr_temperature = cfg.td3awbc.awr_temperature
         loss.awr_max_weight = cfg.td3awbc.awr_max_weight

@@ -44,11 +44,12 @@ class TD3BC(Algorithm):
             policy_noise=cfg.td3bc.policy_noise,
             noise_clip=cfg.td3bc.noise_clip,
             alpha=cfg.td3bc.alpha,
+            in_dim=self.normalizer.in_dim,
         )
 
     def __init__(self, cfg, normalizer):
         super().__init__(cfg, normalizer)
-        self.actor = make_actor(cfg.hidden)
+        self.actor = make_actor(cfg.hidden, normalizer.in_dim)
         self.critic_loss = self._make_loss(cfg, self.actor)
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
         self.actor_opt = torch.optim.Adam(self.critic_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)

@@ -22,7 +22,7 @@ from typing import Any, Callable
 import torch
 
 from aerohrl.algorithms import config as C
-from aerohrl.algorithms.base import Algorithm, build_algorithm
+from aerohrl.algorithms.base import Algorithm, algorithm_class, build_algorithm
 from aerohrl.algorithms.data import Dataset, GoalBatchSampler, fit_normalizer, load_dataset
 from aerohrl.algorithms.networks import Normalizer
 from aerohrl.algorithms.run import (
@@ -116,6 +116,7 @@ class Trainer:
             augment=cfg.augment,
             critic_random_goal_prob=cfg.critic_random_goal_prob,
             bc_target=cfg.bc_target,
+            **algorithm_class(cfg.algo).sampler_options(cfg),
         )
         if ckpts:
             set_rng_state(self._pending_rng, {"sampler": self.generator})
@@ -147,7 +148,7 @@ class Trainer:
         check_same_dataset(ck["dataset"], self.data)
         self.dataset = ck["dataset"]
         self.generator = torch.Generator()
-        self.algo = build_algorithm(self.cfg, Normalizer()).to(self.device)
+        self.algo = build_algorithm(self.cfg, Normalizer.for_state_dict(ck["model"])).to(self.device)
         try:
             self.algo.load_state_dict(ck["model"])
             for name, opt in self.algo.optimizers().items():

@@ -45,7 +45,7 @@ logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 
 def main(argv=None) -> int:
-    from aerohrl.algorithms.base import build_algorithm
+    from aerohrl.algorithms.base import algorithm_class, build_algorithm
     from aerohrl.algorithms.config import ALGORITHMS, make_config
     from aerohrl.algorithms.data import GoalBatchSampler, fit_normalizer, load_dataset
     from aerohrl.algorithms.synthetic import straight_columns
@@ -110,7 +110,15 @@ def main(argv=None) -> int:
         torch.manual_seed(0)
         norm = fit_normalizer(data, cfg.relabel_prob)
         alg = build_algorithm(cfg, norm).to(device)
-        s = GoalBatchSampler(data, norm, cfg.batch_size, cfg.relabel_prob, torch.Generator().manual_seed(0), device=device)
+        s = GoalBatchSampler(
+            data,
+            norm,
+            cfg.batch_size,
+            cfg.relabel_prob,
+            torch.Generator().manual_seed(0),
+            device=device,
+            **algorithm_class(algo).sampler_options(cfg),
+        )
         batches = [s.sample() for _ in range(a.steps)]
         t = time.perf_counter()
         for _ in range(a.steps):
@@ -154,7 +162,7 @@ def flops(a, device) -> int:
     """FLOPs and aten operators of one update per algorithm (after 3 warm-up updates)."""
     from torch.profiler import ProfilerActivity, profile
 
-    from aerohrl.algorithms.base import build_algorithm
+    from aerohrl.algorithms.base import algorithm_class, build_algorithm
     from aerohrl.algorithms.config import make_config
     from aerohrl.algorithms.data import GoalBatchSampler, fit_normalizer, load_dataset
     from aerohrl.algorithms.synthetic import straight_columns
@@ -166,7 +174,15 @@ def flops(a, device) -> int:
         cfg = make_config(a.preset, algo=algo, amp=a.amp)
         norm = fit_normalizer(data, cfg.relabel_prob)
         alg = build_algorithm(cfg, norm).to(device)
-        s = GoalBatchSampler(data, norm, cfg.batch_size, cfg.relabel_prob, torch.Generator().manual_seed(0), device=device)
+        s = GoalBatchSampler(
+            data,
+            norm,
+            cfg.batch_size,
+            cfg.relabel_prob,
+            torch.Generator().manual_seed(0),
+            device=device,
+            **algorithm_class(algo).sampler_options(cfg),
+        )
         from aerohrl.hardware import resolve_amp
 
         amp = torch.autocast(device.type, dtype=torch.bfloat16, enabled=resolve_amp(cfg.amp, device)[0] == "bf16")

@@ -5,8 +5,8 @@ import warnings
 import pytest
 import torch
 
-from aerohrl.algorithms.base import build_algorithm
-from aerohrl.algorithms.config import ALGORITHMS, make_config
+from aerohrl.algorithms.base import algorithm_class, build_algorithm
+from aerohrl.algorithms.config import ALGORITHMS, ENSEMBLE_ALGORITHMS, make_config
 from aerohrl.algorithms.data import GoalBatchSampler, fit_normalizer, load_dataset
 from aerohrl.algorithms.networks import ClippedTD0Estimator, ensemble_values
 from aerohrl.algorithms.synthetic import straight_columns
@@ -25,11 +25,18 @@ def _build(algo, data, **kw):
     cfg = make_config("cpu", algo=algo, hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, **kw)
     norm = fit_normalizer(data, cfg.relabel_prob)
     a = build_algorithm(cfg, norm)
-    s = GoalBatchSampler(data, norm, cfg.batch_size, cfg.relabel_prob, torch.Generator().manual_seed(0))
+    s = GoalBatchSampler(
+        data,
+        norm,
+        cfg.batch_size,
+        cfg.relabel_prob,
+        torch.Generator().manual_seed(0),
+        **algorithm_class(algo).sampler_options(cfg),
+    )
     return a, s
 
 
-@pytest.mark.parametrize("algo", ALGORITHMS)
+@pytest.mark.parametrize("algo", ENSEMBLE_ALGORITHMS)  # the 5-critic torchrl ensemble; tests/test_agents.py: the OGBench agents
 def test_update_act_critics(algo, data):
     torch.set_num_threads(1)
     a, s = _build(algo, data)
@@ -104,7 +111,7 @@ def test_gcsl_policy_fits_the_data(data):
 
 
 def test_unknown_algorithm_and_preset():
-    with pytest.raises(UserError, match="algo must be one of gcsl, td3bc, td3awbc, cql, got 'ppo'"):
+    with pytest.raises(UserError, match="algo must be one of gcsl, td3bc, td3awbc, cql, gciql, crl, qrl, hiql, got 'ppo'"):
         make_config("cpu", algo="ppo")
     with pytest.raises(UserError, match="unknown preset"):
         make_config("gpu")

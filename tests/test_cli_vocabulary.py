@@ -170,7 +170,13 @@ def test_choices_are_shown_and_checked(capsys):
     from aerohrl.algorithms.cli import parser
 
     text = parser().format_help()
-    for choice in ("{gcsl,td3bc,td3awbc,cql}", "{constant,cosine}", "{auto,none,bf16}", "{expert,executed}", "{cpu,thesis}"):
+    for choice in (
+        "{gcsl,td3bc,td3awbc,cql,gciql,crl,qrl,hiql}",
+        "{constant,cosine}",
+        "{auto,none,bf16}",
+        "{expert,executed}",
+        "{cpu,thesis}",
+    ):
         assert choice in text, choice
     with pytest.raises(SystemExit):
         parser().parse_args(["--algo", "sac"])
@@ -314,7 +320,7 @@ def test_config_file_may_be_partial(tmp_path):
         ('steps = "many"\n', "steps must be an integer"),
         ('hidden = [64, "x"]\n', "hidden must be a list of integers"),
         ('algo = "gcsl"\nsteps = \n', "is not valid TOML"),
-        ('algo = "sac"\ndataset = "d"\n', "algo must be one of gcsl, td3bc, td3awbc, cql, got 'sac'"),
+        ('algo = "sac"\ndataset = "d"\n', "algo must be one of gcsl, td3bc, td3awbc, cql, gciql, crl, qrl, hiql, got 'sac'"),
     ],
 )
 def test_bad_config_file_is_one_line(tmp_path, capsys, text, match):

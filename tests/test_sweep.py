@@ -85,7 +85,7 @@ def test_bad_inputs_are_one_line_errors(dataset_dir, tmp_path, capsys):
         (["--grid", "batch_sz=32,64"], "unknown grid key 'batch_sz'"),
         (["--set", "learning=3"], "unknown grid key 'learning'"),
         (["--grid", "seed=1,2"], "the seed is an axis of the sweep"),
-        (["--algos", "ppo"], "algos must be one of gcsl, td3bc, td3awbc, cql, got 'ppo'"),
+        (["--algos", "ppo"], "algos must be one of gcsl, td3bc, td3awbc, cql, gciql, crl, qrl, hiql, got 'ppo'"),
         (["--datasets", str(tmp_path / "none")], "no dataset at"),
         (["--set", "steps=0"], "steps"),
         (["--tasks", "fly"], "unknown evaluation task 'fly'"),

@@ -13,7 +13,7 @@ import torch
 
 from aerohrl import runs
 from aerohrl.algorithms import cli
-from aerohrl.algorithms.config import ALGORITHMS, make_config
+from aerohrl.algorithms.config import ENSEMBLE_ALGORITHMS, make_config
 from aerohrl.algorithms.data import load_dataset
 from aerohrl.algorithms.synthetic import straight_columns
 from aerohrl.algorithms.run import Run, load_checkpoint, read_metrics
@@ -37,8 +37,8 @@ def _same(a, b):
 
 @pytest.mark.parametrize(
     "algo,extra",
-    [(a, {}) for a in ALGORITHMS]
-    + [(a, {"ema_decay": 0.9, "mc_lower_bound": True, "amp": "bf16"}) for a in ALGORITHMS]
+    [(a, {}) for a in ENSEMBLE_ALGORITHMS]  # the OGBench agents: tests/test_agents.py
+    + [(a, {"ema_decay": 0.9, "mc_lower_bound": True, "amp": "bf16"}) for a in ENSEMBLE_ALGORITHMS]
     + [(a, {"critic_random_goal_prob": 0.3}) for a in ("gcsl", "td3bc")],
 )
 def test_resume_gives_same_weights(algo, extra, data, tmp_path):
