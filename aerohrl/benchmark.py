@@ -83,6 +83,7 @@ class SuiteSpec:
     preset: str = K.param("cpu", "train preset of every run")
     steps: int = K.param(0, "gradient steps per run (0: the size's)", ge=0)
     eval_episodes: int = K.param(0, "evaluation episodes per task (0: the size's)", ge=0)
+    set: dict = K.param({}, "train settings of every run (setting -> value) over the preset and the size")
 
 
 def with_size_defaults(sp: SuiteSpec) -> SuiteSpec:
@@ -158,8 +159,11 @@ class SuiteRun:
         return f"{self.algo}-{self.dataset.replace('@', '-n')}-s{self.seed}"
 
 
-def build_datasets(sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print) -> dict[str, tuple[str, str]]:
-    """Every dataset of the suite built (or verified) under ``root``: name -> (folder, world)."""
+def build_datasets(
+    sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print, specs: Path = Path("datasets")
+) -> dict[str, tuple[str, str]]:
+    """Every dataset of the suite (spec files in ``specs``) built (or verified) under ``root``:
+    name -> (folder, world)."""
     from aerohrl.datagen.build import build
     from aerohrl.datagen.spec import load_spec
 
@@ -167,7 +171,7 @@ def build_datasets(sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print)
     out = {}
     for name in sp.datasets:
         base, episodes = split_dataset(name)
-        spec = load_spec(spec_path(base))
+        spec = load_spec(spec_path(base, specs))
         if episodes or size.episodes:
             spec = dataclasses.replace(spec, goals=episodes or min(spec.goals, size.episodes))
         res = build(spec, root, progress=False, log=log)
@@ -187,15 +191,21 @@ def run_config(sp: SuiteSpec, r: SuiteRun) -> dict:
     from aerohrl.algorithms import config as C
 
     steps = sp.steps or SIZES[sp.size].steps
+    for k in sp.set:
+        if k in ("algo", "dataset", "seed", "preset"):
+            raise UserError(f"--set {k}: the {k} is an axis of the suite")
     cfg = C.make_config(
         sp.preset,
-        algo=r.algo,
-        dataset=r.path,
-        seed=r.seed,
-        steps=steps,
-        eval_every=0,
-        checkpoint_every=max(1, steps // 10),
-        keep_checkpoints=2,
+        **{
+            "eval_every": 0,
+            "steps": steps,
+            "checkpoint_every": max(1, steps // 10),
+            "keep_checkpoints": 2,
+            **sp.set,
+            "algo": r.algo,
+            "dataset": r.path,
+            "seed": r.seed,
+        },
     )
     return C.to_dict(cfg)
 
@@ -219,14 +229,24 @@ def eval_run(run_dir: str, entries: list[list[str]], episodes: int, threads: int
     return {"run": run_dir, "evaluated": done}
 
 
-def run_suite(sp: SuiteSpec, out: Path, *, num_cpus: int | None = None, address: str | None = None, log=print) -> list[dict]:
-    """Build, train and evaluate the suite into ``out``; write the leaderboard; returns it."""
+def run_suite(
+    sp: SuiteSpec,
+    out: Path,
+    *,
+    num_cpus: int | None = None,
+    address: str | None = None,
+    log=print,
+    specs: Path = Path("datasets"),
+    data: Path = Path("datasets"),
+) -> list[dict]:
+    """Build (spec files in ``specs``, data under ``data``), train and evaluate the suite into
+    ``out``; write the leaderboard; returns it."""
     from aerohrl.cluster import ray_connect
     from aerohrl.sweep import train_on_ray
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    datasets = build_datasets(sp, Path("datasets"), log=log)
+    datasets = build_datasets(sp, data, log=log, specs=specs)
     runs = suite_runs(sp, datasets)
     episodes = sp.eval_episodes or SIZES[sp.size].eval_episodes
     entries: dict[str, list[list[str]]] = {}
@@ -367,21 +387,27 @@ def parser() -> ArgumentParser:
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
     s = sub.add_parser("suite", help="train and evaluate agents x datasets x seeds; write the leaderboard")
     s.add_argument("--config", type=Path, default=None, help="a suite TOML (its keys are these flags); flags override it")
-    K.add_flags(s, SuiteSpec)
+    K.add_flags(s, SuiteSpec, skip=("set",))
+    s.add_argument(
+        "--set", nargs="+", default=[], metavar="KEY=VALUE", help="a train setting of every run (train's flags with _)"
+    )
+    s.add_argument("--specs", type=Path, default=Path("datasets"), help="folder of the dataset spec files [datasets]")
+    s.add_argument("--data", type=Path, default=Path("datasets"), help="folder the datasets are built in [datasets]")
     s.add_argument("--num-cpus", type=T.positive_int, default=None, help="cores of the local Ray [all]")
     s.add_argument("--address", default=None, help="join the Ray cluster at HOST:PORT instead of a local one")
     add_common(s, out={"required": True, "help": "suite folder (runs, leaderboard)"})
-    sub.add_parser("list", help="the suite's datasets (spec files), their tasks, and the agents")
+    ls = sub.add_parser("list", help="the suite's datasets (spec files), their tasks, and the agents")
+    ls.add_argument("--specs", type=Path, default=Path("datasets"), help="folder of the dataset spec files [datasets]")
     return ap
 
 
-def cmd_list() -> int:
+def cmd_list(specs: Path = Path("datasets")) -> int:
     """``aerohrl bench list``: what the suite can run."""
     from aerohrl.algorithms.config import ALGORITHMS
     from aerohrl.datagen.spec import load_spec
 
-    print("datasets (datasets/<name>.toml) and their tasks:")
-    for p in sorted(Path("datasets").glob("quadrotor-*.toml")):
+    print(f"datasets ({specs}/<name>.toml) and their tasks:")
+    for p in sorted(specs.glob("quadrotor-*.toml")):
         world = dataset_world(load_spec(p))
         print(f"  {p.stem:36s} {world:12s} {' '.join(tasks_for(world))}")
     print("agents: " + " ".join([*ALGORITHMS, *(a + PLANNER_SUFFIX for a in ALGORITHMS)]))
@@ -394,15 +420,27 @@ def main(argv: list[str] | None = None) -> int:
 
     def go() -> int:
         if a.cmd == "list":
-            return cmd_list()
+            return cmd_list(a.specs)
         d: dict = K.load_toml(a.config) if a.config else {}
-        d.update(K.given_flags(a, SuiteSpec))
+        d.update(K.given_flags(a, SuiteSpec, skip=("set",)))
+        if a.set:
+            from aerohrl.sweep import key_values
+
+            d["set"] = {**d.get("set", {}), **key_values(a.set, "--set", False)}
         sp = with_size_defaults(K.from_mapping(SuiteSpec, d, where=str(a.config or "the suite")))
         for agent in sp.agents:
             split_agent(agent)
         for name in sp.datasets:
-            spec_path(split_dataset(name)[0])
-        board = run_suite(sp, a.out, num_cpus=a.num_cpus, address=a.address, log=lambda m: print(m, file=sys.stderr, flush=True))
+            spec_path(split_dataset(name)[0], a.specs)
+        board = run_suite(
+            sp,
+            a.out,
+            num_cpus=a.num_cpus,
+            address=a.address,
+            log=lambda m: print(m, file=sys.stderr, flush=True),
+            specs=a.specs,
+            data=a.data,
+        )
         print((Path(a.out) / "leaderboard.md").read_text(), end="")
         print(f"leaderboard: {a.out}/leaderboard.md, .csv, .png ({len(board)} rows)", file=sys.stderr)
         return 0

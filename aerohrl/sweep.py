@@ -103,7 +103,8 @@ def _parse_value(text: str):
         return text
 
 
-def _key_values(items: list[str], flag: str, many: bool) -> dict:
+def key_values(items: list[str], flag: str, many: bool) -> dict:
+    """``KEY=VALUE`` flags (``many``: ``KEY=V1,V2``) as a dict, keys with ``_`` for ``-``; UserError on a malformed item."""
     out = {}
     for it in items or []:
         key, eq, val = it.partition("=")
@@ -189,8 +190,8 @@ def load_spec(path: Path | None, a: argparse.Namespace) -> SweepSpec:
         d["episodes"] = a.episodes
     if a.checkpoints:
         d["checkpoints"] = a.checkpoints
-    d["set"] = {**d.get("set", {}), **_key_values(a.set, "--set", False)}
-    d["grid"] = {**d.get("grid", {}), **_key_values(a.grid, "--grid", True)}
+    d["set"] = {**d.get("set", {}), **key_values(a.set, "--set", False)}
+    d["grid"] = {**d.get("grid", {}), **key_values(a.grid, "--grid", True)}
     if a.device:
         d["set"]["device"] = a.device
     sp = K.from_mapping(SweepSpec, d, where=where, check=False, hint="a run override goes under [set] or [grid]")
