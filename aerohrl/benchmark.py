@@ -38,13 +38,17 @@ from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl bench"
 PLANNER_SUFFIX = "+planner"
-# the planner an ALGO+planner agent evaluates with: Eq. 3.6 solved exactly over the candidates
-# (planning/graph.py), re-planned from the flown state at every intermediate goal reached
-PLANNER_ARGS = ("--planner", "graph")
+# The planner an ALGO+planner agent evaluates with. In a maze: Eq. 3.6 solved exactly over
+# the free cells' centres (planning/graph.py), legs only between adjacent cells (a connection
+# radius of 1.25 cells, below a cell's diagonal: no leg crosses a wall) and never to the cell
+# the vehicle sits in (half a cell), re-planned at every intermediate goal reached. In free
+# space: the thesis's multi-waypoint plan (Eq. 3.6) with the declining chain.
+MAZE_PLANNER_ARGS = ("--planner", "graph", "--max-edge", "2.5", "--min-leg", "1")
+FREE_PLANNER_ARGS = ("--planner", "multi", "--decline-margin", "0")
 FREE_TASKS = ("reach-novel", "fast")
 MAZE_TASKS = ("maze",)
-DEFAULT_DATASETS = ("maze-medium-navigate", "maze-large-navigate", "maze-large-stitch", "maze-large-explore")
-DEFAULT_AGENTS = ("gcsl", "td3bc", "td3awbc", "gcsl+planner")
+DEFAULT_DATASETS = ("maze-large-navigate", "maze-large-stitch", "maze-large-explore")
+DEFAULT_AGENTS = ("gcsl", "gciql", "hiql", "gcsl+planner")
 
 
 @dataclass
@@ -61,10 +65,10 @@ class Size:
 
 SIZES = {
     # the spec files' own dataset sizes, the cpu preset's run length, four seeds
-    "full": Size(0, 30_000, 50, DEFAULT_AGENTS, DEFAULT_DATASETS, (0, 1, 2, 3)),
+    "full": Size(0, 30_000, 250, DEFAULT_AGENTS, DEFAULT_DATASETS, (0, 1, 2, 3)),
     # a newcomer's first look in minutes: small data, short runs, two seeds; its numbers show
     # that the pipeline works end to end, not how the methods compare
-    "ci": Size(40, 600, 10, ("gcsl", "gcsl+planner"), ("maze-medium-navigate", "maze-medium-stitch"), (0, 1)),
+    "ci": Size(40, 600, 25, ("gcsl", "gcsl+planner"), ("maze-medium-navigate", "maze-medium-stitch"), (0, 1)),
 }
 
 
@@ -140,7 +144,8 @@ def split_agent(agent: str) -> tuple[str, bool]:
 
 def eval_entries(world: str, planned: bool) -> list[tuple[str, ...]]:
     """The ``aerohrl eval`` argument tuples of one agent on a world's tasks."""
-    return [("--task", t, *PLANNER_ARGS) if planned else ("--task", t) for t in tasks_for(world)]
+    args = FREE_PLANNER_ARGS if world == "free" else MAZE_PLANNER_ARGS
+    return [("--task", t, *args) if planned else ("--task", t) for t in tasks_for(world)]
 
 
 # ----------------------------------------------------------------------------- running

@@ -73,6 +73,12 @@ class EvalOptions:
     beam: int = param(8, "multi: beam width", ge=1)
     alpha: float = _in_name(param(1.0, "variance penalty of Eq. 3.6/3.7", ge=0), 3, "-a{:g}", planned=True)
     candidates: int = param(1024, "achieved goals scored by the planner (seeded subset; 0 = all)", ge=0)
+    max_edge: float = _in_name(
+        param(0.0, "graph: legs longer than this are no edges, a roadmap's connection radius (0: none)", unit="m", ge=0),
+        4,
+        "-edge{:g}",
+        planned=True,
+    )
     replan: bool = param(True, "multi: re-plan the remaining goals at each reached intermediate goal")
     replan_every: int = _in_name(
         param(
@@ -262,7 +268,9 @@ def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Plan
             from aerohrl.planning.graph import GraphPlanner
 
             n = graph_waypoints(opt)
-            return GraphPlanner(algo, candidates_from_maze(maze), n=n, alpha=opt.alpha), n
+            return GraphPlanner(
+                algo, candidates_from_maze(maze), n=n, alpha=opt.alpha, max_edge=opt.max_edge, min_leg=opt.min_leg
+            ), n
         n = 1 if opt.planner == "single" else opt.waypoints
         return Planner(algo, candidates_from_maze(maze), n=n, alpha=opt.alpha, beam=opt.beam, min_leg=opt.min_leg), n
     if opt.planner == "graph":
@@ -271,7 +279,8 @@ def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Plan
         from aerohrl.planning.graph import GraphPlanner
 
         n = graph_waypoints(opt)
-        return GraphPlanner(algo, candidates_from_dataset(data, opt.candidates, seed=opt.seed), n=n, alpha=opt.alpha), n
+        cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
+        return GraphPlanner(algo, cand, n=n, alpha=opt.alpha, max_edge=opt.max_edge, min_leg=opt.min_leg), n
     if opt.candidate_source == "synthetic":  # C = --candidates offsets (0: 256) from the dataset spec's ranges
         from aerohrl.planning.planner import ChainPlanner, offsets_from_spec
 

@@ -23,8 +23,14 @@ is free and the optimum exact over the candidate set:
   ``-log l(s0 -> G)``.
 
 Legs valued below ``min_leg_value`` are not edges (the critics' values of far pairs,
-which the data never connects, are the least trustworthy: a spurious shortcut through
-a wall is what breaks graph search on learned values).
+which the data never connects, are the least trustworthy), nor, with ``max_edge``, legs
+longer than that many metres (a roadmap's connection radius). Learned values generalise
+with the distance between the vehicle and its goal: a pair of states on the two sides of
+a wall gets the value of an open leg of that length, and a plan through such a spurious
+edge flies into the wall. Among waypoints at the free cells' centres of a grid maze, a
+radius below the diagonal of a cell (``sqrt 2 cell``) leaves only legs between adjacent
+free cells, which no wall separates: the planner then knows the map's free cells and
+their neighbours, and learns only how long each leg takes.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ import math
 import numpy as np
 import torch
 
+from aerohrl import task
 from aerohrl.planning.planner import DEFAULT_ALPHA, DEFAULT_CHUNK, Candidates, Plan, leg_values
 
 EPS = 1e-6  # leg values are clipped to [EPS, 1] before the log
@@ -60,6 +67,8 @@ class GraphPlanner:
         n: int = 1,
         alpha: float = DEFAULT_ALPHA,
         min_leg_value: float = 0.0,
+        max_edge: float = 0.0,
+        min_leg: float = 0.0,
         chunk: int = DEFAULT_CHUNK,
     ):
         if len(candidates) == 0:
@@ -68,6 +77,8 @@ class GraphPlanner:
             raise ValueError(f"the number of intermediate goals must be >= 1, got {n}")
         if not 0 <= min_leg_value < 1:
             raise ValueError(f"the smallest leg value of an edge must be in [0, 1), got {min_leg_value}")
+        if not max_edge >= 0:
+            raise ValueError(f"the longest edge must be >= 0 m (0: no limit), got {max_edge}")
         from scipy.sparse.csgraph import csgraph_from_dense, shortest_path
 
         self.algo, self.cand, self.n, self.alpha, self.min_leg_value, self.chunk = (
@@ -78,18 +89,31 @@ class GraphPlanner:
             float(min_leg_value),
             int(chunk),
         )
+        self.max_edge = float(max_edge)  # m; 0: no limit
+        # candidates closer than this to the vehicle are no first goal (Planner's min_leg): a
+        # goal it already sits at is no leg, and the skills never learned to fly one
+        if not min_leg >= 0:
+            raise ValueError(f"the shortest first leg must be >= 0 m, got {min_leg}")
+        self.min_leg = float(min_leg)
         self.device = next(algo.parameters()).device
         self.cg = candidates.goals.to(self.device)
         self.cs = candidates.states.to(self.device)
         C = len(candidates)
         s = self.cs[torch.arange(C * C, device=self.device) // C]
         g = self.cg[torch.arange(C * C, device=self.device) % C]
-        L = leg_lengths(leg_values(algo, s, g, self.chunk).reshape(-1, C, C), self.alpha, self.min_leg_value).cpu().numpy()
+        lt = leg_lengths(leg_values(algo, s, g, self.chunk).reshape(-1, C, C), self.alpha, self.min_leg_value)
+        L = self._radius(lt, self.cs[:, task.POS][:, None], self.cg[:, task.POS][None]).cpu().numpy()
         np.fill_diagonal(L, np.inf)  # no self-loops (a zero-length edge would read as "no edge" below)
         L = np.maximum(L, 1e-12)  # csgraph's dense input: 0 means no edge, so a free leg costs a hair
         graph = csgraph_from_dense(L, null_value=np.inf)
         self.dist, self.pred = shortest_path(graph, method="D", directed=True, return_predecessors=True)
         np.fill_diagonal(self.dist, 0.0)
+
+    def _radius(self, lengths: torch.Tensor, p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+        """``lengths`` with legs from positions ``p`` to ``q`` (broadcast) longer than ``max_edge`` removed."""
+        if self.max_edge <= 0:
+            return lengths
+        return lengths.masked_fill(torch.linalg.norm(q - p, dim=-1) > self.max_edge, math.inf)
 
     def _path(self, i: int, j: int) -> list[int]:
         """Candidate indices of the shortest path from ``i`` to ``j`` (both included)."""
@@ -111,7 +135,12 @@ class GraphPlanner:
         ie, ic = torch.arange(E * C, device=self.device) // C, torch.arange(E * C, device=self.device) % C
         la = leg_lengths(leg_values(self.algo, s0[ie], self.cg[ic], self.chunk), self.alpha, self.min_leg_value)
         lb = leg_lengths(leg_values(self.algo, self.cs[ic], Gt[ie], self.chunk), self.alpha, self.min_leg_value)
-        a, b = la.reshape(E, C).cpu().numpy(), lb.reshape(E, C).cpu().numpy()
+        la = self._radius(la.reshape(E, C), s0[:, None, task.POS], self.cg[None, :, task.POS])
+        if self.min_leg > 0:
+            near = torch.linalg.norm(self.cg[None, :, task.POS] - s0[:, None, task.POS], dim=-1) < self.min_leg
+            la = la.masked_fill(near, math.inf)
+        lb = self._radius(lb.reshape(E, C), self.cs[None, :, task.POS], Gt[:, None, task.POS])
+        a, b = la.cpu().numpy(), lb.cpu().numpy()
         direct = leg_lengths(leg_values(self.algo, s0, Gt, self.chunk), self.alpha).cpu().numpy()
         best_i, best_j, best = np.zeros(E, np.int64), np.zeros(E, np.int64), np.full(E, np.inf)
         block = max(1, EPISODE_BLOCK_FLOATS // max(1, C * C))

@@ -28,7 +28,7 @@ def test_agents_and_their_evaluations():
     with pytest.raises(UserError, match="unknown agent 'hql'"):
         B.split_agent("hql")
     assert B.eval_entries("free", False) == [("--task", "reach-novel"), ("--task", "fast")]
-    assert B.eval_entries("maze-large", True) == [("--task", "maze", *B.PLANNER_ARGS)]
+    assert B.eval_entries("maze-large", True) == [("--task", "maze", *B.MAZE_PLANNER_ARGS)]
 
 
 def test_runs_are_shared_by_an_agent_and_its_planner():
