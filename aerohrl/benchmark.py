@@ -263,7 +263,7 @@ def run_suite(
             for e in eval_entries(r.world, split_agent(agent)[1])
         ]
     (out / "runs").mkdir(exist_ok=True)
-    atomic.write_text(out / "suite.toml", K.to_toml(sp, header="aerohrl bench suite grid (written by `aerohrl bench suite`)"))
+    atomic.write_json(out / "suite.json", dataclasses.asdict(sp))  # the grid this folder holds
     ray = ray_connect(address, num_cpus=num_cpus)
     try:
         evaluate = ray.remote(num_cpus=1, max_retries=2)(eval_run)
