@@ -224,6 +224,8 @@ def eval_run(run_dir: str, entries: list[list[str]], episodes: int, threads: int
 
     done = []
     for args in entries:
+        if _evaluated(Path(run_dir), args, episodes):
+            continue
         err = io.StringIO()
         argv = [*args, "--run", run_dir, "--episodes", str(episodes), "--checkpoints", "1", "--threads", str(threads), "--quiet"]
         with redirect_stdout(io.StringIO()), redirect_stderr(err):
@@ -297,6 +299,37 @@ def run_suite(
 
 
 # ----------------------------------------------------------------------------- the leaderboard
+
+
+def _evaluated(run_dir: Path, args: list[str], episodes: int) -> bool:
+    """Does the run hold an evaluation of ``aerohrl eval ARGS`` with ``episodes`` episodes at its newest checkpoint?"""
+    import json
+
+    from aerohrl.algorithms.run import Run
+
+    ckpts = Run(run_dir).checkpoints()
+    task, planner = args[args.index("--task") + 1], args[args.index("--planner") + 1] if "--planner" in args else "none"
+    for f in (run_dir / "eval").glob("*/summary.json"):
+        try:
+            s = json.loads(f.read_text())
+        except (OSError, ValueError):
+            continue
+        opts = s.get("options") or {}
+        same = all(
+            str(opts.get(k.lstrip("-").replace("-", "_"))) in (v, str(float(v)) if v.replace(".", "").isdigit() else v)
+            for k, v in zip(args[::2], args[1::2])
+            if k not in ("--task", "--planner")
+        )
+        if (
+            s.get("task") == task
+            and s.get("planner", "none") == planner
+            and same
+            and s.get("episodes") == episodes
+            and ckpts
+            and [c.get("checkpoint") for c in s.get("checkpoints", [])][-1:] == [ckpts[-1].name]
+        ):
+            return True
+    return False
 
 
 def _final_success(run_dir: Path, task: str, planned: bool) -> float | None:
