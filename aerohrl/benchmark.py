@@ -242,7 +242,7 @@ def run_suite(
     *,
     num_cpus: int | None = None,
     address: str | None = None,
-    log=print,
+    log: Callable[[str], Any] = print,
     specs: Path = Path("datasets"),
     data: Path = Path("datasets"),
 ) -> list[dict]:
