@@ -132,6 +132,8 @@ def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
         ds = open_dataset(source)
         cols = ds.columns()
         info = {"path": str(ds.path), "version": ds.version, "checksum": ds.checksum, "spec": ds.spec}
+        if ds.maze is not None:  # the layout a maze dataset was flown in (aerohrl.worlds.maze.world_maze reads it)
+            info["maze"] = ds.maze
     for k, shape in REQUIRED.items():
         if k not in cols:
             raise UserError(f"dataset has no {k!r} column")

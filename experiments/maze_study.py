@@ -1,0 +1,220 @@
+"""The maze benchmark study: the suite's leaderboard, what the hierarchy buys on the stitch
+data (paired with the flat skills), why the graph planner needs its connection radius, and
+the data-efficiency curve.
+
+    python experiments/maze_study.py --suite bench-out/maze-suite          # after `aerohrl bench suite ... -o bench-out/maze-suite`
+    python experiments/maze_study.py --suite S --sizes-suite S2            # with a suite of NAME@EPISODES datasets
+
+It reads a suite folder (``aerohrl bench suite``; run that first, it is resumable), then:
+
+1. **the leaderboard** as the suite wrote it;
+2. **flat against planned, paired**: for every dataset and each run of an ALGO whose
+   ALGO+planner agent the suite evaluated, the per-episode outcomes of the same checkpoint
+   on the same episodes, flat and planned, pooled over seeds: the success difference and
+   the exact two-sided sign test on the episodes only one of them succeeds in;
+3. **the planner's ablation** on the stitch dataset's runs: the graph planner without a
+   connection radius, with the radius only, and with the radius and no first leg to the
+   vehicle's own cell (the suite's), each over the seeds (``aerohrl eval``, resumable);
+4. **the critics' leg values** between the maze's free cells by path length, and for pairs
+   close in space but far along the maze (a wall between them): why a planner that trusts
+   learned values alone takes a shortcut through a wall;
+5. **data efficiency**: with ``--sizes-suite``, that suite's leaderboard by dataset size.
+
+Writes ``docs/results/DATE-maze-benchmark.md`` and its figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+from aerohrl.errors import UserError, run_cli
+
+ABLATION = {
+    "graph, no radius": ["--planner", "graph"],
+    "graph, radius 2.5 m": ["--planner", "graph", "--max-edge", "2.5"],
+    "graph, radius 2.5 m, no leg to its own cell (suite)": ["--planner", "graph", "--max-edge", "2.5", "--min-leg", "1"],
+}
+
+
+def _episodes(run: Path, name: str) -> np.ndarray | None:
+    """Per-episode success at the newest evaluated checkpoint of ``RUN/eval/NAME``, or None."""
+    files = sorted((run / "eval" / name).glob("episodes-step-*.csv"))
+    if not files:
+        return None
+    with open(files[-1], newline="") as f:
+        rows = list(csv.DictReader(f))
+    return np.array([r["success"] in ("1", "True", "true") for r in rows], bool)
+
+
+def _eval_name(run: Path, task: str, planned: bool, args: list[str] | None = None) -> str | None:
+    """The folder of the run's evaluation of ``task`` (planned or not; with ``args``, those planner flags)."""
+    for f in sorted((run / "eval").glob("*/summary.json")):
+        s = json.loads(f.read_text())
+        if s.get("task") != task or (s.get("planner", "none") != "none") != planned:
+            continue
+        if args is not None:
+            want = {args[i].lstrip("-").replace("-", "_"): args[i + 1] for i in range(0, len(args), 2)}
+            opts = s.get("options") or {}
+            if any(str(opts.get(k)) not in (v, str(float(v))) for k, v in want.items() if k != "planner"):
+                continue
+            if float(opts.get("max_edge", 0.0)) and "max_edge" not in want:
+                continue
+            if float(opts.get("min_leg", 0.0)) and "min_leg" not in want:
+                continue
+        return f.parent.name
+    return None
+
+
+def paired(flat: list[np.ndarray], planned: list[np.ndarray]) -> dict:
+    """Pooled over seeds: success of each (%), their difference and the exact sign test on
+    the discordant episodes (McNemar)."""
+    from scipy.stats import binomtest
+
+    a, b = np.concatenate(flat), np.concatenate(planned)
+    only_b, only_a = int((b & ~a).sum()), int((a & ~b).sum())
+    p = binomtest(only_b, only_b + only_a).pvalue if only_a + only_b else 1.0
+    return {"flat": 100 * a.mean(), "planned": 100 * b.mean(), "only_planned": only_b, "only_flat": only_a, "p": p, "n": len(a)}
+
+
+def leg_values(run: Path) -> dict:
+    """Mean critic leg value between free-cell hover states by path length (cells), and for
+    pairs at most 2 cells apart in space but >= 6 along the maze."""
+    import torch
+
+    from aerohrl.algorithms.base import load_policy
+    from aerohrl.algorithms.run import Run
+    from aerohrl.planning.planner import candidates_from_maze, leg_values as legs
+    from aerohrl.worlds.maze import world_maze
+
+    torch.set_num_threads(1)
+    ck = Run(run).checkpoints()[-1]
+    algo, c = load_policy(ck)
+    from aerohrl.datagen.dataset import open_dataset
+
+    ds = open_dataset(c["dataset"]["path"], verify=False)
+    maze = world_maze(ds.spec, {"maze": ds.maze})
+    if maze is None:
+        raise UserError(f"{run} was not trained in a maze")
+    cand = candidates_from_maze(maze)
+    d = maze.distances()
+    cells = maze.free_cells
+    i, j = np.nonzero(np.ones_like(d, bool))
+    v = legs(algo, cand.states[torch.as_tensor(i)], cand.goals[torch.as_tensor(j)]).mean(0).numpy()
+    eu = np.linalg.norm(cells[i] - cells[j], axis=1)
+    path = d[i, j]
+    out = {f"{k} cells": float(v[path == k].mean()) for k in range(1, 9)}
+    wall = (eu <= 2.01) & (path >= 6)
+    out["<= 2 cells apart, >= 6 along the maze"] = float(v[wall].mean()) if wall.any() else float("nan")
+    out["2 cells, straight and open"] = float(v[(path == 2) & (eu == 2)].mean())
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="experiments/maze_study.py", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--suite", type=Path, required=True, help="an `aerohrl bench suite` folder")
+    ap.add_argument("--sizes-suite", type=Path, default=None, help="a suite of NAME@EPISODES datasets (data efficiency)")
+    ap.add_argument("--stitch", default="maze-large-stitch", help="the dataset of the planner ablation [maze-large-stitch]")
+    ap.add_argument("--algo", default="gcsl", help="the skills of the ablation and the leg values [gcsl]")
+    ap.add_argument("--episodes", type=int, default=250, help="evaluation episodes of the ablation [250]")
+    ap.add_argument("--results-dir", type=Path, default=Path("docs/results"), help="where the page goes [docs/results]")
+    a = ap.parse_args(argv)
+
+    def go() -> int:
+        from aerohrl.api import evaluate
+
+        board = a.suite / "leaderboard.md"
+        if not board.exists():
+            raise UserError(f"{a.suite} holds no leaderboard: run `aerohrl bench suite ... -o {a.suite}` first")
+        runs = sorted(p for p in (a.suite / "runs").iterdir() if p.is_dir())
+        lines = [
+            f"# The maze benchmark ({date.today().isoformat()})",
+            "",
+            f"Written by `python experiments/maze_study.py --suite {a.suite}"
+            + (f" --sizes-suite {a.sizes_suite}" if a.sizes_suite else "")
+            + f"` from the suite in `{a.suite}` (its grid: `{a.suite}/suite.json`).",
+            "",
+            "## Leaderboard",
+            "",
+            board.read_text().split("\n", 2)[2].strip(),
+            "",
+            f"![leaderboard](figures/{date.today().isoformat()}-maze-leaderboard.png)",
+            "",
+            "## Flat against planned, paired (same checkpoints, same episodes)",
+            "",
+            "| runs | flat % | planned % | only planned | only flat | sign test p | episodes |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        groups: dict[str, list[Path]] = {}
+        for r in runs:
+            groups.setdefault(r.name.rsplit("-s", 1)[0], []).append(r)
+        for g, rs in sorted(groups.items()):
+            flat, planned = [], []
+            for r in rs:
+                fn, pn = _eval_name(r, "maze", False), _eval_name(r, "maze", True)
+                if fn and pn:
+                    f, p = _episodes(r, fn), _episodes(r, pn)
+                    if f is not None and p is not None and len(f) == len(p):
+                        flat.append(f)
+                        planned.append(p)
+            if flat:
+                st = paired(flat, planned)
+                lines.append(
+                    f"| {g} ({len(flat)} seeds) | {st['flat']:.1f} | {st['planned']:.1f} | {st['only_planned']} | "
+                    f"{st['only_flat']} | {st['p']:.2g} | {st['n']} |"
+                )
+        lines += ["", f"## The graph planner's ablation ({a.algo} on {a.stitch}, {a.episodes} episodes per seed)", ""]
+        lines += ["| planner | success % per seed | mean ± std | collision % (mean) |", "|---|---|---|---|"]
+        abl_runs = [r for r in runs if r.name.startswith(f"{a.algo}-{a.stitch}-s")]
+        for label, args in ABLATION.items():
+            vals, coll = [], []
+            for r in abl_runs:
+                opts: dict = {"checkpoints": 1, "episodes": a.episodes}
+                for k, v in zip(args[::2], args[1::2]):
+                    key = k.lstrip("-").replace("-", "_")
+                    opts[key] = v if key == "planner" else float(v)
+                s = evaluate(r, "maze", **opts)
+                vals.append(100 * s["checkpoints"][-1]["success"])
+                coll.append(100 * s.get("collision_mean", float("nan")))
+            if vals:
+                lines.append(
+                    f"| {label} | {' / '.join(f'{v:.1f}' for v in vals)} | {np.mean(vals):.1f} ± "
+                    f"{np.std(vals, ddof=1) if len(vals) > 1 else 0:.1f} | {np.mean(coll):.1f} |"
+                )
+        lines += ["", f"## Leg values of the critics ({a.algo} on {a.stitch}, mean over free-cell pairs)", ""]
+        if abl_runs:
+            per = [leg_values(r) for r in abl_runs]
+            keys = list(per[0])
+            lines += ["| pair | " + " | ".join(r.name.rsplit("-", 1)[1] for r in abl_runs) + " |"]
+            lines += ["|---|" + "---|" * len(abl_runs)]
+            lines += [f"| {k} | " + " | ".join(f"{p[k]:.3f}" for p in per) + " |" for k in keys]
+        if a.sizes_suite is not None:
+            sb = a.sizes_suite / "leaderboard.md"
+            if not sb.exists():
+                raise UserError(f"{a.sizes_suite} holds no leaderboard")
+            lines += ["", "## Data efficiency (success against dataset episodes)", "", sb.read_text().split("\n", 2)[2].strip()]
+        a.results_dir.mkdir(parents=True, exist_ok=True)
+        (a.results_dir / "figures").mkdir(exist_ok=True)
+        import shutil
+
+        shutil.copyfile(
+            a.suite / "leaderboard.png", a.results_dir / "figures" / f"{date.today().isoformat()}-maze-leaderboard.png"
+        )
+        page = a.results_dir / f"{date.today().isoformat()}-maze-benchmark.md"
+        from aerohrl import atomic
+
+        atomic.write_text(page, "\n".join(lines) + "\n")
+        print(page)
+        return 0
+
+    return run_cli("experiments/maze_study.py", go)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
