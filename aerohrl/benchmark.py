@@ -77,12 +77,12 @@ class SuiteSpec:
     """The suite's grid (flags or ``--config`` TOML)."""
 
     agents: tuple[str, ...] = K.param(
-        (), "agents: an algorithm, or ALGO+planner (the thesis planner over its skills) [the size's]"
+        (), "agents: an algorithm, or ALGO+planner (the thesis planner over its skills); none: the size's"
     )
     datasets: tuple[str, ...] = K.param(
-        (), "datasets by name (datasets/<name>.toml), NAME@EPISODES for another size of it [the size's]"
+        (), "datasets by name (datasets/<name>.toml), NAME@EPISODES for another size of it; none: the size's"
     )
-    seeds: tuple[int, ...] = K.param((), "training seeds [the size's]", ge=0)
+    seeds: tuple[int, ...] = K.param((), "training seeds; none: the size's", ge=0)
     size: str = K.param("full", "full | ci (small data, short runs)", choices=tuple(SIZES))
     preset: str = K.param("cpu", "train preset of every run")
     steps: int = K.param(0, "gradient steps per run (0: the size's)", ge=0)
