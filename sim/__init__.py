@@ -4,7 +4,8 @@ It knows nothing of goals, datasets or learning.
 """
 
 from aerohrl.sim.params import GRAVITY, PRESETS, QuadrotorParams, get_preset
+from aerohrl.sim.perturb import Perturbation
 from aerohrl.sim.quadrotor import BatchedQuadrotor
 from aerohrl.sim import dynamics, rotations
 
-__all__ = ["GRAVITY", "PRESETS", "QuadrotorParams", "get_preset", "BatchedQuadrotor", "dynamics", "rotations"]
+__all__ = ["GRAVITY", "PRESETS", "QuadrotorParams", "get_preset", "BatchedQuadrotor", "Perturbation", "dynamics", "rotations"]

@@ -24,6 +24,7 @@ import numpy as np
 
 from aerohrl.sim import dynamics as dyn
 from aerohrl.sim.params import QuadrotorParams
+from aerohrl.sim.perturb import Perturbation, PerturbedPlant
 
 STATE_DIM = 18
 
@@ -70,6 +71,41 @@ class _Chunk:
         dyn.orthonormalize_rows(X, self.scratch)
         # the exact motor solution stays between Omega and the clipped command; clip round-off
         np.clip(X[dyn.OMEGA], self.model.omega_min, self.model.omega_max, out=X[dyn.OMEGA])
+
+
+class _PerturbedChunk(_Chunk):
+    """The whole batch on the perturbed plant of :mod:`aerohrl.sim.perturb`: the nominal rate
+    loop flies the (delayed) command, the plant integrates the perturbed physics."""
+
+    def __init__(self, model: dyn.Model, n: int, h: float, substeps: int, plant: PerturbedPlant):
+        super().__init__(model, n, h, substeps)
+        self.plant = plant
+
+    def _rk4(self):
+        out = self.plant.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.spare)
+        self.X, self.spare = out, self.X
+
+    def step_ctbr(self):
+        m, s, pl = self.model, self.scratch, self.plant
+        pl.push(self.u)  # copied into the delay line: self.u is free to hold the delayed command
+        if pl.delayed:
+            late, early = pl.commands()
+            for j in range(self.substeps):
+                # substep j flies u_{k-M} from substep r on, u_{k-M-1} before it (per vehicle)
+                np.copyto(self.u, late)
+                np.copyto(self.u, early, where=j < pl.sub)
+                dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)
+                self._rk4()
+        else:
+            for _ in range(self.substeps):
+                dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)
+                self._rk4()
+        self._end_step()
+        pl.end_step()
+
+    def step_speeds(self):
+        super().step_speeds()
+        self.plant.end_step()
 
 
 # --------------------------------------------------------------------------- processes
@@ -172,6 +208,12 @@ class BatchedQuadrotor:
     them; bit for bit the same result). Worth it from a few thousand vehicles per block
     (``bench/bench_sim.py --processes 2``); workers start in ~0.1-0.5 s and stop with
     :meth:`close` (or when the simulator is garbage collected / the program exits).
+
+    ``perturbation``: model error of :mod:`aerohrl.sim.perturb` (one value, or one per
+    vehicle), its randomness (gusts, observation noise, biases) seeded by ``seed``. A
+    perturbed batch is stepped in one block (``threads``/``processes`` are ignored) and
+    :meth:`observe` gives what the policy sees; None or a nominal perturbation keeps
+    the nominal code path, bit for bit.
     """
 
     def __init__(
@@ -183,6 +225,8 @@ class BatchedQuadrotor:
         substeps: int = 5,
         threads: int = 1,
         processes: int = 1,
+        perturbation: Perturbation | None = None,
+        seed: int = 0,
     ):
         if int(num_vehicles) < 1:
             raise ValueError(f"num_vehicles must be >= 1, got {num_vehicles}")
@@ -194,6 +238,10 @@ class BatchedQuadrotor:
         self.substeps = int(substeps)
         self.h = self.dt / self.substeps
         self.model = dyn.Model.from_params(params)
+        self.plant: PerturbedPlant | None = None
+        if perturbation is not None and not perturbation.nominal:
+            self.plant = PerturbedPlant(perturbation, n, self.dt, self.substeps, seed=seed)
+            threads = processes = 1
         threads = max(1, min(int(threads), n))
         processes = max(1, min(int(processes), n))
         if threads > 1 and processes > 1:
@@ -201,10 +249,15 @@ class BatchedQuadrotor:
         parts = max(threads, processes)
         bounds = np.linspace(0, n, parts + 1).round().astype(int)
         self._slices = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
-        self._chunks = [
-            (_ProcChunk if i > 0 and processes > 1 else _Chunk)(self.model, sl.stop - sl.start, self.h, self.substeps)
-            for i, sl in enumerate(self._slices)
-        ]
+        self._chunks: list[_Chunk | _ProcChunk]
+        if self.plant is not None:
+            self._chunks = [_PerturbedChunk(self.model, n, self.h, self.substeps, self.plant)]
+        else:
+            self._chunks = [
+                (_ProcChunk if i > 0 and processes > 1 else _Chunk)(self.model, sl.stop - sl.start, self.h, self.substeps)
+                for i, sl in enumerate(self._slices)
+            ]
+        self._observed: np.ndarray | None = None
         self.threads = threads
         self.processes = processes
         self.t = 0.0
@@ -237,8 +290,11 @@ class BatchedQuadrotor:
             raise ValueError(f"{what} contains NaN or inf")
         return a
 
-    def reset(self, state=None, rotor_speeds=None) -> np.ndarray:
+    def reset(self, state=None, rotor_speeds=None, rows=None) -> np.ndarray:
         """Set the state; ``None`` = hover at the origin (R = I, w = 0).
+
+        ``rows`` (index array, None = all): the vehicles starting a new episode, whose
+        perturbation state (delay line, gust, observation biases) restarts; the others keep theirs.
 
         ``rotor_speeds`` (N, 4) defaults to the hover speed of every rotor. A given
         state's R must be a rotation to 1e-3 (e.g. float32 data) and is projected onto
@@ -270,8 +326,21 @@ class BatchedQuadrotor:
                 X[dyn.OMEGA] = np.clip(om[sl], self.model.omega_min, self.model.omega_max).T
             c.u[:] = 0.0
             c.cmd[:] = X[dyn.OMEGA]
+        if self.plant is not None:
+            self.plant.reset(np.arange(self.num_vehicles) if rows is None else rows)
+        self._observed = None
         self.t = 0.0
         return self.state
+
+    def observe(self) -> np.ndarray:
+        """(N, 18) state as the policy or controller observes it: the true :attr:`state`
+        without a perturbation, else with its observation noise and bias (drawn once per
+        step: calls between two steps return the same array)."""
+        if self.plant is None:
+            return self.state
+        if self._observed is None:
+            self._observed = self.plant.observe(self.state)
+        return self._observed.copy()
 
     # ------------------------------------------------------------------ stepping
     def _run(self, method: str):
@@ -290,6 +359,7 @@ class BatchedQuadrotor:
             for f in futs:
                 f.result()
         self.t += self.dt
+        self._observed = None
 
     def step(self, ctbr) -> np.ndarray:
         """Advance one control step with CTBR actions ``ctbr`` (N, 4) ``[c, wx, wy, wz]``.
@@ -318,6 +388,8 @@ class BatchedQuadrotor:
         """A new single-process simulator of the vehicles ``rows`` (index array) with their
         whole state (pose, velocities, body rates, rotor speeds) copied bit for bit: stepping
         it gives exactly what stepping them here would. Lets a batch drop finished vehicles."""
+        if self.plant is not None:
+            raise ValueError("select copies nominal vehicles only; this batch is perturbed")
         rows = np.asarray(rows, dtype=np.int64)
         X = np.concatenate([c.X for c in self._chunks], axis=1)[:, rows]
         new = BatchedQuadrotor(self.params, len(rows), dt=self.dt, substeps=self.substeps)
