@@ -1,0 +1,197 @@
+"""Perturbations of the simulator (sim/perturb.py): nominal bytes, each axis's physical
+effect, determinism, one-line parse errors, and ``aerohrl eval --perturb`` end to end."""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+
+import numpy as np
+import pytest
+
+from aerohrl.errors import UserError
+from aerohrl.sim import BatchedQuadrotor, Perturbation, get_preset
+from aerohrl.sim.params import GRAVITY
+
+P = get_preset("hummingbird")
+HOVER = np.array([GRAVITY, 0.0, 0.0, 0.0])
+# sha256 of the nominal trajectory of _trajectory() as the simulator gave it before perturbations existed
+NOMINAL_SHA256 = "7590b39283f486077f2f294e6f3e76dc2ae1150f4a0755dfe40c4beaf96a39f5"
+
+
+def _actions(n: int = 6, steps: int = 60) -> np.ndarray:
+    rng = np.random.default_rng(7)
+    return np.stack([np.column_stack([GRAVITY + rng.normal(0, 2, n), rng.normal(0, 1.5, (n, 3))]) for _ in range(steps)])
+
+
+def _trajectory(**kw) -> np.ndarray:
+    acts = _actions()
+    sim = BatchedQuadrotor(P, acts.shape[1], **kw)
+    out = [sim.state]
+    for a in acts:
+        out.append(sim.step(a))
+    out.append(sim.rotor_speeds)
+    return np.concatenate([o.ravel() for o in out])
+
+
+def _fly(perturbation=None, actions=None, n=1, steps=100, seed=0, state_fn=None):
+    sim = BatchedQuadrotor(P, n, perturbation=perturbation, seed=seed)
+    acts = np.broadcast_to(HOVER, (steps, n, 4)) if actions is None else actions
+    return np.stack([sim.state] + [sim.step(a) for a in acts]), sim
+
+
+# ----------------------------------------------------------------------------- nominal bytes
+def test_nominal_bytes_unchanged():
+    base = _trajectory()
+    assert np.array_equal(base, _trajectory(perturbation=None))
+    assert np.array_equal(base, _trajectory(perturbation=Perturbation()))
+    assert np.array_equal(base, _trajectory(perturbation=Perturbation.parse("")))
+    # a direction without wind and a correlation time without gusts are nominal too
+    assert np.array_equal(base, _trajectory(perturbation=Perturbation(wind_dir=90.0, gust_tau=3.0)))
+    if platform.machine() in ("x86_64", "AMD64"):
+        assert hashlib.sha256(base.tobytes()).hexdigest() == NOMINAL_SHA256
+
+
+def test_perturbed_path_with_unit_scales_matches_nominal():
+    # the perturbed code path (forced by a zero-effect bias channel) integrates the same equations
+    sim_n = BatchedQuadrotor(P, 6)
+    sim_p = BatchedQuadrotor(P, 6, perturbation=Perturbation(pos_bias=1e-9))
+    assert sim_p.plant is not None
+    for a in _actions():
+        sn, sp = sim_n.step(a), sim_p.step(a)
+    np.testing.assert_allclose(sp, sn, rtol=0, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- physical effects
+def test_heavier_vehicle_sinks_at_nominal_hover_thrust():
+    traj, _ = _fly(Perturbation(mass=1.2), steps=100)
+    # T = m g (the controller's belief), true mass 1.2 m: a = g / 1.2 - g
+    np.testing.assert_allclose(traj[-1, 0, 5], (GRAVITY / 1.2 - GRAVITY) * 1.0, rtol=1e-6)
+    nominal, _ = _fly(None, steps=100)
+    assert abs(nominal[-1, 0, 2]) < 1e-9
+
+
+def test_thrust_coefficient_and_inertia_and_motor():
+    lo, _ = _fly(Perturbation(thrust=0.9), steps=50)
+    assert lo[-1, 0, 5] < -0.4  # less thrust at the same rotor speeds
+    # a roll-rate step: a heavier inertia answers slower, slow motors answer slower
+    acts = np.broadcast_to(np.array([GRAVITY, 2.0, 0.0, 0.0]), (5, 1, 4))
+    base, _ = _fly(None, acts)
+    heavy, _ = _fly(Perturbation(inertia=2.0), acts)
+    slow, _ = _fly(Perturbation(motor_tau=4.0), acts)
+    assert heavy[-1, 0, 15] < base[-1, 0, 15] - 0.05
+    assert slow[1, 0, 15] < base[1, 0, 15] - 0.05  # the first step: the motors lag the rate loop's demand
+    # the yaw moment coefficient: a yaw-rate step with weaker rotor drag turns slower
+    acts = np.broadcast_to(np.array([GRAVITY, 0.0, 0.0, 1.0]), (10, 1, 4))
+    yaw, _ = _fly(None, acts)
+    weak, _ = _fly(Perturbation(torque=0.5), acts)
+    assert weak[-1, 0, 17] < yaw[-1, 0, 17] - 0.01
+
+
+def _step_command(steps: int = 12, at: int = 3) -> np.ndarray:
+    a = np.broadcast_to(HOVER, (steps, 1, 4)).copy()
+    a[at:, 0, 0] = GRAVITY + 5.0
+    return a
+
+
+def test_latency_delays_by_whole_steps():
+    acts = _step_command()
+    delayed, _ = _fly(Perturbation(latency=0.02), acts)
+    shifted = np.concatenate([np.broadcast_to(HOVER, (2, 1, 4)), acts[:-2]])
+    expected, _ = _fly(None, shifted)
+    np.testing.assert_allclose(delayed, expected, rtol=0, atol=1e-9)
+    assert delayed[4, 0, 5] == 0.0 and expected[6, 0, 5] > 0  # nothing moves until two steps after the command
+
+
+def test_latency_substep_remainder_lies_between_whole_steps():
+    acts = _step_command()
+    one, _ = _fly(Perturbation(latency=0.01), acts)
+    frac, _ = _fly(Perturbation(latency=0.014), acts)  # 1 step and 2 of 5 substeps
+    two, _ = _fly(Perturbation(latency=0.02), acts)
+    k = 6
+    assert two[k, 0, 5] < frac[k, 0, 5] < one[k, 0, 5]
+
+
+def test_wind_with_drag_pushes_a_hovering_vehicle_downwind():
+    traj, _ = _fly(Perturbation(drag=0.5, wind=3.0, wind_dir=90.0), steps=100)
+    # v_y = W (1 - e^{-d t}) at hover attitude, t = 1 s
+    np.testing.assert_allclose(traj[-1, 0, 4], 3.0 * (1 - np.exp(-0.5)), rtol=1e-6)
+    assert traj[-1, 0, 1] > 0.5 and abs(traj[-1, 0, 0]) < 1e-9
+    still, _ = _fly(Perturbation(drag=0.5), steps=100)
+    assert np.abs(still[-1, 0, :6]).max() < 1e-12  # drag alone does nothing at rest
+
+
+def test_gusts_are_seeded_and_have_their_intensity():
+    p = Perturbation(drag=0.5, gust=1.0, gust_tau=0.5)
+    a, sim = _fly(p, n=400, steps=50, seed=3)
+    b, _ = _fly(p, n=400, steps=50, seed=3)
+    c, _ = _fly(p, n=400, steps=50, seed=4)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert sim.plant is not None
+    assert 0.85 < sim.plant.gust.std() < 1.15  # stationary OU: std = intensity
+
+
+def test_observation_noise_leaves_true_state_and_is_seeded():
+    p = Perturbation(pos_noise=0.02, vel_noise=0.05, att_noise=np.deg2rad(1.0), rate_noise=0.1, pos_bias=0.1)
+    true, sim = _fly(p, n=500, steps=5, seed=1)
+    nominal, _ = _fly(None, n=500, steps=5)
+    assert np.array_equal(true, nominal)  # the physics never sees the noise
+    obs = sim.observe()
+    assert np.array_equal(obs, sim.observe())  # one draw per step
+    assert not np.array_equal(obs, sim.state)
+    err = obs - sim.state
+    np.testing.assert_allclose(np.linalg.norm(err[:, :3].mean(0)), 0.0, atol=0.02)
+    assert 0.09 < np.linalg.norm(err[:, :3], axis=1).mean() < 0.12  # the 0.1 m bias dominates
+    assert 0.04 < err[:, 3:6].std() < 0.06
+    R = obs[:, 6:15].reshape(-1, 3, 3)
+    np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    _, sim2 = _fly(p, n=500, steps=5, seed=1)
+    assert np.array_equal(sim2.observe(), obs)
+
+
+def test_per_vehicle_values():
+    p = Perturbation(mass=np.array([1.0, 1.1, 1.2]))
+    traj, _ = _fly(p, n=3, steps=100)
+    np.testing.assert_allclose(traj[-1, :, 5], GRAVITY / np.array([1.0, 1.1, 1.2]) - GRAVITY, rtol=1e-6, atol=1e-9)
+    with pytest.raises(UserError, match="one per vehicle"):
+        BatchedQuadrotor(P, 2, perturbation=p)
+
+
+def test_reset_rows_restarts_only_those_vehicles():
+    sim = BatchedQuadrotor(P, 2, perturbation=Perturbation(latency=0.03))
+    for _ in range(5):
+        sim.step(np.array([[GRAVITY + 5, 0, 0, 0]] * 2))
+    sim.reset(rows=np.array([1]))
+    assert sim.plant is not None
+    lines = sim.plant.buf[:, 0, :]
+    assert (lines[:, 1] == GRAVITY).all() and (lines[:, 0] == GRAVITY + 5).any()
+
+
+# ----------------------------------------------------------------------------- parsing
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("weight=1.2", "unknown perturbation 'weight'"),
+        ("mass=-1.2", "mass must be > 0"),
+        ("mass=0", "mass must be > 0"),
+        ("latency=-0.01", "latency must be >= 0"),
+        ("latency=0.5", "latency must be <= 0.2 s"),
+        ("mass", "expected NAME=VALUE"),
+        ("mass=heavy", "not a number"),
+        ("mass=1.1,mass=1.2", "given twice"),
+        ("wind=3", "give drag=D"),
+        ("drag=nan", "finite"),
+    ],
+)
+def test_parse_errors_are_one_line(text, match):
+    with pytest.raises(UserError, match=match) as e:
+        Perturbation.parse(text)
+    assert "\n" not in str(e.value)
+
+
+def test_parse_roundtrip_and_slug():
+    p = Perturbation.parse(" mass=1.2, latency=0.02 ,drag=0.5,wind=3")
+    assert p == Perturbation(mass=1.2, latency=0.02, drag=0.5, wind=3.0)
+    assert Perturbation.parse(p.text()) == p
+    assert p.slug() == "mass1.2-latency0.02-drag0.5-wind3"
+    assert Perturbation().slug() == "nominal" and Perturbation().nominal
