@@ -44,7 +44,7 @@ from aerohrl.datagen.lerobot_reader import read_info
 from aerohrl.datagen.lerobot_writer import DatasetWriter
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
 from aerohrl.datagen.spec import EXPLORE_TASK, GENERATOR_VERSION, MAZE_TASK, TASK, DatasetSpec, spec_hash, version_name
-from aerohrl.sim import BatchedQuadrotor, get_preset
+from aerohrl.sim import BatchedQuadrotor, Perturbation, get_preset
 
 if TYPE_CHECKING:
     from concurrent.futures import ProcessPoolExecutor
@@ -161,6 +161,9 @@ def rollout_expert(
     rotor_speeds: np.ndarray | None = None,
     record_rotors: bool = False,
     noise_rng: np.random.Generator | None = None,
+    perturbation: Perturbation | None = None,
+    perturb_seed: int = 0,
+    extra_steps: int = 0,
 ) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
 
@@ -173,13 +176,18 @@ def rollout_expert(
     with action noise (``noise_rng`` required) the vehicle flies the expert's command plus
     Ornstein-Uhlenbeck noise, clipped to the expert's action box, and ``expert_actions``
     holds the clean command at every flown state.
+
+    ``perturbation`` flies the vehicles on a perturbed plant (:mod:`aerohrl.sim.perturb`,
+    seeded by ``perturb_seed``): the expert (and re-planning) sees the observed state, the
+    states recorded are the true ones. ``extra_steps``: keep flying this many steps past the
+    longest reference, holding its end (robustness curves judge the goal over a horizon).
     """
     params = get_preset(spec.vehicle)
     n = len(T)
     dt = spec.dt
     length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
-    kmax = int(length.max())
-    sim = BatchedQuadrotor(params, n, dt=dt, substeps=spec.substeps)
+    kmax = int(length.max()) + int(extra_steps)
+    sim = BatchedQuadrotor(params, n, dt=dt, substeps=spec.substeps, perturbation=perturbation, seed=perturb_seed)
     ctrl = GeometricController(params)
     out = Rollout(
         np.empty((kmax + 1, n, task.STATE_DIM)),
@@ -209,11 +217,12 @@ def rollout_expert(
             assert out.rotors is not None  # allocated with record_rotors
             out.rotors[k] = sim.rotor_speeds
         t = np.minimum(k * dt, T)
+        seen = states[k] if sim.plant is None else sim.observe()
         if replanning and k > 0 and k % spec.replan_every == 0:
             # t0 holds each episode's plan start (an array) when replanning
-            recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, states[k], xf, T)
+            recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, seen, xf, T)
         ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
-        a = ctrl(states[k], *ref, yaw=0.0)
+        a = ctrl(seen, *ref, yaw=0.0)
         if noise is not None:
             assert out.expert_actions is not None  # allocated with the noise
             out.expert_actions[k] = a

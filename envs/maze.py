@@ -35,6 +35,7 @@ from aerohrl import task as T
 from aerohrl.envs import MAZE_ID
 from aerohrl.envs.episodes import EpisodeSet, hover_states
 from aerohrl.envs.reach import QuadrotorReachEnv, QuadrotorReachVectorEnv
+from aerohrl.sim.perturb import Perturbation
 from aerohrl.errors import UserError
 
 if TYPE_CHECKING:
@@ -149,6 +150,8 @@ class QuadrotorMazeVectorEnv(QuadrotorReachVectorEnv):
         autoreset: bool = True,
         tolerance_scale: float = 1.0,
         render_mode=None,
+        perturbation: Perturbation | None = None,
+        perturb_seed: int = 0,
     ):
         self.maze = get_maze(maze)
         self.task = check_task(self.maze, task)
@@ -163,6 +166,8 @@ class QuadrotorMazeVectorEnv(QuadrotorReachVectorEnv):
             autoreset=autoreset,
             tolerance_scale=tolerance_scale,
             render_mode=render_mode,
+            perturbation=perturbation,
+            perturb_seed=perturb_seed,
         )
 
     def _new_episodes(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -30,6 +30,11 @@ dataset's desired goals when built with ``dataset=``; otherwise rho_D sampled wi
 the evaluation harness does. Autoreset: ``NEXT_STEP`` (Gymnasium's default: the step
 after a sub-environment ended resets it and ignores its action), or ``DISABLED`` with
 ``autoreset=False`` (the harness: finished vehicles keep flying and are ignored).
+
+Model error (robustness tests): ``perturbation=`` a :class:`~aerohrl.sim.perturb.Perturbation`
+flies every vehicle on the perturbed plant (randomness seeded by ``perturb_seed``); then
+``observation`` is the state as the policy observes it (noise and bias), while
+``achieved_goal``, the reward and every test of the goal are on the true state.
 :meth:`set_desired_goals` changes the goal (and the step budget) of some vehicles in
 flight: how the harness hands planned intermediate goals to the policy.
 """
@@ -48,6 +53,7 @@ from aerohrl import task
 from aerohrl.envs import REACH_ID
 from aerohrl.envs.episodes import hover_states
 from aerohrl.sim.params import GRAVITY
+from aerohrl.sim.perturb import Perturbation
 
 ENV_ID = REACH_ID  # registered by aerohrl.envs.register
 RATE_LIMIT = 20.0  # rad/s, commanded body-rate bound of the action space
@@ -102,6 +108,8 @@ class QuadrotorReachVectorEnv(VectorEnv):
         acc_range=(-5.0, 5.0),
         tolerance_scale: float = 1.0,
         render_mode=None,
+        perturbation: Perturbation | None = None,
+        perturb_seed: int = 0,
     ):
         from aerohrl.sim import BatchedQuadrotor, get_preset
 
@@ -121,7 +129,9 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self.substeps = int(substeps or spec.get("substeps", 5))
         self.num_envs = n = int(num_envs)
         self.render_mode = render_mode
-        self.sim = BatchedQuadrotor(get_preset(self.vehicle), n, dt=1.0 / self.fps, substeps=self.substeps)
+        self.sim = BatchedQuadrotor(
+            get_preset(self.vehicle), n, dt=1.0 / self.fps, substeps=self.substeps, perturbation=perturbation, seed=perturb_seed
+        )
         self.metadata = {**self.metadata, "autoreset_mode": AutoresetMode.NEXT_STEP if autoreset else AutoresetMode.DISABLED}
         self.autoreset = bool(autoreset)
         self.tolerance = task.TOLERANCE.scaled(float(tolerance_scale))  # of `terminated` (1: the SPEC's goal-reached test)
@@ -175,14 +185,15 @@ class QuadrotorReachVectorEnv(VectorEnv):
 
     def _obs(self) -> dict:
         s = self.state
-        return {"observation": s.copy(), "achieved_goal": task.achieved_goal(s).copy(), "desired_goal": self.goals.copy()}
+        seen = s.copy() if self.sim.plant is None else self.sim.observe()
+        return {"observation": seen, "achieved_goal": task.achieved_goal(s).copy(), "desired_goal": self.goals.copy()}
 
     def _reset_rows(self, rows: np.ndarray, starts: np.ndarray, goals: np.ndarray, horizons: np.ndarray) -> None:
         full = self.state.copy()
         full[rows] = starts
         om = self.sim.rotor_speeds
         om[rows] = self.sim.params.hover_rotor_speed
-        self.state = self.sim.reset(full, om)
+        self.state = self.sim.reset(full, om, rows=rows)
         self.start_states[rows] = self.state[rows]
         self.goals[rows] = goals
         self.horizons[rows] = horizons

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
     from aerohrl.planning.graph import GraphPlanner
     from aerohrl.planning.planner import ChainPlanner, Planner
+    from aerohrl.sim.perturb import Perturbation
     from aerohrl.worlds.maze import Maze
 
 
@@ -74,6 +75,8 @@ def rollout(
     progress: bool = False,
     desc: str = "rollout",
     maze: Maze | None = None,
+    perturbation: Perturbation | None = None,
+    perturb_seed: int = 0,
 ) -> dict:
     """Fly every episode of ``episodes`` with the policy of ``algo``; per-episode results.
 
@@ -94,7 +97,9 @@ def rollout(
     In a ``maze`` (the episodes fly in :class:`~aerohrl.envs.maze.QuadrotorMazeVectorEnv`)
     a collision at any step ends the episode as a failure: ``collision`` (E,) and
     ``collision_step`` (E,; -1 for none) say which and when (every other array is
-    returned too, free space's ``collision`` all False).
+    returned too, free space's ``collision`` all False). ``perturbation`` flies the vehicles
+    on a perturbed plant (:mod:`aerohrl.sim.perturb`, seeded by ``perturb_seed``): the policy
+    and the planner see the observed state, the outcomes are judged on the true one.
     """
     from tqdm import tqdm
 
@@ -109,7 +114,16 @@ def rollout(
     T = int(total.max())
     nw = int(n_waypoints) if planner is not None else 0
     leg_h = int(leg_horizon or episodes.meta.get("leg_horizon", T))
-    sim = dict(vehicle=vehicle, fps=fps, substeps=substeps, autoreset=False, horizon=T, tolerance_scale=waypoint_tol)
+    sim = dict(
+        vehicle=vehicle,
+        fps=fps,
+        substeps=substeps,
+        autoreset=False,
+        horizon=T,
+        tolerance_scale=waypoint_tol,
+        perturbation=perturbation,
+        perturb_seed=perturb_seed,
+    )
     if maze is not None:  # the same closed loop; the maze env's collisions end episodes
         from aerohrl.envs.maze import QuadrotorMazeVectorEnv
 
@@ -155,7 +169,7 @@ def rollout(
     pos = np.zeros((E, T + 1, 3), np.float32) if record else None
     if record:
         assert pos is not None
-        pos[:, 0] = obs["observation"][:, :3]
+        pos[:, 0] = obs["achieved_goal"][:, :3]
     bar = tqdm(total=T, desc=desc, unit="step", disable=None if progress else True, leave=False, dynamic_ncols=True)
     try:
         for t in range(T):
@@ -169,7 +183,7 @@ def rollout(
             ag = obs["achieved_goal"]
             if record:
                 assert pos is not None
-                pos[:, t + 1] = obs["observation"][:, :3]
+                pos[:, t + 1] = obs["achieved_goal"][:, :3]
             dp, dv, dr = task.goal_errors(ag, G)
             min_pos = np.where(active, np.minimum(min_pos, dp), min_pos)
             hit = task.goal_reached(ag, G, tol) & active & ~crash

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from aerohrl.envs.episodes import EpisodeSet
     from aerohrl.planning.graph import GraphPlanner
     from aerohrl.planning.planner import ChainPlanner, Planner
+    from aerohrl.sim.perturb import Perturbation
 
 PLANNERS = ("none", "single", "multi", "graph")
 # graph: a plan has as many intermediate goals as its shortest path needs, up to this many
@@ -46,10 +47,17 @@ OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or
 FLOORS = ("none", "hover", "no-goal")  # = eval/floors.py FLOORS (which loads torch)
 
 
-def _in_name(f: Any, rank: int, part: str, planned: bool = False) -> Any:
+def _perturb_slug(text: str) -> str:
+    from aerohrl.sim.perturb import Perturbation
+
+    return Perturbation.parse(text).slug()
+
+
+def _in_name(f: Any, rank: int, part: str | Callable[[Any], str], planned: bool = False) -> Any:
     """The param field ``f`` whose value, when it differs from the default, adds
-    ``part.format(value)`` to the result folder's name (:meth:`EvalOptions.name`) at
-    position ``rank``; ``planned``: only when a planner flies (``planner`` is not none)."""
+    ``part.format(value)`` (or ``part(value)`` for a function) to the result folder's name
+    (:meth:`EvalOptions.name`) at position ``rank``; ``planned``: only when a planner flies
+    (``planner`` is not none)."""
     f.metadata = MappingProxyType({**f.metadata, "name_part": (rank, part, planned)})
     return f
 
@@ -148,7 +156,16 @@ class EvalOptions:
         "-synth",
         planned=True,
     )
-    seed: int = param(0, "episode-set seed", ge=0)
+    perturb: str | None = _in_name(
+        param(
+            None,
+            'fly on a perturbed vehicle: NAME=VALUE[,NAME=VALUE...] of docs/spec.md "Perturbations" '
+            "(e.g. mass=1.2,latency=0.02); results go to <task>-perturb-<mass1.2-latency0.02>",
+        ),
+        9,
+        lambda v: "-perturb-" + _perturb_slug(v),
+    )
+    seed: int = param(0, "episode-set seed (and the perturbation's gusts and noise)", ge=0)
     device: str = param("cpu", "torch device")
     record: bool = param(True, "keep the trajectories of the newest checkpoint (for plots)", flag=False)
     progress: bool = param(True, "progress bars", flag=False)
@@ -191,8 +208,19 @@ class EvalOptions:
             rank, part, needs_planner = f.metadata["name_part"]
             value = getattr(self, f.name)
             if value != f.default and (planned or not needs_planner):
-                parts.append((rank, part.format(value)))
+                parts.append((rank, part(value) if callable(part) else part.format(value)))
         return head + "".join(p for _, p in sorted(parts))
+
+
+def perturbation(text: str | None) -> Perturbation | None:
+    """The :class:`~aerohrl.sim.perturb.Perturbation` of ``--perturb`` (None: the nominal model);
+    UserError (one line) for a bad one."""
+    from aerohrl.sim.perturb import Perturbation
+
+    if not text:
+        return None
+    p = Perturbation.parse(text)
+    return None if p.nominal else p
 
 
 def run_checkpoints(run_dir: str | Path | Run, k: int) -> list[Path]:
@@ -309,6 +337,7 @@ def check_options(opt: EvalOptions) -> None:
     if opt.ring is not None and opt.family is None:
         raise UserError("--ring needs --family (position | velocity | acceleration | combined)")
     opt.ring_def()  # one-line errors for unknown families and bad rings
+    perturbation(opt.perturb)  # one-line errors for unknown axes and values out of range
 
 
 def build_episodes(data: Dataset, opt: EvalOptions) -> EpisodeSet:
@@ -364,6 +393,8 @@ def fly(
         progress=opt.progress,
         desc=desc,
         maze=dataset_maze(data) if episodes.task == "maze" else None,
+        perturbation=perturbation(opt.perturb),
+        perturb_seed=opt.seed,
         **sim_kwargs(data),
     )
 
@@ -401,7 +432,14 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
         algo, ck = load_policy(path, device, run)
         check_checkpoint_dataset(ck, data, path)
         if hover_success is None and episodes.task == "reach-intermediate" and opt.floor != "hover":  # one flight, ~1 s
-            hover_success = rollout(wrap_floor(algo, "hover"), episodes, goal_tol=opt.goal_tol, **sim_kwargs(data))["success"]
+            hover_success = rollout(
+                wrap_floor(algo, "hover"),
+                episodes,
+                goal_tol=opt.goal_tol,
+                perturbation=perturbation(opt.perturb),
+                perturb_seed=opt.seed,
+                **sim_kwargs(data),
+            )["success"]
         algo = wrap_floor(algo, opt.floor)
         record = opt.record and i == len(ckpts) - 1
         t0 = time.perf_counter()

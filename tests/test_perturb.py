@@ -195,3 +195,54 @@ def test_parse_roundtrip_and_slug():
     assert Perturbation.parse(p.text()) == p
     assert p.slug() == "mass1.2-latency0.02-drag0.5-wind3"
     assert Perturbation().slug() == "nominal" and Perturbation().nominal
+
+
+# ----------------------------------------------------------------------------- env and eval
+def test_env_observes_noisy_state_and_judges_true_one():
+    from aerohrl.envs.reach import QuadrotorReachVectorEnv
+
+    env = QuadrotorReachVectorEnv(4, perturbation=Perturbation(pos_bias=0.5), perturb_seed=2, autoreset=False)
+    obs, _ = env.reset(seed=0)
+    np.testing.assert_allclose(np.linalg.norm(obs["observation"][:, :3] - obs["achieved_goal"][:, :3], axis=1), 0.5)
+    obs, *_ = env.step(np.tile(HOVER, (4, 1)))
+    assert np.array_equal(obs["achieved_goal"], env.sim.state[:, :15])
+    np.testing.assert_allclose(np.linalg.norm(obs["observation"][:, :3] - env.sim.state[:, :3], axis=1), 0.5)
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    import torch
+
+    from aerohrl.algorithms.config import make_config
+    from aerohrl.algorithms.synthetic import write_synthetic_dataset
+    from aerohrl.algorithms.trainer import start_run
+
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("perturb")
+    ds = write_synthetic_dataset(root / "ds")
+    tiny = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=20, log_every=10, checkpoint_every=20)
+    cfg = make_config("cpu", algo="gcsl", dataset=str(ds), eval_every=20, eval_episodes=2, eval_horizon=20, **tiny)
+    tr = start_run(cfg, root / "runs" / "gcsl", progress=False)
+    tr.train()
+    return root / "runs" / "gcsl"
+
+
+def test_eval_perturb_end_to_end(tiny_run, capsys):
+    import json
+
+    from aerohrl.cli import main
+
+    common = ["eval", "--run", str(tiny_run), "--episodes", "3", "--checkpoints", "1", "--quiet"]
+    assert main([*common, "--task", "reach-desired", "--perturb", "mass=1.2,latency=0.02"]) == 0
+    d = tiny_run / "eval" / "reach-desired-perturb-mass1.2-latency0.02"
+    s = json.loads((d / "summary.json").read_text())
+    assert s["options"]["perturb"] == "mass=1.2,latency=0.02" and s["episodes"] == 3
+    assert main([*common, "--task", "ood", "--horizon", "30", "--perturb", "drag=0.5,wind=3,gust=1,pos_noise=0.02"]) == 0
+    assert (tiny_run / "eval" / "ood-none-perturb-drag0.5-wind3-gust1-posnoise0.02" / "summary.json").exists()
+    capsys.readouterr()
+    try:
+        code = main([*common, "--task", "reach-desired", "--perturb", "mass=-1"])
+    except SystemExit as e:
+        code = e.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.count("\n") == 0 and "mass must be > 0" in err
