@@ -11,6 +11,8 @@
     aerohrl eval plot --task ood --run runs/<run> -o ood.png     # 3D trajectories (Fig. 3.5 / 3.6)
     aerohrl eval plot --curves runs/gcsl runs/td3bc -o curves.png   # learning curves (Fig. 3.3 / 3.4)
     aerohrl eval oracle --run runs/<run>                         # what any Eq. 3.7 planner could reach (planning/oracle.py)
+    aerohrl eval --task reach-novel --run runs/<run> --perturb mass=1.2,latency=0.02   # on a perturbed vehicle (sim/perturb.py)
+    aerohrl eval robustness --run runs/a runs/b runs/c -o results/robustness   # success against each perturbation's size
 
 Exit status: 0 done, 2 bad input (one line ``aerohrl eval: error: ...``), 130 interrupted.
 """
@@ -261,9 +263,74 @@ def cmd_oracle(a: argparse.Namespace) -> int:
     return 0
 
 
+def _robustness_parser() -> ArgumentParser:
+    from aerohrl.eval.robustness import AXES, BREAK
+
+    ap = ArgumentParser(
+        prog=f"{PROG} robustness",
+        description="Robustness curves: success against each perturbation's magnitude, from nominal until every curve "
+        f"is below {BREAK:.0%}, for the runs' policies (mean over the runs) and the geometric expert tracking its "
+        "references on the same perturbed vehicle (eval/robustness.py). Writes robustness.md, robustness.csv and a plot per axis.",
+    )
+    ap.add_argument(
+        "--run", nargs="*", type=Path, default=[], help="training runs (e.g. the seeds of a recipe); none: the expert only"
+    )
+    ap.add_argument("--axes", default=",".join(AXES), help=f"comma-separated axes of {', '.join(AXES)} [all]")
+    ap.add_argument("--task", default="reach-novel", help="evaluation task of the policies [reach-novel]")
+    ap.add_argument("--episodes", type=T.positive_int, default=100, help="episodes per point, policy and expert [100]")
+    ap.add_argument("--checkpoints", type=T.positive_int, default=1, help="newest checkpoints per run [1]")
+    ap.add_argument(
+        "--values", action="append", default=None, metavar="AXIS=V1:V2:...", help="magnitudes of an axis (repeatable)"
+    )
+    ap.add_argument("--no-expert", dest="expert", action="store_false", help="skip the expert's curve")
+    ap.add_argument("--full", action="store_true", help="fly every magnitude (default: stop once every curve is broken)")
+    add_common(
+        ap,
+        out={"required": True, "help": "report folder"},
+        quiet=True,
+        threads={"default": 1},
+        seed={"help": "episode, reference and perturbation seed (>= 0) [0]"},
+        device={},
+    )
+    return ap
+
+
+def cmd_robustness(a: argparse.Namespace) -> int:
+    """``aerohrl eval robustness``: the curves and their report; exit code."""
+    import shlex
+
+    from aerohrl.eval.robustness import parse_values, run_study, write_results
+
+    set_threads(a.threads)
+    axes = [x.strip() for x in a.axes.split(",") if x.strip()]
+    values = parse_values(a.values)
+    log = (lambda m: None) if a.quiet else (lambda m: print(m, flush=True))
+    points = run_study(
+        list(a.run),
+        axes=axes,
+        task_name=a.task,
+        episodes=a.episodes,
+        checkpoints=a.checkpoints,
+        seed=a.seed,
+        values=values,
+        expert=a.expert,
+        device=a.device,
+        full=a.full,
+        log=log,
+    )
+    command = "aerohrl eval robustness " + " ".join(shlex.quote(x) for x in a.argv)
+    write_results(points, a.out, runs=list(a.run), task_name=a.task, episodes=a.episodes, command=command)
+    print(f"robustness curves: {a.out / 'robustness.md'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    """The ``aerohrl eval`` command (``table``, ``oracle``, ``plot`` or an evaluation); exit code."""
+    """The ``aerohrl eval`` command (``table``, ``oracle``, ``plot``, ``robustness`` or an evaluation); exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "robustness":
+        a = _robustness_parser().parse_args(argv[1:])
+        a.argv = argv[1:]  # the command, for the report
+        return run_cli(PROG, lambda: cmd_robustness(a))
     if argv and argv[0] == "table":
         a = _table_parser().parse_args(argv[1:])
         return run_cli(PROG, lambda: cmd_table(a))

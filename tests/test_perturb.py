@@ -246,3 +246,38 @@ def test_eval_perturb_end_to_end(tiny_run, capsys):
         code = e.code
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.count("\n") == 0 and "mass must be > 0" in err
+
+
+def test_robustness_study_tiny(tiny_run, tmp_path, capsys):
+    import csv
+
+    from aerohrl.cli import main
+
+    out = tmp_path / "rob"
+    argv = ["eval", "robustness", "--run", str(tiny_run), "--task", "reach-desired", "--episodes", "3", "--quiet"]
+    argv += ["--axes", "mass,wind", "--values", "mass=1:1.5", "--values", "wind=0:2", "--full", "-o", str(out)]
+    assert main(argv) == 0
+    rows = list(csv.DictReader(open(out / "robustness.csv")))
+    assert [(r["axis"], r["value"], r["curve"]) for r in rows] == [
+        (a, v, c) for a, vs in (("mass", ("1", "1.5")), ("wind", ("0", "2"))) for v in vs for c in ("policy", "expert")
+    ]
+    assert rows[2]["perturb"] == "mass=1.5" and rows[6]["perturb"] == "drag=0.5,wind=2,gust=0.666667"
+    md = (out / "robustness.md").read_text()
+    assert "| mass | expert |" in md and "aerohrl eval robustness" in md
+    assert (out / "robustness-mass.png").stat().st_size > 0 and (out / "robustness-wind.png").exists()
+    assert (tiny_run / "eval" / "reach-desired-perturb-mass1.5" / "summary.json").exists()
+    capsys.readouterr()
+    try:
+        code = main(["eval", "robustness", "--axes", "weight", "-o", str(out), "--quiet"])
+    except SystemExit as e:
+        code = e.code
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "unknown robustness axis 'weight'" in err and "\n" not in err
+
+
+def test_breaking_points():
+    from aerohrl.eval.robustness import Point, breaking_points
+
+    pts = [Point("mass", x, "expert", s, (s,), "") for x, s in ((1.0, 1.0), (1.2, 0.95), (1.3, 0.5), (1.5, 0.95))]
+    assert breaking_points(pts) == {("mass", "expert"): 1.3}
+    assert breaking_points(pts[:2]) == {("mass", "expert"): None}
