@@ -26,12 +26,15 @@ import io
 import math
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from aerohrl import atomic, task
 from aerohrl.errors import UserError
+
+if TYPE_CHECKING:
+    from aerohrl.datagen.spec import DatasetSpec
 
 BREAK = 0.9  # success below this is broken
 WIND_DRAG = 0.5  # 1/s: the wind axis's drag (wind acts through it)
@@ -101,7 +104,7 @@ def parse_values(items: list[str] | None) -> dict[str, tuple[float, ...]]:
 
 
 # ----------------------------------------------------------------------------- the expert
-def expert_spec(info_spec: dict | None):
+def expert_spec(info_spec: dict | None) -> DatasetSpec:
     """The :class:`~aerohrl.datagen.spec.DatasetSpec` of a dataset's recorded spec, its expert
     flying clean (no action noise) from rest."""
     from aerohrl.datagen.spec import DatasetSpec
@@ -112,7 +115,7 @@ def expert_spec(info_spec: dict | None):
     return replace(spec, action_noise=(0.0, 0.0, 0.0, 0.0), start_states="rest", world="free", family="navigate")
 
 
-def expert_success(spec, episodes: int, seed: int, horizon: int, perturbation_text_: str | None) -> np.ndarray:
+def expert_success(spec: DatasetSpec, episodes: int, seed: int, horizon: int, perturbation_text_: str | None) -> np.ndarray:
     """(episodes,) bool: the geometric expert reaches its goal within ``horizon`` steps on the
     perturbed plant, flying min-time references of ``spec`` from hover (seeded by ``seed``)."""
     from aerohrl.datagen import goals as goals_mod

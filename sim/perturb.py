@@ -89,6 +89,7 @@ class Perturbation:
     # ------------------------------------------------------------------ spec
     @classmethod
     def names(cls) -> tuple[str, ...]:
+        """The field names, the axes of ``NAME=VALUE``."""
         return tuple(f.name for f in fields(cls))
 
     @classmethod
@@ -170,6 +171,7 @@ class Perturbation:
         return {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in self.changed().items()}
 
     def with_values(self, **changes: Value) -> "Perturbation":
+        """A copy with some fields changed."""
         return replace(self, **changes)
 
 
@@ -342,11 +344,14 @@ class PerturbedPlant:
         return out
 
     def wrench(self, omega: np.ndarray, m: dyn.Model, out: np.ndarray, s: dyn.Scratch) -> np.ndarray:
+        """``out`` (4, N) = the perturbed ``[T/m', J'^-1 tau_prop']``: the nominal wrench times :func:`wrench_scale`."""
         dyn.rotor_wrench(omega, m, out, s)
         np.multiply(out, self.scale, out=out)
         return out
 
-    def rk4_step(self, X: np.ndarray, omega_cmd: np.ndarray, h: float, m: dyn.Model, s: dyn.Scratch, out: np.ndarray):
+    def rk4_step(
+        self, X: np.ndarray, omega_cmd: np.ndarray, h: float, m: dyn.Model, s: dyn.Scratch, out: np.ndarray
+    ) -> np.ndarray:
         """:func:`aerohrl.sim.dynamics.rk4_step` on the perturbed plant: the same exact motor
         solution (per-vehicle time constant) and classical RK4 of the rigid body."""
         K, k, xs = s.acc, s.k, s.xs
