@@ -129,6 +129,7 @@ class QuadrotorReachVectorEnv(VectorEnv):
         self.substeps = int(substeps or spec.get("substeps", 5))
         self.num_envs = n = int(num_envs)
         self.render_mode = render_mode
+        self._perturb_seed = int(perturb_seed)
         self.sim = BatchedQuadrotor(
             get_preset(self.vehicle), n, dt=1.0 / self.fps, substeps=self.substeps, perturbation=perturbation, seed=perturb_seed
         )
@@ -206,6 +207,8 @@ class QuadrotorReachVectorEnv(VectorEnv):
         """Start every vehicle at hover at the origin (or ``options["start_states"]`` (n, 18))
         with new goals (``options["goals"]`` (n, 15), else drawn); returns ``(obs, info)``."""
         super().reset(seed=seed)
+        if seed is not None and self.sim.plant is not None:  # a seeded reset replays the gusts and noise too
+            self.sim.plant.reseed([self._perturb_seed, int(seed)])
         options = options or {}
         n = self.num_envs
         given = [options.get(k) for k in ("start_states", "goals", "horizons")]

@@ -289,6 +289,10 @@ class PerturbedPlant:
         self._ar = np.arange(n)
         self.reset(np.arange(n))
 
+    def reseed(self, seed: int | list[int]) -> None:
+        """Restart the random generator (gusts, noise, bias directions) from ``seed``."""
+        self.rng = np.random.default_rng(seed)
+
     def reset(self, rows: np.ndarray) -> None:
         """New episodes for ``rows``: hover in the delay line, a fresh gust and fresh bias directions."""
         rows = np.asarray(rows, dtype=np.int64)

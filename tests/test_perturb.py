@@ -207,6 +207,9 @@ def test_env_observes_noisy_state_and_judges_true_one():
     obs, *_ = env.step(np.tile(HOVER, (4, 1)))
     assert np.array_equal(obs["achieved_goal"], env.sim.state[:, :15])
     np.testing.assert_allclose(np.linalg.norm(obs["observation"][:, :3] - env.sim.state[:, :3], axis=1), 0.5)
+    again, _ = env.reset(seed=0)  # a seeded reset replays the biases
+    first, _ = QuadrotorReachVectorEnv(4, perturbation=Perturbation(pos_bias=0.5), perturb_seed=2).reset(seed=0)
+    assert np.array_equal(again["observation"], first["observation"])
 
 
 @pytest.fixture(scope="module")
