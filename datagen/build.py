@@ -74,6 +74,7 @@ class ExpertData:
     action_expert: np.ndarray | None = None  # (F,4) the clean expert command at each flown state (action noise)
     goal_index: np.ndarray | None = None  # (N,) the desired goal each episode flies (rollouts_per_goal > 1)
     timings: dict = field(default_factory=dict)
+    perturbation: dict | None = None  # {axis: (N,)} each episode's vehicle under domain randomisation
 
     @property
     def episode_success(self) -> np.ndarray:
@@ -162,7 +163,7 @@ def rollout_expert(
     record_rotors: bool = False,
     noise_rng: np.random.Generator | None = None,
     perturbation: Perturbation | None = None,
-    perturb_seed: int = 0,
+    perturb_seed: int | list[int] = 0,
     extra_steps: int = 0,
 ) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
@@ -241,6 +242,19 @@ def rollout_expert(
 ROLLOUT_BLOCK = 8192
 NOISE_STREAM = 11  # seed stream of the action noise: [spec.seed, 11, part, block]
 START_STREAM = 13  # seed stream of the perturbed start states: [spec.seed, 13]
+RANDOMIZE_STREAM = 19  # domain randomisation: values [spec.seed, 19], gusts and noise [spec.seed, 19, part, block]
+
+
+def episode_perturbations(spec: DatasetSpec, n: int) -> dict[str, np.ndarray] | None:
+    """Each of ``n`` episodes' perturbation values under ``spec.randomize`` (uniform in the
+    ranges, stream ``[spec.seed, 19]``): ``{axis: (n,)}``, or None without randomisation."""
+    if not spec.randomize:
+        return None
+    from aerohrl.sim.perturb import parse_ranges, sample
+
+    return sample(parse_ranges(spec.randomize), n, np.random.default_rng([spec.seed, RANDOMIZE_STREAM]))
+
+
 # Below this a recipe is refused. Not a quality bar: the labels are the clean command at
 # every flown state, and the noisiest recipe that trains best reaches well under half of its
 # goals (docs/results/ "recipes"); below 20 % the flights rarely come near their goals, and
@@ -273,17 +287,32 @@ def _fly_block(
     part: int,
     block: int,
     progress: bool = False,
+    perturb: dict | None = None,
 ) -> dict:
     """One block's flights (:func:`rollout_expert`), returned as its recorded frames,
     episode-major: what a worker process or Ray task sends back. A function of its
     arguments alone (noise stream ``[spec.seed, 11, part, block]``), so the bytes do not
-    depend on where it runs."""
+    depend on where it runs. ``perturb``: each episode's perturbation values (domain
+    randomisation), its gusts and noise from ``[spec.seed, 19, part, block]``."""
     n = len(T)
     length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
     e = np.repeat(np.arange(n), length)
     kk = np.arange(int(length.sum())) - np.repeat(np.concatenate([[0], np.cumsum(length)[:-1]]), length)
     rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, block]) if spec.noisy else None
-    r = rollout_expert(spec, goals, T, coeffs, progress, start_state, rotor_speeds, record_rotors, rng)
+    pert = Perturbation(**perturb) if perturb else None
+    r = rollout_expert(
+        spec,
+        goals,
+        T,
+        coeffs,
+        progress,
+        start_state,
+        rotor_speeds,
+        record_rotors,
+        rng,
+        perturbation=pert,
+        perturb_seed=[spec.seed, RANDOMIZE_STREAM, part, block],
+    )
     out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
     if r.expert_actions is not None:
         out["expert_action"] = r.expert_actions[kk, e]
@@ -315,18 +344,20 @@ def fly_blocks(
     rotor_speeds: np.ndarray | None = None,
     record_rotors: bool = False,
     runner: BlockRunner | None = None,
+    perturb: dict | None = None,
 ) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
     ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
     episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of
     the goal episodes (0) and the continuations (1). ``runner`` (:class:`BlockRunner`)
     flies the blocks in worker processes or Ray tasks; they come back in block order, so
-    the frames are byte-identical to flying them here."""
+    the frames are byte-identical to flying them here. ``perturb``: each episode's
+    perturbation values (domain randomisation, :func:`episode_perturbations`)."""
     n = len(T)
     bounds = block_bounds(n)
     nb = len(bounds) - 1
 
-    def args(b: int) -> tuple[DatasetSpec, dict, np.ndarray, np.ndarray, Any, Any, bool, int, int]:
+    def args(b: int, prog: bool = False) -> tuple:
         sl = slice(int(bounds[b]), int(bounds[b + 1]))
         return (
             spec,
@@ -338,11 +369,13 @@ def fly_blocks(
             record_rotors,
             part,
             b,
+            prog,
+            None if perturb is None else {k: v[sl] for k, v in perturb.items()},
         )
 
     results: Iterator[dict]
     if runner is None or nb < 2:
-        results = (_fly_block(*args(b), progress=progress) for b in range(nb))
+        results = (_fly_block(*args(b, progress)) for b in range(nb))
     else:
         results = runner.map(_fly_block, (args(b) for b in range(nb)))
     for b, r in enumerate(
@@ -364,6 +397,7 @@ def fly(
     rotor_speeds: np.ndarray | None = None,
     record_rotors: bool = False,
     runner: BlockRunner | None = None,
+    perturb: dict | None = None,
 ) -> _Frames:
     """All frames of :func:`fly_blocks` in arrays allocated once (their size is known from
     T): what :func:`generate` keeps in memory. ``datagen build`` streams the blocks to
@@ -395,6 +429,7 @@ def fly(
         rotor_speeds=rotor_speeds,
         record_rotors=record_rotors,
         runner=runner,
+        perturb=perturb,
     ):
         f0, f1 = first[lo], first[hi - 1] + length[hi - 1]
         fr.state[f0:f1] = r["state"]
@@ -535,7 +570,8 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
     goals, T, coeffs, start, goal_index = episode_starts(spec, goals, T, coeffs)
     t1 = time.perf_counter()
     cont = spec.continuations > 0
-    fr = fly(spec, goals, T, coeffs, progress, part=0, start_state=start, record_rotors=cont, runner=runner)
+    pert = episode_perturbations(spec, len(T))
+    fr = fly(spec, goals, T, coeffs, progress, part=0, start_state=start, record_rotors=cont, runner=runner, perturb=pert)
     ep, k, state, action, next_state, expert_action = fr.ep, fr.k, fr.state, fr.action, fr.next_state, fr.expert_action
     success = fr.success
     length = np.bincount(ep, minlength=len(T))
@@ -589,6 +625,7 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
         source_frame=source_frame,
         action_expert=expert_action,
         goal_index=goal_index if spec.rollouts_per_goal > 1 else None,
+        perturbation=pert,
     )
     data.timings = {"references_s": t1 - t0, "rollout_s": t2 - t1, "frames_s": time.perf_counter() - t2}
     return data
@@ -632,7 +669,8 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
     success = np.zeros(n, bool)
     first = np.full(n, -1, np.int64)
     final = np.empty((n, task.STATE_DIM))
-    for lo, hi, r in fly_blocks(spec, goals, T, coeffs, progress, part=0, start_state=start, runner=runner):
+    pert = episode_perturbations(spec, n)
+    for lo, hi, r in fly_blocks(spec, goals, T, coeffs, progress, part=0, start_state=start, runner=runner, perturb=pert):
         L = length[lo:hi]
         ends = np.cumsum(L)
         e = np.repeat(np.arange(hi - lo), L)
@@ -663,6 +701,7 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
         np.full(n, -1, np.int64),
         np.full(n, -1, np.int64),
         goal_index if spec.rollouts_per_goal > 1 else None,
+        perturbation=pert,
     )
 
 
@@ -733,6 +772,7 @@ class EpisodeSummary:
     collided: np.ndarray | None = None  # (N,) bool, maze worlds: the episode touched a wall, floor or ceiling
     start_cell: np.ndarray | None = None  # (N, 2) maze expert families: start and goal cells (row, col)
     goal_cell: np.ndarray | None = None
+    perturbation: dict | None = None  # {axis: (N,)} each episode's vehicle under domain randomisation
 
     @property
     def frames(self) -> int:
@@ -759,6 +799,7 @@ def summarize(data: ExpertData) -> EpisodeSummary:
         data.source_episode,
         data.source_frame,
         data.goal_index,
+        perturbation=data.perturbation,
     )
 
 
@@ -799,6 +840,8 @@ def episode_table(data: "EpisodeSummary | ExpertData") -> pa.Table:
             cols[key] = pa.FixedSizeListArray.from_arrays(pa.array(np.asarray(rc, np.int64).reshape(-1)), 2)
     if data.collided is not None:  # maze worlds
         cols["collided"] = pa.array(data.collided)
+    for axis, v in (data.perturbation or {}).items():  # domain randomisation: each episode's vehicle
+        cols[f"perturb_{axis}"] = pa.array(np.asarray(v, np.float64))
     return pa.table(cols)
 
 
@@ -920,6 +963,14 @@ def recipe_summary(spec: DatasetSpec) -> dict:
         }
     if spec.rollouts_per_goal > 1:
         r["rollouts_per_goal"] = spec.rollouts_per_goal
+    if spec.randomize:
+        from aerohrl.sim.perturb import parse_ranges
+
+        r["randomize"] = {
+            "ranges": {k: list(v) for k, v in parse_ranges(spec.randomize).items()},
+            "kind": "each episode's expert flies its own perturbed vehicle (docs/spec.md Perturbations), values uniform "
+            "per episode; perturb_<axis> in meta/aerohrl_episodes.parquet, not in the frames",
+        }
     return r
 
 
@@ -941,6 +992,10 @@ def _recipe_note(meta: dict) -> str:
         )
     if "rollouts_per_goal" in r:
         lines.append(f"- {r['rollouts_per_goal']} flights per goal (goal-major; `goal_index` in meta/aerohrl_episodes.parquet)")
+    if "randomize" in r:
+        d = r["randomize"]
+        ranges = ", ".join(f"{k} {lo:g}..{hi:g}" for k, (lo, hi) in d["ranges"].items())
+        lines.append(f"- domain randomisation: {d['kind']}; ranges {ranges}")
     return "\n".join(lines) + "\n"
 
 

@@ -33,6 +33,7 @@ EXPLORE_TASK = "Random-velocity flights (not goal-directed); the desired goal is
 # Recipe fields added after datasets were published: left out of the spec's dict (and so
 # of its hash, version name and metadata bytes) while they hold their defaults.
 RECIPE_DEFAULTS = {
+    "randomize": "",
     "continuations": 0,
     "expert": "open-loop",
     "replan_every": 5,
@@ -122,6 +123,13 @@ class DatasetSpec:
     rollouts_per_goal: int = param(1, "flights per goal (each with its own noise / start)", ge=1)
     # Worlds and dataset families (datagen/README.md "Maze families"). In a maze world
     # ``goals`` counts the episodes; the goal ranges and t_max do not apply there.
+    # Domain randomisation: each episode's expert flies its own perturbed vehicle (sim/perturb.py),
+    # values uniform per episode in the ranges, recorded as perturb_<axis> columns of the episode table.
+    randomize: str = param(
+        "",
+        "domain randomisation: AXIS=LO:HI[,AXIS=LO:HI...] over docs/spec.md's perturbations (e.g. "
+        "mass=0.8:1.2,latency=0:0.02); each episode's expert flies its own vehicle, values uniform per episode",
+    )
     world: str = param("free", "free (open space, the thesis) | maze-medium | maze-large | maze-giant", choices=WORLDS)
     family: str = param(
         "navigate",
@@ -172,6 +180,12 @@ class DatasetSpec:
                 f"action_noise {list(self.action_noise)} is beyond what the expert flies through "
                 "(sigma <= 5 m/s^2 on thrust, <= 3 rad/s on rates; at 2 / 1 it reaches 45% of its goals)"
             )
+        if self.randomize:
+            from aerohrl.sim.perturb import parse_ranges
+
+            parse_ranges(self.randomize)  # one-line errors for unknown axes and bad ranges
+            if self.continuations > 0:
+                raise UserError("--randomize does not combine with --continuations")
         if self.rollouts_per_goal > 1 and not (self.noisy or self.start_states == "perturbed"):
             raise UserError(
                 "--rollouts-per-goal > 1 repeats identical flights without --action-noise or --start-states perturbed"
@@ -196,6 +210,7 @@ class DatasetSpec:
                 ("expert", self.expert != "open-loop"),
                 ("start_states", self.start_states != "rest"),
                 ("rollouts_per_goal", self.rollouts_per_goal > 1),
+                ("randomize", bool(self.randomize)),
                 ("action_noise", self.family == "explore" and self.noisy),
             ):
                 if bad:

@@ -44,6 +44,7 @@ simulator's ``seed``: the same seed and calls give the same bytes.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -175,6 +176,42 @@ class Perturbation:
         return replace(self, **changes)
 
 
+def parse_ranges(text: str | None) -> dict[str, tuple[float, float]]:
+    """Domain-randomisation ranges ``AXIS=LO:HI[,AXIS=V...]`` (a single value is fixed) over the
+    :class:`Perturbation` fields -> ``{axis: (lo, hi)}`` in the order given; UserError (one
+    line) for an unknown axis, a number that is not one, an inverted range or an end out of
+    the field's range."""
+    out: dict[str, tuple[float, float]] = {}
+    for item in (text or "").split(","):
+        item = item.strip()
+        if not item:
+            continue
+        name, eq, value = item.partition("=")
+        name = name.strip()
+        if not eq:
+            raise UserError(f"randomisation {item!r}: expected AXIS=LO:HI")
+        if name not in Perturbation.names():
+            raise UserError(f"unknown perturbation {name!r} (choose from: {', '.join(Perturbation.names())})")
+        if name in out:
+            raise UserError(f"randomisation {name!r} given twice")
+        ends = value.split(":")
+        try:
+            lo, hi = (float(ends[0]), float(ends[-1])) if len(ends) in (1, 2) else (math.nan, math.nan)
+        except ValueError:
+            raise UserError(f"randomisation {name}={value!r}: not LO:HI numbers") from None
+        if not lo <= hi:
+            raise UserError(f"randomisation {name}={value!r}: need LO <= HI")
+        out[name] = (lo, hi)
+    for end in (0, 1):
+        Perturbation(**{k: v[end] for k, v in out.items()}).check()  # both ends within the fields' ranges
+    return out
+
+
+def sample(ranges: dict[str, tuple[float, float]], n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """``n`` values per axis, uniform in its range (drawn axis after axis, in the order of ``ranges``)."""
+    return {k: rng.uniform(lo, hi, n) for k, (lo, hi) in ranges.items()}
+
+
 def _num(v: Value) -> str:
     if np.ndim(v):
         raise ValueError("a per-vehicle perturbation has no one-line form")
@@ -255,7 +292,7 @@ class PerturbedPlant:
 
     CHANNELS = ("pos", "vel", "att", "rate")
 
-    def __init__(self, p: Perturbation, n: int, dt: float, substeps: int, seed: int = 0):
+    def __init__(self, p: Perturbation, n: int, dt: float, substeps: int, seed: int | list[int] = 0):
         p.check(n)
         self.spec, self.n, self.dt, self.substeps = p, n, dt, substeps
         h = dt / substeps

@@ -226,7 +226,7 @@ class BatchedQuadrotor:
         threads: int = 1,
         processes: int = 1,
         perturbation: Perturbation | None = None,
-        seed: int = 0,
+        seed: int | list[int] = 0,
     ):
         if int(num_vehicles) < 1:
             raise ValueError(f"num_vehicles must be >= 1, got {num_vehicles}")

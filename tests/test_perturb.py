@@ -284,3 +284,57 @@ def test_breaking_points():
     pts = [Point("mass", x, "expert", s, (s,), "") for x, s in ((1.0, 1.0), (1.2, 0.95), (1.3, 0.5), (1.5, 0.95))]
     assert breaking_points(pts) == {("mass", "expert"): 1.3}
     assert breaking_points(pts[:2]) == {("mass", "expert"): None}
+
+
+# ----------------------------------------------------------------------------- domain randomisation
+def test_randomized_build_records_each_episodes_vehicle(tmp_path):
+    from aerohrl.datagen.build import ExpertData, build, episode_perturbations, episode_table, generate
+    from aerohrl.datagen.spec import DatasetSpec, spec_hash
+
+    nominal = DatasetSpec(goals=6, seed=3)
+    spec = DatasetSpec(goals=6, seed=3, randomize="mass=0.8:1.2,latency=0:0.02,drag=0.2:0.5,wind=0:2")
+    assert "randomize" not in nominal.to_dict() and spec_hash(spec) != spec_hash(nominal)  # earlier specs keep their hash
+    pert = episode_perturbations(spec, 6)
+    assert pert is not None and list(pert) == ["mass", "latency", "drag", "wind"]
+    assert (0.8 <= pert["mass"]).all() and (pert["mass"] <= 1.2).all() and len(set(pert["mass"])) == 6
+    a, b, c = generate(spec, progress=False), generate(spec, progress=False), generate(nominal, progress=False)
+    assert isinstance(a, ExpertData) and np.array_equal(a.state, b.state)  # seeded
+    assert not np.array_equal(a.state, c.state) and np.array_equal(a.goal_vec, c.goal_vec)  # same goals, other vehicles
+    table = episode_table(a)
+    np.testing.assert_array_equal(table["perturb_mass"].to_numpy(), pert["mass"])
+    assert "perturb_mass" not in episode_table(c).column_names
+    res = build(spec, tmp_path, progress=False, log=lambda *x: None)
+    assert res.created and res.episodes == 6
+    import pyarrow.parquet as pq
+
+    from aerohrl.datagen.build import EPISODES_FILE
+
+    written = pq.read_table(res.path / EPISODES_FILE)
+    np.testing.assert_array_equal(written["perturb_latency"].to_numpy(), pert["latency"])
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("weight=0.8:1.2", "unknown perturbation 'weight'"),
+        ("mass=1.2:0.8", "need LO <= HI"),
+        ("mass=-1:1", "mass must be > 0"),
+        ("latency=0:0.5", "latency must be <= 0.2"),
+        ("mass=a:b", "not LO:HI numbers"),
+    ],
+)
+def test_randomize_errors_are_one_line(text, match):
+    from aerohrl.datagen.spec import DatasetSpec
+
+    with pytest.raises(UserError, match=match) as e:
+        DatasetSpec(goals=4, randomize=text)
+    assert "\n" not in str(e.value)
+
+
+def test_randomized_dataset_card_names_the_ranges(tmp_path):
+    from aerohrl.datagen.build import build
+    from aerohrl.datagen.spec import DatasetSpec
+
+    res = build(DatasetSpec(goals=3, seed=5, randomize="thrust=0.9:1.1"), tmp_path, progress=False, log=lambda *x: None)
+    card = (res.path / "README.md").read_text()
+    assert "domain randomisation" in card and "thrust 0.9..1.1" in card
