@@ -18,6 +18,7 @@ commands:
   ipp       informative path planning on motion primitives (lattice, bench, ...)
   eval      evaluate runs in the simulator (reach-desired, reach-intermediate, ood + planner; table, plot)
   bench     the benchmark: mazes and free space, dataset families, frozen tasks (bench suite: the leaderboard)
+  export-policy  a run's policy as TorchScript or ONNX for onboard use
   sweep     a grid of runs (algorithms x seeds x datasets x overrides) as Ray tasks, evaluated, seed-aggregated tables
 
 Every command takes, where they mean something, the same flags: -o/--out PATH (where
@@ -67,7 +68,22 @@ def _sweep(argv):
     return main(argv)
 
 
-COMMANDS = {"datagen": _datagen, "train": _train, "runs": _runs, "ipp": _ipp, "eval": _eval, "sweep": _sweep, "bench": _bench}
+def _export_policy(argv):
+    from aerohrl.algorithms.cli import export_main
+
+    return export_main(argv)
+
+
+COMMANDS = {
+    "datagen": _datagen,
+    "train": _train,
+    "runs": _runs,
+    "ipp": _ipp,
+    "eval": _eval,
+    "sweep": _sweep,
+    "bench": _bench,
+    "export-policy": _export_policy,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -38,6 +38,8 @@ EXTRAS = {
     "lerobot": "lerobot",
     "datasets": "lerobot",
     "minari": "exchange",
+    "onnx": "export",
+    "onnxruntime": "export",
     "ogbench": "exchange",
 }
 

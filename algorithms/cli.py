@@ -176,3 +176,35 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def export_main(argv: list[str] | None = None) -> int:
+    """``aerohrl export-policy --run RUN --format onnx|torchscript -o FILE``: the newest
+    checkpoint's policy as one file for onboard use (algorithms/export.py); exit code."""
+    from aerohrl.algorithms.export import FORMATS
+
+    ap = ArgumentParser(
+        prog="aerohrl export-policy",
+        description="Export a run's newest policy (normaliser, network, action clip) as TorchScript or ONNX, with the "
+        "observation layout, units and normalisation in the file's metadata (docs/export.md).",
+    )
+    ap.add_argument("--run", required=True, type=Path, help="training run folder (runs/<run>)")
+    ap.add_argument("--format", required=True, choices=FORMATS, help="torchscript (.pt) | onnx (.onnx, needs aerohrl[export])")
+    ap.add_argument("--latency", action="store_true", help="also measure single-sample inference time on one thread")
+    add_common(ap, out={"required": True, "help": "the exported file"})
+    a = ap.parse_args(sys.argv[1:] if argv is None else argv)
+
+    def go() -> int:
+        from aerohrl.algorithms.export import export_policy, load_exported, single_sample_latency
+
+        import torch
+
+        torch.set_num_threads(1)
+        path, meta = export_policy(a.run, a.format, a.out)
+        print(f"{meta['algorithm']} at step {meta['checkpoint_step']} -> {path} ({a.format})")
+        if a.latency:
+            predict, _ = load_exported(path)
+            print(f"single-sample inference, one thread: {1e6 * single_sample_latency(predict):.1f} us (median)")
+        return 0
+
+    return run_cli("aerohrl export-policy", go)
