@@ -167,6 +167,8 @@ def run_study(
         raise UserError(f"unknown robustness axis {unknown[0]!r} (choose from: {', '.join(AXES)})")
     if not runs and not expert:
         raise UserError("nothing to fly: give runs, or keep the expert curve")
+    if expert and task_name == "maze":
+        raise UserError("the expert's curve flies free-space references; pass --no-expert with --task maze")
     loaded = {run: load_run_dataset(run) for run in runs}
     info_spec = next(iter(loaded.values()))[0].info.get("spec") if loaded else None
     spec = expert_spec(info_spec)

@@ -212,6 +212,19 @@ def test_env_observes_noisy_state_and_judges_true_one():
     assert np.array_equal(again["observation"], first["observation"])
 
 
+def test_maze_env_flies_perturbed():
+    from aerohrl.envs.maze import QuadrotorMazeVectorEnv
+
+    env = QuadrotorMazeVectorEnv(2, maze="medium", perturbation=Perturbation(mass=1.2, pos_noise=0.01), autoreset=False)
+    nominal = QuadrotorMazeVectorEnv(2, maze="medium", autoreset=False)
+    for e in (env, nominal):
+        e.reset(seed=0)
+    obs, *_ = env.step(np.tile(HOVER, (2, 1)))
+    nominal.step(np.tile(HOVER, (2, 1)))
+    assert (env.sim.state[:, 5] < nominal.sim.state[:, 5] - 0.01).all()  # heavier: sinks against the nominal
+    assert not np.array_equal(obs["observation"], env.sim.state)
+
+
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     import torch
