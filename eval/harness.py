@@ -47,10 +47,12 @@ OOD_HORIZON = 1000  # the thesis's OOD flight: two legs of 500 steps, planned or
 FLOORS = ("none", "hover", "no-goal")  # = eval/floors.py FLOORS (which loads torch)
 
 
-def _perturb_slug(text: str) -> str:
+def _perturb_part(text: str) -> str:
+    """``-perturb-<slug>`` of a ``--perturb`` text; nothing for a nominal one (it flies the nominal model)."""
     from aerohrl.sim.perturb import Perturbation
 
-    return Perturbation.parse(text).slug()
+    p = Perturbation.parse(text)
+    return "" if p.nominal else "-perturb-" + p.slug()
 
 
 def _in_name(f: Any, rank: int, part: str | Callable[[Any], str], planned: bool = False) -> Any:
@@ -163,7 +165,7 @@ class EvalOptions:
             "(e.g. mass=1.2,latency=0.02); results go to <task>-perturb-<mass1.2-latency0.02>",
         ),
         9,
-        lambda v: "-perturb-" + _perturb_slug(v),
+        _perturb_part,
     )
     seed: int = param(0, "episode-set seed (and the perturbation's gusts and noise)", ge=0)
     device: str = param("cpu", "torch device")
