@@ -231,9 +231,9 @@ def write_results(points: list[Point], out: Path, *, runs: list[Path], task_name
     lines = [
         "# Robustness curves",
         "",
-        f"Task {task_name}, {episodes} episodes per point; policy = mean over {len(runs)} run(s) "
-        + (", ".join(f"`{r}`" for r in runs) or "(none)")
-        + "; expert = the geometric controller tracking its references on the same plant.",
+        f"{episodes} episodes per point; "
+        + (f"policy = task {task_name}, mean over {len(runs)} run(s) " + ", ".join(f"`{r}`" for r in runs) + "; " if runs else "")
+        + "expert = the geometric controller tracking min-time references from hover on the same plant.",
         "",
     ]
     if command:
