@@ -99,18 +99,7 @@ class Perturbation:
         None is the nominal model. :class:`UserError` (one line) for an unknown name, a value
         that is not a number, or one out of its range."""
         kw: dict[str, float] = {}
-        for item in (text or "").split(","):
-            item = item.strip()
-            if not item:
-                continue
-            name, eq, value = item.partition("=")
-            name = name.strip()
-            if not eq:
-                raise UserError(f"perturbation {item!r}: expected NAME=VALUE")
-            if name not in cls.names():
-                raise UserError(f"unknown perturbation {name!r} (choose from: {', '.join(cls.names())})")
-            if name in kw:
-                raise UserError(f"perturbation {name!r} given twice")
+        for name, value in assignments(text, "perturbation", "NAME=VALUE"):
             try:
                 kw[name] = float(value)
             except ValueError:
@@ -176,12 +165,12 @@ class Perturbation:
         return replace(self, **changes)
 
 
-def parse_ranges(text: str | None) -> dict[str, tuple[float, float]]:
-    """Domain-randomisation ranges ``AXIS=LO:HI[,AXIS=V...]`` (a single value is fixed) over the
-    :class:`Perturbation` fields -> ``{axis: (lo, hi)}`` in the order given; UserError (one
-    line) for an unknown axis, a number that is not one, an inverted range or an end out of
-    the field's range."""
-    out: dict[str, tuple[float, float]] = {}
+def assignments(text: str | None, what: str, form: str) -> list[tuple[str, str]]:
+    """The ``NAME=VALUE`` items of a comma-separated list over the :class:`Perturbation`
+    fields, in the order given, values unparsed; UserError (one line) for an item without
+    ``=`` (``what``, ``form`` name the list in the message), an unknown field or a field
+    given twice."""
+    out: list[tuple[str, str]] = []
     for item in (text or "").split(","):
         item = item.strip()
         if not item:
@@ -189,11 +178,22 @@ def parse_ranges(text: str | None) -> dict[str, tuple[float, float]]:
         name, eq, value = item.partition("=")
         name = name.strip()
         if not eq:
-            raise UserError(f"randomisation {item!r}: expected AXIS=LO:HI")
+            raise UserError(f"{what} {item!r}: expected {form}")
         if name not in Perturbation.names():
             raise UserError(f"unknown perturbation {name!r} (choose from: {', '.join(Perturbation.names())})")
-        if name in out:
-            raise UserError(f"randomisation {name!r} given twice")
+        if any(name == n for n, _ in out):
+            raise UserError(f"{what} {name!r} given twice")
+        out.append((name, value))
+    return out
+
+
+def parse_ranges(text: str | None) -> dict[str, tuple[float, float]]:
+    """Domain-randomisation ranges ``AXIS=LO:HI[,AXIS=V...]`` (a single value is fixed) over the
+    :class:`Perturbation` fields -> ``{axis: (lo, hi)}`` in the order given; UserError (one
+    line) for an unknown axis, a number that is not one, an inverted range or an end out of
+    the field's range."""
+    out: dict[str, tuple[float, float]] = {}
+    for name, value in assignments(text, "randomisation", "AXIS=LO:HI"):
         ends = value.split(":")
         try:
             lo, hi = (float(ends[0]), float(ends[-1])) if len(ends) in (1, 2) else (math.nan, math.nan)
