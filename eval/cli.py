@@ -269,11 +269,19 @@ def _robustness_parser() -> ArgumentParser:
     ap = ArgumentParser(
         prog=f"{PROG} robustness",
         description="Robustness curves: success against each perturbation's magnitude, from nominal until every curve "
-        f"is below {BREAK:.0%}, for the runs' policies (mean over the runs) and the geometric expert tracking its "
-        "references on the same perturbed vehicle (eval/robustness.py). Writes robustness.md, robustness.csv and a plot per axis.",
+        f"is below {BREAK:.0%}, for the runs' policies (a curve per group, the mean over its runs) and the geometric expert "
+        "tracking its references on the same perturbed vehicle (eval/robustness.py). Writes robustness.md, robustness.csv "
+        "and a plot per axis.",
     )
     ap.add_argument(
-        "--run", nargs="*", type=Path, default=[], help="training runs (e.g. the seeds of a recipe); none: the expert only"
+        "--run", nargs="*", type=Path, default=[], help="training runs (e.g. the seeds of a recipe), the curve 'policy'"
+    )
+    ap.add_argument(
+        "--group",
+        action="append",
+        default=[],
+        metavar="LABEL=RUN[,RUN...]",
+        help="another curve: the mean over these runs, labelled LABEL (repeatable; e.g. nominal=... dr=...)",
     )
     ap.add_argument("--axes", default=",".join(AXES), help=f"comma-separated axes of {', '.join(AXES)} [all]")
     ap.add_argument("--task", default="reach-novel", help="evaluation task of the policies [reach-novel]")
@@ -299,14 +307,15 @@ def cmd_robustness(a: argparse.Namespace) -> int:
     """``aerohrl eval robustness``: the curves and their report; exit code."""
     import shlex
 
-    from aerohrl.eval.robustness import parse_values, run_study, write_results
+    from aerohrl.eval.robustness import parse_groups, parse_values, run_study, write_results
 
     set_threads(a.threads)
+    groups = {"policy": list(a.run), **parse_groups(a.group)} if a.run else parse_groups(a.group)
     axes = [x.strip() for x in a.axes.split(",") if x.strip()]
     values = parse_values(a.values)
     log = (lambda m: None) if a.quiet else (lambda m: print(m, flush=True))
     points = run_study(
-        list(a.run),
+        groups,
         axes=axes,
         task_name=a.task,
         episodes=a.episodes,
@@ -319,7 +328,7 @@ def cmd_robustness(a: argparse.Namespace) -> int:
         log=log,
     )
     command = "aerohrl eval robustness " + " ".join(shlex.quote(x) for x in a.argv)
-    write_results(points, a.out, runs=list(a.run), task_name=a.task, episodes=a.episodes, command=command)
+    write_results(points, a.out, groups=groups, task_name=a.task, episodes=a.episodes, command=command)
     print(f"robustness curves: {a.out / 'robustness.md'}")
     return 0
 

@@ -3,9 +3,10 @@
 For each axis of :data:`AXES` (or the ones asked for) and each magnitude from nominal up,
 the study flies
 
-* the runs' policies: ``aerohrl eval --task TASK --perturb ...`` on each run (newest
-  checkpoints; the per-run results land in ``RUN/eval/<task>-perturb-<slug>/`` as usual)
-  and averages their success over the runs (seeds of a recipe);
+* each group of runs' policies (a curve per group, e.g. the seeds of a nominal recipe and
+  of its domain-randomised twin): ``aerohrl eval --task TASK --perturb ...`` on each run
+  (newest checkpoints; the per-run results land in ``RUN/eval/<task>-perturb-<slug>/`` as
+  usual), the curve being their mean success, with the per-run values kept;
 * the geometric expert tracking its references (the classical reference curve): ``episodes``
   minimum-time references from hover at the origin to goals of the first run's dataset's
   rho_D, planned and flown as that dataset's expert flew them (:func:`aerohrl.datagen.build.plan_references`
@@ -72,8 +73,27 @@ AXES: dict[str, Axis] = {
             (0.0, 0.5, 1.0, 2.0, 4.0, 8.0),
             lambda x: {"pos_noise": 0.02 * x, "vel_noise": 0.05 * x, "att_noise": math.radians(1.0) * x},
         ),
+        Axis(
+            "combined",
+            "every axis at once, multiples of (mass +20 %, thrust -15 %, motor tau x2, 20 ms, "
+            "3 m/s wind + 1 m/s gusts, noise 2 cm / 5 cm/s / 1 deg)",
+            (0.0, 0.25, 0.5, 0.75, 1.0, 1.5),
+            lambda x: {
+                "mass": 1.0 + 0.2 * x,
+                "thrust": max(1.0 - 0.15 * x, 0.05),
+                "motor_tau": 1.0 + x,
+                "latency": 0.02 * x,
+                "drag": WIND_DRAG,
+                "wind": 3.0 * x,
+                "gust": 1.0 * x,
+                "pos_noise": 0.02 * x,
+                "vel_noise": 0.05 * x,
+                "att_noise": math.radians(1.0) * x,
+            },
+        ),
     )
 }
+EXPERT = "expert"  # the label of the geometric expert's curve
 
 
 def perturbation_text(axis: Axis, x: float) -> str | None:
@@ -100,6 +120,21 @@ def parse_values(items: list[str] | None) -> dict[str, tuple[float, ...]]:
             raise UserError(f"--values {item!r}: no magnitudes")
         for x in out[name]:
             perturbation_text(AXES[name], x)  # a one-line error for a magnitude out of range
+    return out
+
+
+def parse_groups(items: list[str] | None) -> dict[str, list[Path]]:
+    """``LABEL=RUN[,RUN...]`` items (``--group``) -> runs per curve label; one-line UserError when bad."""
+    out: dict[str, list[Path]] = {}
+    for item in items or []:
+        label, eq, runs = item.partition("=")
+        label = label.strip()
+        paths = [Path(r.strip()) for r in runs.split(",") if r.strip()]
+        if not eq or not label or not paths:
+            raise UserError(f"--group {item!r}: expected LABEL=RUN[,RUN...]")
+        if label in out or label in ("policy", EXPERT):
+            raise UserError(f"--group {item!r}: the label {label!r} is taken (policy: --run, expert: the expert's curve)")
+        out[label] = paths
     return out
 
 
@@ -139,14 +174,14 @@ def expert_success(spec: DatasetSpec, episodes: int, seed: int, horizon: int, pe
 class Point:
     axis: str
     value: float
-    curve: str  # "policy" or "expert"
-    success: float
+    curve: str  # a group of runs' label, or EXPERT
+    success: float  # mean over per_run
     per_run: tuple[float, ...]
     perturb: str
 
 
 def run_study(
-    runs: list[Path],
+    groups: dict[str, list[Path]],
     *,
     axes: list[str],
     task_name: str = "reach-novel",
@@ -159,12 +194,17 @@ def run_study(
     full: bool = False,
     log: Callable[[str], None] = print,
 ) -> list[Point]:
-    """The curves of ``axes`` (module doc); each point's policy success is the mean over ``runs``."""
+    """The curves of ``axes`` (module doc): one per group of runs (label -> runs), each
+    point's success the mean over the group's runs, and the expert's."""
     from aerohrl.eval.harness import EvalOptions, build_episodes, evaluate_run, load_run_dataset
 
     unknown = [a for a in axes if a not in AXES]
     if unknown:
         raise UserError(f"unknown robustness axis {unknown[0]!r} (choose from: {', '.join(AXES)})")
+    groups = {label: list(rs) for label, rs in groups.items() if rs}
+    if EXPERT in groups:
+        raise UserError(f"{EXPERT!r} names the expert's curve; give the runs another label")
+    runs = [r for rs in groups.values() for r in rs]
     if not runs and not expert:
         raise UserError("nothing to fly: give runs, or keep the expert curve")
     if expert and task_name == "maze":
@@ -182,9 +222,9 @@ def run_study(
         for x in (values or {}).get(name, axis.values):
             text = perturbation_text(axis, x)
             here: list[Point] = []
-            if runs:
+            for label, members in groups.items():
                 rates = []
-                for run in runs:
+                for run in members:
                     opt = EvalOptions(
                         task=task_name,
                         episodes=episodes,
@@ -196,10 +236,10 @@ def run_study(
                         progress=False,
                     )
                     rates.append(float(evaluate_run(run, opt, loaded=loaded[run])["success_mean"]))
-                here.append(Point(name, x, "policy", float(np.mean(rates)), tuple(rates), text or ""))
+                here.append(Point(name, x, label, float(np.mean(rates)), tuple(rates), text or ""))
             if expert:
                 s = float(expert_success(spec, episodes, seed, horizon, text).mean())
-                here.append(Point(name, x, "expert", s, (s,), text or ""))
+                here.append(Point(name, x, EXPERT, s, (s,), text or ""))
             points += here
             log(f"{name} {x:g}: " + ", ".join(f"{p.curve} {p.success:.3f}" for p in here))
             if not full and all(p.success < BREAK for p in here):
@@ -218,7 +258,16 @@ def breaking_points(points: list[Point]) -> dict[tuple[str, str], float | None]:
     return out
 
 
-def write_results(points: list[Point], out: Path, *, runs: list[Path], task_name: str, episodes: int, command: str = "") -> None:
+def _cell(p: Point) -> str:
+    """A table cell: the mean, with the std and the per-run values when a curve has several runs."""
+    if len(p.per_run) < 2:
+        return f"{p.success:.3f}"
+    return f"{p.success:.3f} ± {float(np.std(p.per_run)):.3f} (" + "/".join(f"{r:.2f}" for r in p.per_run) + ")"
+
+
+def write_results(
+    points: list[Point], out: Path, *, groups: dict[str, list[Path]], task_name: str, episodes: int, command: str = ""
+) -> None:
     """``robustness.csv``, ``robustness.md`` and one ``robustness-<axis>.png`` per axis under ``out`` (atomic)."""
     out.mkdir(parents=True, exist_ok=True)
     buf = io.StringIO()
@@ -228,12 +277,17 @@ def write_results(points: list[Point], out: Path, *, runs: list[Path], task_name
         w.writerow([p.axis, f"{p.value:g}", p.curve, f"{p.success:.4f}", " ".join(f"{r:.4f}" for r in p.per_run), p.perturb])
     atomic.write_text(out / "robustness.csv", buf.getvalue())
     bp = breaking_points(points)
+    described = [
+        f"{label} = task {task_name}, mean over {len(rs)} run(s) " + ", ".join(f"`{r}`" for r in rs)
+        for label, rs in groups.items()
+        if rs
+    ]
     lines = [
         "# Robustness curves",
         "",
         f"{episodes} episodes per point; "
-        + (f"policy = task {task_name}, mean over {len(runs)} run(s) " + ", ".join(f"`{r}`" for r in runs) + "; " if runs else "")
-        + "expert = the geometric controller tracking min-time references from hover on the same plant.",
+        + "".join(d + "; " for d in described)
+        + f"{EXPERT} = the geometric controller tracking min-time references from hover on the same plant.",
         "",
     ]
     if command:
@@ -249,9 +303,9 @@ def write_results(points: list[Point], out: Path, *, runs: list[Path], task_name
         xs = list(dict.fromkeys(p.value for p in points if p.axis == name))
         lines += ["", f"## {name}: {axis.label}", "", "| magnitude | " + " | ".join(curves) + " |"]
         lines.append("|---" * (len(curves) + 1) + "|")
-        table = {(p.value, p.curve): p.success for p in points if p.axis == name}
+        table = {(p.value, p.curve): p for p in points if p.axis == name}
         for x in xs:
-            lines.append(f"| {x:g} | " + " | ".join(f"{table[(x, c)]:.3f}" if (x, c) in table else "-" for c in curves) + " |")
+            lines.append(f"| {x:g} | " + " | ".join(_cell(table[(x, c)]) if (x, c) in table else "-" for c in curves) + " |")
         lines += ["", f"![{name}](robustness-{name}.png)"]
         _plot(points, name, out / f"robustness-{name}.png")
     atomic.write_text(out / "robustness.md", "\n".join(lines) + "\n")
@@ -264,12 +318,15 @@ def _plot(points: list[Point], name: str, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5, 3.4))
-    for curve, style in (("policy", "o-"), ("expert", "s--")):
+    for curve in dict.fromkeys(p.curve for p in points if p.axis == name):
         pts = [p for p in points if p.axis == name and p.curve == curve]
-        if pts:
-            ax.plot([p.value for p in pts], [p.success for p in pts], style, label=curve)
+        x, y = [p.value for p in pts], [p.success for p in pts]
+        line = ax.plot(x, y, "s--" if curve == EXPERT else "o-", label=curve)[0]
+        if any(len(p.per_run) > 1 for p in pts):  # the spread over the runs (seeds)
+            sd = np.array([float(np.std(p.per_run)) for p in pts])
+            ax.fill_between(x, np.array(y) - sd, np.array(y) + sd, color=line.get_color(), alpha=0.2, lw=0)
     ax.axhline(BREAK, color="grey", lw=0.8, ls=":")
-    ax.set_xlabel(AXES[name].label)
+    ax.set_xlabel(AXES[name].label, fontsize=7 if len(AXES[name].label) > 60 else None)
     ax.set_ylabel("success")
     ax.set_ylim(-0.02, 1.02)
     ax.legend()

@@ -291,6 +291,34 @@ def test_robustness_study_tiny(tiny_run, tmp_path, capsys):
     assert code == 2 and "unknown robustness axis 'weight'" in err and "\n" not in err
 
 
+def test_robustness_groups_are_curves_with_their_runs(tiny_run, tmp_path):
+    import csv
+
+    from aerohrl.cli import main
+
+    out = tmp_path / "rob"
+    argv = ["eval", "robustness", "--group", f"nominal={tiny_run},{tiny_run}", "--no-expert", "--task", "reach-desired"]
+    argv += ["--episodes", "3", "--quiet", "--axes", "combined", "--values", "combined=0:1", "--full", "-o", str(out)]
+    assert main(argv) == 0
+    rows = list(csv.DictReader(open(out / "robustness.csv")))
+    assert [(r["axis"], r["value"], r["curve"]) for r in rows] == [("combined", "0", "nominal"), ("combined", "1", "nominal")]
+    assert len(rows[1]["per_run"].split()) == 2  # one value per run of the group
+    assert rows[1]["perturb"].startswith("mass=1.2,thrust=0.85,motor_tau=2,latency=0.02,drag=0.5,wind=3,gust=1")
+    assert "nominal = task reach-desired, mean over 2 run(s)" in (out / "robustness.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "items, match",
+    [(["nominal"], "expected LABEL=RUN"), (["a=x", "a=y"], "is taken"), (["expert=x"], "is taken"), (["=x"], "expected")],
+)
+def test_robustness_group_errors_are_one_line(items, match):
+    from aerohrl.eval.robustness import parse_groups
+
+    with pytest.raises(UserError, match=match) as e:
+        parse_groups(items)
+    assert "\n" not in str(e.value)
+
+
 def test_breaking_points():
     from aerohrl.eval.robustness import Point, breaking_points
 
