@@ -44,26 +44,25 @@ class _Chunk:
 
     def __init__(self, model: dyn.Model, n: int, h: float, substeps: int):
         self.model, self.n, self.h, self.substeps = model, n, h, substeps
-        self.X = np.zeros((dyn.NX, n))
-        self.spare = np.zeros((dyn.NX, n))
+        self.X = np.zeros((dyn.NX, n))  # stepped in place
         self.u = np.zeros((4, n))  # CTBR, SoA
         self.cmd = np.zeros((4, n))  # rotor-speed commands
         self.scratch = dyn.Scratch(n)
 
-    def _rk4(self):
-        out = dyn.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.spare)
-        self.X, self.spare = out, self.X  # swap instead of copying back
+    def _rk4(self, j: int):
+        # substep j > 0 starts from the rotor speeds whose wrench substep j - 1 left in scratch.w0
+        dyn.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.X, w0_ready=j > 0)
 
     def step_ctbr(self):
         m, s = self.model, self.scratch
-        for _ in range(self.substeps):
+        for j in range(self.substeps):
             dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)  # rate loop at every substep
-            self._rk4()
+            self._rk4(j)
         self._end_step()
 
     def step_speeds(self):
-        for _ in range(self.substeps):
-            self._rk4()
+        for j in range(self.substeps):
+            self._rk4(j)
         self._end_step()
 
     def _end_step(self):
@@ -81,9 +80,8 @@ class _PerturbedChunk(_Chunk):
         super().__init__(model, n, h, substeps)
         self.plant = plant
 
-    def _rk4(self):
-        out = self.plant.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.spare)
-        self.X, self.spare = out, self.X
+    def _rk4(self, j: int):
+        self.plant.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.X, w0_ready=j > 0)
 
     def step_ctbr(self):
         m, s, pl = self.model, self.scratch, self.plant
@@ -95,11 +93,11 @@ class _PerturbedChunk(_Chunk):
                 np.copyto(self.u, late)
                 np.copyto(self.u, early, where=j < pl.sub)
                 dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)
-                self._rk4()
+                self._rk4(j)
         else:
-            for _ in range(self.substeps):
+            for j in range(self.substeps):
                 dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)
-                self._rk4()
+                self._rk4(j)
         self._end_step()
         pl.end_step()
 
@@ -117,10 +115,10 @@ class _PerturbedChunk(_Chunk):
 _STEP = {b"c": "step_ctbr", b"s": "step_speeds"}
 
 
-def _shared_arrays(buf, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Views ``X0, X1, u, cmd`` over a shared block of ``(2 NX + 8) n`` float64."""
-    a: np.ndarray = np.ndarray((2 * dyn.NX + 8, n), dtype=np.float64, buffer=buf)
-    return a[: dyn.NX], a[dyn.NX : 2 * dyn.NX], a[2 * dyn.NX : 2 * dyn.NX + 4], a[2 * dyn.NX + 4 :]
+def _shared_arrays(buf, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Views ``X, u, cmd`` over a shared block of ``(NX + 8) n`` float64."""
+    a: np.ndarray = np.ndarray((dyn.NX + 8, n), dtype=np.float64, buffer=buf)
+    return a[: dyn.NX], a[dyn.NX : dyn.NX + 4], a[dyn.NX + 4 :]
 
 
 def _worker(conn, shm_name: str, model: dyn.Model, n: int, h: float, substeps: int) -> None:
@@ -128,15 +126,14 @@ def _worker(conn, shm_name: str, model: dyn.Model, n: int, h: float, substeps: i
     shm = SharedMemory(name=shm_name)
     try:
         chunk = _Chunk(model, n, h, substeps)
-        X0, X1, chunk.u, chunk.cmd = _shared_arrays(shm.buf, n)
+        chunk.X, chunk.u, chunk.cmd = _shared_arrays(shm.buf, n)
         while True:
             msg = conn.recv_bytes()
             if msg == b"q":
                 break
-            chunk.X, chunk.spare = (X0, X1) if msg[1:] == b"0" else (X1, X0)
-            getattr(chunk, _STEP[msg[:1]])()
-            conn.send_bytes(b"0" if chunk.X is X0 else b"1")
-        del X0, X1, chunk
+            getattr(chunk, _STEP[msg])()
+            conn.send_bytes(b"0")
+        del chunk
     except (EOFError, KeyboardInterrupt):
         pass
     finally:
@@ -163,12 +160,11 @@ class _ProcChunk:
     def __init__(self, model: dyn.Model, n: int, h: float, substeps: int):
         self.model, self.n = model, n
         self.scratch = dyn.Scratch(n)
-        self._shm = SharedMemory(create=True, size=(2 * dyn.NX + 8) * n * 8)
-        self._X0, self._X1, self.u, self.cmd = _shared_arrays(self._shm.buf, n)
-        self._X0[:] = 0.0
+        self._shm = SharedMemory(create=True, size=(dyn.NX + 8) * n * 8)
+        self.X, self.u, self.cmd = _shared_arrays(self._shm.buf, n)
+        self.X[:] = 0.0
         self.u[:] = 0.0
         self.cmd[:] = 0.0
-        self.X = self._X0
         # forkserver, not fork: the parent may hold torch/OpenMP threads, which fork copies badly
         ctx = get_context("forkserver")
         self._conn, child = ctx.Pipe()
@@ -180,15 +176,13 @@ class _ProcChunk:
         self._finalizer = weakref.finalize(self, _shutdown, self._proc, self._conn, self._shm)
 
     def start(self, method: str) -> None:
-        code = b"c" if method == "step_ctbr" else b"s"
-        self._conn.send_bytes(code + (b"0" if self.X is self._X0 else b"1"))
+        self._conn.send_bytes(b"c" if method == "step_ctbr" else b"s")
 
     def wait(self) -> None:
         try:
-            reply = self._conn.recv_bytes()
+            self._conn.recv_bytes()
         except EOFError:
             raise RuntimeError("a simulator worker process died") from None
-        self.X = self._X0 if reply == b"0" else self._X1
 
     def close(self) -> None:
         self._finalizer()
