@@ -55,7 +55,11 @@ P, V, ROT, W, OMEGA = slice(0, 3), slice(3, 6), slice(6, 15), slice(15, 18), sli
 
 @dataclass(frozen=True)
 class Model:
-    """Constants of the model, precomputed once from :class:`QuadrotorParams`."""
+    """Constants of the model, precomputed once from :class:`QuadrotorParams`.
+
+    ``dtype`` is the floating type of the state and of every array constant; the scalar
+    constants are Python floats, which NumPy applies in the arrays' own type.
+    """
 
     mass: float
     g: float
@@ -78,11 +82,17 @@ class Model:
     omega2_max: float
     omega_min: float
     omega_max: float
+    dtype: type = np.float64
+    tiny: float = 1e-300  # floor of the yaw-scale divisor a |Mz|: rotor headroom / tiny stays finite in dtype
 
     @classmethod
-    def from_params(cls, p: QuadrotorParams) -> "Model":
+    def from_params(cls, p: QuadrotorParams, dtype: type = np.float64) -> "Model":
+        """The constants of ``p`` for a state of ``dtype`` (``np.float64`` or ``np.float32``)."""
+        dtype = np.dtype(dtype).type
+        if dtype not in (np.float64, np.float32):
+            raise ValueError(f"the simulator runs in float64 or float32, not {np.dtype(dtype).name}")
         J = p.J
-        Jx, Jy, Jz = J
+        Jx, Jy, Jz = (float(j) for j in J)
         mixer = p.mixer  # rotor thrusts -> [T, M]
         wrench = mixer * p.k_eta  # Omega^2 -> [T, M]
         alloc = np.linalg.inv(mixer) / p.k_eta
@@ -95,7 +105,7 @@ class Model:
             mass=p.mass,
             g=GRAVITY,
             inv_tau=1.0 / p.tau_m,
-            wrench=np.ascontiguousarray(wrench),
+            wrench=np.ascontiguousarray(wrench, dtype=dtype),
             # (w x Jw) = ((Jz-Jy) wy wz, (Jx-Jz) wz wx, (Jy-Jx) wx wy)
             gyro_acc=np.array([[(Jy - Jz) / Jx], [(Jz - Jx) / Jy], [(Jx - Jy) / Jz]]),
             gyro_acc_s=((Jy - Jz) / Jx, (Jz - Jx) / Jy, (Jx - Jy) / Jz),
@@ -105,7 +115,7 @@ class Model:
             alloc_yaw_s=tuple(float(v) for v in alloc[:, 3]),
             rate_moment=(J * p.k_w)[:, None].copy(),
             alloc=alloc,
-            alloc_rp=np.ascontiguousarray(alloc[:, :3]),
+            alloc_rp=np.ascontiguousarray(alloc[:, :3], dtype=dtype),
             alloc_yaw=alloc[:, 3:4].copy(),
             yaw_gain=float(np.abs(alloc[:, 3]).max()),
             yaw_pos=tuple(int(i) for i in np.flatnonzero(dirs > 0)),
@@ -114,29 +124,34 @@ class Model:
             omega2_max=p.rotor_speed_max**2,
             omega_min=p.rotor_speed_min,
             omega_max=p.rotor_speed_max,
+            dtype=dtype,
+            tiny=1e-300 if dtype is np.float64 else 1e-30,
         )
 
 
 class Scratch:
-    """Work arrays for a batch of N vehicles (allocated once)."""
+    """Work arrays for a batch of N vehicles of ``dtype`` (allocated once)."""
 
-    def __init__(self, n: int):
-        self.om2 = np.empty((4, n))
-        self.t3 = np.empty((3, n))
-        self.t3b = np.empty((3, n))
-        self.k = np.empty((18, n))
-        self.xs = np.empty((18, n))
-        self.acc = np.empty((18, n))
-        self.dom = np.empty((4, n))
-        self.omh = np.empty((4, n))
-        self.w0 = np.empty((4, n))
-        self.wh = np.empty((4, n))
-        self.w1 = np.empty((4, n))
-        self.tm = np.empty((4, n))
-        self.up = np.empty((4, n))
-        self.dn = np.empty((4, n))
-        self.t1 = np.empty(n)
-        self.t1b = np.empty(n)
+    def __init__(self, n: int, dtype: type = np.float64):
+        def a(*shape):
+            return np.empty(shape, dtype=dtype)
+
+        self.om2 = a(4, n)
+        self.t3 = a(3, n)
+        self.t3b = a(3, n)
+        self.k = a(18, n)
+        self.xs = a(18, n)
+        self.acc = a(18, n)
+        self.dom = a(4, n)
+        self.omh = a(4, n)
+        self.w0 = a(4, n)
+        self.wh = a(4, n)
+        self.w1 = a(4, n)
+        self.tm = a(4, n)
+        self.up = a(4, n)
+        self.dn = a(4, n)
+        self.t1 = a(n)
+        self.t1b = a(n)
         self.neg = np.empty(n, dtype=bool)
         self._rows: dict[int, tuple[np.ndarray, list]] = {}
 
@@ -273,7 +288,7 @@ def rate_loop(w: np.ndarray, ctbr: np.ndarray, m: Model, out: np.ndarray, s: Scr
     # s = clip(headroom / (a |Mz|), 0, 1); scaled yaw moment s Mz
     np.abs(mz, out=t1)
     np.multiply(t1, m.yaw_gain, out=t1)
-    np.maximum(t1, 1e-300, out=t1)
+    np.maximum(t1, m.tiny, out=t1)
     np.divide(lim_p, t1, out=lim_p)
     np.clip(lim_p, 0.0, 1.0, out=lim_p)
     np.multiply(lim_p, mz, out=lim_p)

@@ -44,10 +44,10 @@ class _Chunk:
 
     def __init__(self, model: dyn.Model, n: int, h: float, substeps: int):
         self.model, self.n, self.h, self.substeps = model, n, h, substeps
-        self.X = np.zeros((dyn.NX, n))  # stepped in place
-        self.u = np.zeros((4, n))  # CTBR, SoA
-        self.cmd = np.zeros((4, n))  # rotor-speed commands
-        self.scratch = dyn.Scratch(n)
+        self.X = np.zeros((dyn.NX, n), dtype=model.dtype)  # stepped in place
+        self.u = np.zeros((4, n), dtype=model.dtype)  # CTBR, SoA
+        self.cmd = np.zeros((4, n), dtype=model.dtype)  # rotor-speed commands
+        self.scratch = dyn.Scratch(n, model.dtype)
 
     def _rk4(self, j: int):
         # substep j > 0 starts from the rotor speeds whose wrench substep j - 1 left in scratch.w0
@@ -115,9 +115,9 @@ class _PerturbedChunk(_Chunk):
 _STEP = {b"c": "step_ctbr", b"s": "step_speeds"}
 
 
-def _shared_arrays(buf, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Views ``X, u, cmd`` over a shared block of ``(NX + 8) n`` float64."""
-    a: np.ndarray = np.ndarray((dyn.NX + 8, n), dtype=np.float64, buffer=buf)
+def _shared_arrays(buf, n: int, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Views ``X, u, cmd`` over a shared block of ``(NX + 8) n`` numbers of ``dtype``."""
+    a: np.ndarray = np.ndarray((dyn.NX + 8, n), dtype=dtype, buffer=buf)
     return a[: dyn.NX], a[dyn.NX : dyn.NX + 4], a[dyn.NX + 4 :]
 
 
@@ -126,7 +126,7 @@ def _worker(conn, shm_name: str, model: dyn.Model, n: int, h: float, substeps: i
     shm = SharedMemory(name=shm_name)
     try:
         chunk = _Chunk(model, n, h, substeps)
-        chunk.X, chunk.u, chunk.cmd = _shared_arrays(shm.buf, n)
+        chunk.X, chunk.u, chunk.cmd = _shared_arrays(shm.buf, n, model.dtype)
         while True:
             msg = conn.recv_bytes()
             if msg == b"q":
@@ -159,9 +159,9 @@ class _ProcChunk:
 
     def __init__(self, model: dyn.Model, n: int, h: float, substeps: int):
         self.model, self.n = model, n
-        self.scratch = dyn.Scratch(n)
-        self._shm = SharedMemory(create=True, size=(dyn.NX + 8) * n * 8)
-        self.X, self.u, self.cmd = _shared_arrays(self._shm.buf, n)
+        self.scratch = dyn.Scratch(n, model.dtype)
+        self._shm = SharedMemory(create=True, size=(dyn.NX + 8) * n * np.dtype(model.dtype).itemsize)
+        self.X, self.u, self.cmd = _shared_arrays(self._shm.buf, n, model.dtype)
         self.X[:] = 0.0
         self.u[:] = 0.0
         self.cmd[:] = 0.0
@@ -208,6 +208,13 @@ class BatchedQuadrotor:
     perturbed batch is stepped in one block (``threads``/``processes`` are ignored) and
     :meth:`observe` gives what the policy sees; None or a nominal perturbation keeps
     the nominal code path, bit for bit.
+
+    ``dtype``: ``np.float64`` (default) or ``np.float32``, the type the state is kept
+    and integrated in. float32 halves the memory traffic of a step and is faster, at
+    the price of round-off drift (docs/results/2026-12-03-simulator-speed.md measures it
+    against float64); it is an explicit choice, never the default, as float64 gives the
+    bytes datasets are built from. The public arrays (state, rotor speeds) stay float64.
+    Perturbed plants run in float64 only.
     """
 
     def __init__(
@@ -221,6 +228,7 @@ class BatchedQuadrotor:
         processes: int = 1,
         perturbation: Perturbation | None = None,
         seed: int | list[int] = 0,
+        dtype: type = np.float64,
     ):
         if int(num_vehicles) < 1:
             raise ValueError(f"num_vehicles must be >= 1, got {num_vehicles}")
@@ -231,9 +239,12 @@ class BatchedQuadrotor:
         self.dt = float(dt)
         self.substeps = int(substeps)
         self.h = self.dt / self.substeps
-        self.model = dyn.Model.from_params(params)
+        self.model = dyn.Model.from_params(params, dtype)
+        self.dtype = self.model.dtype
         self.plant: PerturbedPlant | None = None
         if perturbation is not None and not perturbation.nominal:
+            if self.dtype is not np.float64:
+                raise ValueError("a perturbed plant runs in float64 only (dtype=np.float64)")
             self.plant = PerturbedPlant(perturbation, n, self.dt, self.substeps, seed=seed)
             threads = processes = 1
         threads = max(1, min(int(threads), n))
@@ -386,7 +397,7 @@ class BatchedQuadrotor:
             raise ValueError("select copies nominal vehicles only; this batch is perturbed")
         rows = np.asarray(rows, dtype=np.int64)
         X = np.concatenate([c.X for c in self._chunks], axis=1)[:, rows]
-        new = BatchedQuadrotor(self.params, len(rows), dt=self.dt, substeps=self.substeps)
+        new = BatchedQuadrotor(self.params, len(rows), dt=self.dt, substeps=self.substeps, dtype=self.dtype)
         new._chunks[0].X[:] = X
         new._chunks[0].cmd[:] = X[dyn.OMEGA]
         new.t = self.t
@@ -407,5 +418,5 @@ class BatchedQuadrotor:
     def __repr__(self) -> str:
         return (
             f"BatchedQuadrotor({self.params.name!r}, num_vehicles={self.num_vehicles}, dt={self.dt}, "
-            f"substeps={self.substeps}, threads={self.threads}, processes={self.processes})"
+            f"substeps={self.substeps}, threads={self.threads}, processes={self.processes}, dtype={self.dtype.__name__})"
         )
