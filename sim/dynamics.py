@@ -11,7 +11,9 @@ one row per component and one column per vehicle,
 
 so every per-component operation is one NumPy call on a contiguous row of N numbers.
 The functions write into caller-provided arrays (``out``, ``scratch``) and allocate
-nothing in the loop; :class:`aerohrl.sim.BatchedQuadrotor` owns the buffers.
+nothing in the loop; :class:`aerohrl.sim.BatchedQuadrotor` owns the buffers. The
+numbers are float64, or float32 when the :class:`Model` is built for it (an explicit
+option: faster, and no longer the float64 bytes).
 
 Model (thesis §3.3.1, no drag, no rotor aerodynamics; the same as RotorPy's
 ``Multirotor`` with ``aero=False``)::
@@ -43,6 +45,7 @@ alone would saturate a rotor.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -179,7 +182,7 @@ def rotor_wrench(omega: np.ndarray, m: Model, out: np.ndarray, s: Scratch) -> np
     return out
 
 
-def state_derivative(X, wrench, m: Model, out, s: Scratch):
+def state_derivative(X: np.ndarray, wrench: np.ndarray, m: Model, out: np.ndarray, s: Scratch) -> np.ndarray:
     """``out = d/dt [p, v, R, w]`` (18 rows) given the rotor wrench (see :func:`rotor_wrench`).
 
     ``X``, ``out``: (>= 18, N) arrays; ``wrench``: (4, N) ``[T/m, J^-1 tau_prop]``.
@@ -189,7 +192,7 @@ def state_derivative(X, wrench, m: Model, out, s: Scratch):
     return body_derivative(X, wrench, m, out, s)
 
 
-def body_derivative(X, wrench, m: Model, out, s: Scratch):
+def body_derivative(X: np.ndarray, wrench: np.ndarray, m: Model, out: np.ndarray, s: Scratch) -> np.ndarray:
     """Rows 3:18 of ``out = d/dt [p, v, R, w]``: ``v_dot``, ``R_dot`` and ``w_dot`` (``out[P]``
     is left alone; :func:`rk4_step` takes ``p_dot = v`` from the stage state itself).
 
@@ -284,7 +287,7 @@ def rate_loop(w: np.ndarray, ctbr: np.ndarray, m: Model, out: np.ndarray, s: Scr
     np.minimum(up[ineg[0]], up[ineg[1]], out=t1)
     np.minimum(lim_n, t1, out=lim_n)
     np.less(mz, 0.0, out=s.neg)
-    np.putmask(lim_p, s.neg, lim_n)  # the same selection as copyto(where=), at half its cost
+    np.putmask(lim_p, s.neg, lim_n)  # the same selection as copyto(where=), cheaper
     # s = clip(headroom / (a |Mz|), 0, 1); scaled yaw moment s Mz
     np.abs(mz, out=t1)
     np.multiply(t1, m.yaw_gain, out=t1)
@@ -311,8 +314,8 @@ def rk4_step(
     out: np.ndarray,
     *,
     w0_ready: bool = False,
-    wrench=rotor_wrench,
-    derivative=body_derivative,
+    wrench: Callable[[np.ndarray, Model, np.ndarray, Scratch], np.ndarray] = rotor_wrench,
+    derivative: Callable[[np.ndarray, np.ndarray, Model, np.ndarray, Scratch], np.ndarray] = body_derivative,
     decay: tuple | None = None,
 ) -> np.ndarray:
     """One step of length ``h`` from ``X`` (22, N) into ``out`` with ``Omega_cmd`` held.
