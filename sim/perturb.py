@@ -376,9 +376,10 @@ class PerturbedPlant:
 
     # ------------------------------------------------------------------ physics
     def derivative(self, X: np.ndarray, wrench: np.ndarray, m: dyn.Model, out: np.ndarray, s: dyn.Scratch) -> np.ndarray:
-        """``d/dt [p, v, R, w]`` of the perturbed plant: the nominal derivative of the
-        perturbed wrench plus the drag on the airspeed."""
-        dyn.state_derivative(X, wrench, m, out, s)
+        """Rows 3:18 of ``d/dt [p, v, R, w]`` of the perturbed plant (``p_dot = v`` is the
+        integrator's, see :func:`aerohrl.sim.dynamics.body_derivative`): the nominal
+        derivative of the perturbed wrench plus the drag on the airspeed."""
+        dyn.body_derivative(X, wrench, m, out, s)
         if self.drag.any():
             drag_acceleration(X[dyn.V], self.v_air, self.drag, self.t3)
             np.add(out[dyn.V], self.t3, out=out[dyn.V])
@@ -391,41 +392,20 @@ class PerturbedPlant:
         return out
 
     def rk4_step(
-        self, X: np.ndarray, omega_cmd: np.ndarray, h: float, m: dyn.Model, s: dyn.Scratch, out: np.ndarray
+        self,
+        X: np.ndarray,
+        omega_cmd: np.ndarray,
+        h: float,
+        m: dyn.Model,
+        s: dyn.Scratch,
+        out: np.ndarray,
+        *,
+        w0_ready: bool = False,
     ) -> np.ndarray:
         """:func:`aerohrl.sim.dynamics.rk4_step` on the perturbed plant: the same exact motor
         solution (per-vehicle time constant) and classical RK4 of the rigid body."""
-        K, k, xs = s.acc, s.k, s.xs
-        Xb, Ob = X[:18], out[:18]
-        om0, om1 = X[dyn.OMEGA], out[dyn.OMEGA]
-        e_half, e_full = self.decay(h, m.inv_tau)
-        d = s.dom
-        np.subtract(om0, omega_cmd, out=d)
-        self.wrench(om0, m, s.w0, s)
-        np.multiply(d, e_half, out=s.omh)
-        np.add(s.omh, omega_cmd, out=s.omh)
-        self.wrench(s.omh, m, s.wh, s)
-        np.multiply(d, e_full, out=om1)
-        np.add(om1, omega_cmd, out=om1)
-        self.wrench(om1, m, s.w1, s)
-        self.derivative(X, s.w0, m, K, s)  # k1
-        np.multiply(K, h / 2.0, out=xs)
-        np.add(xs, Xb, out=xs)
-        self.derivative(xs, s.wh, m, k, s)  # k2
-        np.multiply(k, h / 2.0, out=xs)
-        np.add(xs, Xb, out=xs)
-        np.add(K, k, out=K)
-        np.add(K, k, out=K)
-        self.derivative(xs, s.wh, m, k, s)  # k3
-        np.multiply(k, h, out=xs)
-        np.add(xs, Xb, out=xs)
-        np.add(K, k, out=K)
-        np.add(K, k, out=K)
-        self.derivative(xs, s.w1, m, k, s)  # k4
-        np.add(K, k, out=K)
-        np.multiply(K, h / 6.0, out=Ob)
-        np.add(Ob, Xb, out=Ob)
-        return out
+        plant = dict(wrench=self.wrench, derivative=self.derivative, decay=self.decay(h, m.inv_tau))
+        return dyn.rk4_step(X, omega_cmd, h, m, s, out, w0_ready=w0_ready, **plant)
 
     # ------------------------------------------------------------------ observation
     def observe(self, state: np.ndarray) -> np.ndarray:

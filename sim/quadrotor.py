@@ -44,26 +44,25 @@ class _Chunk:
 
     def __init__(self, model: dyn.Model, n: int, h: float, substeps: int):
         self.model, self.n, self.h, self.substeps = model, n, h, substeps
-        self.X = np.zeros((dyn.NX, n))
-        self.spare = np.zeros((dyn.NX, n))
-        self.u = np.zeros((4, n))  # CTBR, SoA
-        self.cmd = np.zeros((4, n))  # rotor-speed commands
-        self.scratch = dyn.Scratch(n)
+        self.X = np.zeros((dyn.NX, n), dtype=model.dtype)  # stepped in place
+        self.u = np.zeros((4, n), dtype=model.dtype)  # CTBR, SoA
+        self.cmd = np.zeros((4, n), dtype=model.dtype)  # rotor-speed commands
+        self.scratch = dyn.Scratch(n, model.dtype)
 
-    def _rk4(self):
-        out = dyn.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.spare)
-        self.X, self.spare = out, self.X  # swap instead of copying back
+    def _rk4(self, j: int):
+        # substep j > 0 starts from the rotor speeds whose wrench substep j - 1 left in scratch.w0
+        dyn.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.X, w0_ready=j > 0)
 
     def step_ctbr(self):
         m, s = self.model, self.scratch
-        for _ in range(self.substeps):
+        for j in range(self.substeps):
             dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)  # rate loop at every substep
-            self._rk4()
+            self._rk4(j)
         self._end_step()
 
     def step_speeds(self):
-        for _ in range(self.substeps):
-            self._rk4()
+        for j in range(self.substeps):
+            self._rk4(j)
         self._end_step()
 
     def _end_step(self):
@@ -81,9 +80,8 @@ class _PerturbedChunk(_Chunk):
         super().__init__(model, n, h, substeps)
         self.plant = plant
 
-    def _rk4(self):
-        out = self.plant.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.spare)
-        self.X, self.spare = out, self.X
+    def _rk4(self, j: int):
+        self.plant.rk4_step(self.X, self.cmd, self.h, self.model, self.scratch, self.X, w0_ready=j > 0)
 
     def step_ctbr(self):
         m, s, pl = self.model, self.scratch, self.plant
@@ -95,11 +93,11 @@ class _PerturbedChunk(_Chunk):
                 np.copyto(self.u, late)
                 np.copyto(self.u, early, where=j < pl.sub)
                 dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)
-                self._rk4()
+                self._rk4(j)
         else:
-            for _ in range(self.substeps):
+            for j in range(self.substeps):
                 dyn.rate_loop(self.X[dyn.W], self.u, m, self.cmd, s)
-                self._rk4()
+                self._rk4(j)
         self._end_step()
         pl.end_step()
 
@@ -117,10 +115,10 @@ class _PerturbedChunk(_Chunk):
 _STEP = {b"c": "step_ctbr", b"s": "step_speeds"}
 
 
-def _shared_arrays(buf, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Views ``X0, X1, u, cmd`` over a shared block of ``(2 NX + 8) n`` float64."""
-    a: np.ndarray = np.ndarray((2 * dyn.NX + 8, n), dtype=np.float64, buffer=buf)
-    return a[: dyn.NX], a[dyn.NX : 2 * dyn.NX], a[2 * dyn.NX : 2 * dyn.NX + 4], a[2 * dyn.NX + 4 :]
+def _shared_arrays(buf, n: int, dtype) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Views ``X, u, cmd`` over a shared block of ``(NX + 8) n`` numbers of ``dtype``."""
+    a: np.ndarray = np.ndarray((dyn.NX + 8, n), dtype=dtype, buffer=buf)
+    return a[: dyn.NX], a[dyn.NX : dyn.NX + 4], a[dyn.NX + 4 :]
 
 
 def _worker(conn, shm_name: str, model: dyn.Model, n: int, h: float, substeps: int) -> None:
@@ -128,15 +126,14 @@ def _worker(conn, shm_name: str, model: dyn.Model, n: int, h: float, substeps: i
     shm = SharedMemory(name=shm_name)
     try:
         chunk = _Chunk(model, n, h, substeps)
-        X0, X1, chunk.u, chunk.cmd = _shared_arrays(shm.buf, n)
+        chunk.X, chunk.u, chunk.cmd = _shared_arrays(shm.buf, n, model.dtype)
         while True:
             msg = conn.recv_bytes()
             if msg == b"q":
                 break
-            chunk.X, chunk.spare = (X0, X1) if msg[1:] == b"0" else (X1, X0)
-            getattr(chunk, _STEP[msg[:1]])()
-            conn.send_bytes(b"0" if chunk.X is X0 else b"1")
-        del X0, X1, chunk
+            getattr(chunk, _STEP[msg])()
+            conn.send_bytes(b"0")
+        del chunk
     except (EOFError, KeyboardInterrupt):
         pass
     finally:
@@ -162,13 +159,12 @@ class _ProcChunk:
 
     def __init__(self, model: dyn.Model, n: int, h: float, substeps: int):
         self.model, self.n = model, n
-        self.scratch = dyn.Scratch(n)
-        self._shm = SharedMemory(create=True, size=(2 * dyn.NX + 8) * n * 8)
-        self._X0, self._X1, self.u, self.cmd = _shared_arrays(self._shm.buf, n)
-        self._X0[:] = 0.0
+        self.scratch = dyn.Scratch(n, model.dtype)
+        self._shm = SharedMemory(create=True, size=(dyn.NX + 8) * n * np.dtype(model.dtype).itemsize)
+        self.X, self.u, self.cmd = _shared_arrays(self._shm.buf, n, model.dtype)
+        self.X[:] = 0.0
         self.u[:] = 0.0
         self.cmd[:] = 0.0
-        self.X = self._X0
         # forkserver, not fork: the parent may hold torch/OpenMP threads, which fork copies badly
         ctx = get_context("forkserver")
         self._conn, child = ctx.Pipe()
@@ -180,15 +176,13 @@ class _ProcChunk:
         self._finalizer = weakref.finalize(self, _shutdown, self._proc, self._conn, self._shm)
 
     def start(self, method: str) -> None:
-        code = b"c" if method == "step_ctbr" else b"s"
-        self._conn.send_bytes(code + (b"0" if self.X is self._X0 else b"1"))
+        self._conn.send_bytes(b"c" if method == "step_ctbr" else b"s")
 
     def wait(self) -> None:
         try:
-            reply = self._conn.recv_bytes()
+            self._conn.recv_bytes()
         except EOFError:
             raise RuntimeError("a simulator worker process died") from None
-        self.X = self._X0 if reply == b"0" else self._X1
 
     def close(self) -> None:
         self._finalizer()
@@ -214,6 +208,13 @@ class BatchedQuadrotor:
     perturbed batch is stepped in one block (``threads``/``processes`` are ignored) and
     :meth:`observe` gives what the policy sees; None or a nominal perturbation keeps
     the nominal code path, bit for bit.
+
+    ``dtype``: ``np.float64`` (default) or ``np.float32``, the type the state is kept
+    and integrated in. float32 halves the memory traffic of a step and is faster, at
+    the price of round-off drift (docs/results/2026-12-03-simulator-speed.md measures it
+    against float64); it is an explicit choice, never the default, as float64 gives the
+    bytes datasets are built from. The public arrays (state, rotor speeds) stay float64.
+    Perturbed plants run in float64 only.
     """
 
     def __init__(
@@ -227,6 +228,7 @@ class BatchedQuadrotor:
         processes: int = 1,
         perturbation: Perturbation | None = None,
         seed: int | list[int] = 0,
+        dtype: type = np.float64,
     ):
         if int(num_vehicles) < 1:
             raise ValueError(f"num_vehicles must be >= 1, got {num_vehicles}")
@@ -237,9 +239,12 @@ class BatchedQuadrotor:
         self.dt = float(dt)
         self.substeps = int(substeps)
         self.h = self.dt / self.substeps
-        self.model = dyn.Model.from_params(params)
+        self.model = dyn.Model.from_params(params, dtype)
+        self.dtype = self.model.dtype
         self.plant: PerturbedPlant | None = None
         if perturbation is not None and not perturbation.nominal:
+            if self.dtype is not np.float64:
+                raise ValueError("a perturbed plant runs in float64 only (dtype=np.float64)")
             self.plant = PerturbedPlant(perturbation, n, self.dt, self.substeps, seed=seed)
             threads = processes = 1
         threads = max(1, min(int(threads), n))
@@ -392,7 +397,7 @@ class BatchedQuadrotor:
             raise ValueError("select copies nominal vehicles only; this batch is perturbed")
         rows = np.asarray(rows, dtype=np.int64)
         X = np.concatenate([c.X for c in self._chunks], axis=1)[:, rows]
-        new = BatchedQuadrotor(self.params, len(rows), dt=self.dt, substeps=self.substeps)
+        new = BatchedQuadrotor(self.params, len(rows), dt=self.dt, substeps=self.substeps, dtype=self.dtype)
         new._chunks[0].X[:] = X
         new._chunks[0].cmd[:] = X[dyn.OMEGA]
         new.t = self.t
@@ -413,5 +418,5 @@ class BatchedQuadrotor:
     def __repr__(self) -> str:
         return (
             f"BatchedQuadrotor({self.params.name!r}, num_vehicles={self.num_vehicles}, dt={self.dt}, "
-            f"substeps={self.substeps}, threads={self.threads}, processes={self.processes})"
+            f"substeps={self.substeps}, threads={self.threads}, processes={self.processes}, dtype={self.dtype.__name__})"
         )
