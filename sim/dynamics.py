@@ -336,7 +336,7 @@ def rk4_step(
     ``e^{-h/tau_m}``; scalars or (N,) arrays) let a perturbed plant reuse the scheme.
 
     No BLAS here on purpose: OpenBLAS threads its routines on arrays this size, which
-    collapses on a loaded machine (the speed results page has the figure).
+    collapses on a loaded machine (several times slower on 2 shared cores).
     """
     K, k, xs = s.acc, s.k, s.xs
     # rows 3:18 (v, R, w) of the state, stages and sums, and the position/velocity rows
