@@ -212,6 +212,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
             str(tmp_path / "res"),
             "--results-dir",
             str(pages),
+            "--in-process",
         ],
         capture_output=True,
         text=True,
