@@ -232,6 +232,29 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     assert (tmp_path / "res" / "ood-gcsl-cont.png").exists()
 
 
+def test_in_process_command_lines_answer_as_subprocesses_do(tmp_path):
+    """`experiments/reproduce.py --in-process` runs `python -m MODULE ARGS` as MODULE.main(ARGS):
+    the same output and failure as the subprocess, one thread while it runs, the settings restored."""
+    import io
+    import os
+    import sys
+
+    from study_tools import run_logged
+
+    bad = [sys.executable, "-m", "aerohrl.eval.cli", "table", str(tmp_path / "no-run")]
+    errors = []
+    for in_process in (False, True):
+        log = io.StringIO()
+        with pytest.raises(UserError) as e:
+            run_logged(bad, log, in_process=in_process)
+        errors.append((str(e.value), log.getvalue()))
+    assert errors[0] == errors[1] and "(exit 2): aerohrl eval: error: no run at" in errors[0][0]
+    threads, omp = torch.get_num_threads(), os.environ.get("OMP_NUM_THREADS")
+    usage = run_logged([sys.executable, "-m", "aerohrl.eval.cli", "--help"], io.StringIO(), in_process=True)
+    assert usage.startswith("usage: aerohrl eval")  # argparse's exit(0) is a success
+    assert torch.get_num_threads() == threads and os.environ.get("OMP_NUM_THREADS") == omp
+
+
 def test_make_results_keeps_evaluations_that_cover_the_newest_checkpoints(tmp_path):
     import json
     import os
