@@ -187,7 +187,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
             sys.executable,
             "experiments/reproduce.py",
             "--steps",
-            "60",
+            "30",
             "--episodes",
             "6",
             "--checkpoints",
@@ -222,7 +222,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     (page,) = pages.glob("*-chapter3-tables.md")
     text = page.read_text()
-    assert text.index("```\npython experiments/reproduce.py --steps 60") < text.index("Reproduced by `make results`")
+    assert text.index("```\npython experiments/reproduce.py --steps 30") < text.index("Reproduced by `make results`")
     assert (tmp_path / "res" / "results.md").read_text() in text
     assert "Table 3.1 analogue" in text and "Table 3.2 analogue" in text and "wall time" in text and "TD3-BC" in text
     assert "Oracle of the single-goal planner for gcsl" in text and "Reach-Novel" in text
