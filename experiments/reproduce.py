@@ -29,7 +29,10 @@
    dated page ``RESULTS_DIR/YYYY-MM-DD-chapter3-tables.md`` (``--results-dir``, default
    docs/results; the command first) and as ``OUT/results.md``.
 
-Every stage but training is the real command line run as a subprocess with ``OMP_NUM_THREADS=1``;
+Every stage but training is the real command line run as a subprocess with ``OMP_NUM_THREADS=1``
+(with ``--in-process``: the same command line called as its module's ``main(argv)`` in this
+interpreter with one thread, its output captured alike: no new interpreter's start-up, imports
+and torch, per command, which is most of what a smoke run's evaluations cost);
 training goes through ``aerohrl sweep``'s Ray tasks (``aerohrl.sweep.train_runs``), one thread each.
 """
 
@@ -122,6 +125,12 @@ def main(argv: list[str] | None = None) -> int:
         help=f"planner experiment: the critics' random-goal probability [{CONT_RANDOM_GOAL}]",
     )
     ap.add_argument("--reevaluate", action="store_true", help="redo evaluations whose results are up to date")
+    ap.add_argument(
+        "--in-process",
+        action="store_true",
+        help="run the stages other than training (dataset builds, evaluations, oracle, plots, tables) in this "
+        "interpreter, the same command lines called as their main(): no interpreter start-up per command (smoke runs)",
+    )
     a = ap.parse_args(argv)
     command = " ".join(["python", PROG, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
 
@@ -141,12 +150,16 @@ def main(argv: list[str] | None = None) -> int:
         t_all = time.perf_counter()
         with open(out / "reproduce.log", "a") as log:
             log.write(f"=== {datetime.now(timezone.utc).isoformat(timespec='seconds')} {' '.join(sys.argv)}\n")
+
+            def run(cmd: list[str]) -> str:  # a stage's command line, logged; its output
+                return run_logged(cmd, log, in_process=a.in_process)
+
             t0 = time.perf_counter()
             build = [py, "-m", "aerohrl.datagen.cli", "build", "--seed", "0", "--out", a.datasets, "--quiet"]
-            ds = run_logged(build + ["--goals", "250"], log).strip().splitlines()[-1].strip()
+            ds = run(build + ["--goals", "250"]).strip().splitlines()[-1].strip()
             if a.continuations:
                 n = str(a.continuations)
-                ds_cont = run_logged(build + ["--goals", n, "--continuations", n], log).strip().splitlines()[-1].strip()
+                ds_cont = run(build + ["--goals", n, "--continuations", n]).strip().splitlines()[-1].strip()
             times["datasets"] = time.perf_counter() - t0
 
             def config(**kw):  # the cpu preset, as `train --preset cpu --FLAG ...` would make it
@@ -192,9 +205,7 @@ def main(argv: list[str] | None = None) -> int:
             def evaluate(rd: Path, name: str, flags: list[str], checkpoints: int | None = None) -> None:
                 k = checkpoints or a.checkpoints
                 if a.reevaluate or not evaluation_is_current(rd, name, a.episodes, k):
-                    run_logged(
-                        ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k), "--quiet"], log
-                    )
+                    run(ev + flags + ["--run", str(rd), "--episodes", str(a.episodes), "--checkpoints", str(k), "--quiet"])
 
             for rd, algo, label, seed in runs:
                 t0 = time.perf_counter()
@@ -207,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
                     for name, pl in (("none", ["none"]), ("single", ["single"]), ("multi2", ["multi", "--waypoints", "2"])):
                         evaluate(rd, f"ood-{name}", ["--task", "ood", "--planner"] + pl)
                 if algo in a.planner_algos and seed == a.seeds[0]:  # the oracle and the figures: the first seed's run
-                    rep = run_logged(
+                    rep = run(
                         ev
                         + [
                             "oracle",
@@ -218,8 +229,7 @@ def main(argv: list[str] | None = None) -> int:
                             "--candidates",
                             str(a.oracle_candidates),
                             "--quiet",
-                        ],
-                        log,
+                        ]
                     )
                     oracles.append(
                         f"Oracle of the single-goal planner for {label} (`aerohrl eval oracle --run {rd} --goals "
@@ -227,18 +237,15 @@ def main(argv: list[str] | None = None) -> int:
                         + "\n".join(line for line in rep.strip().splitlines() if not line.startswith("report:"))
                         + "\n```\n"
                     )
-                    run_logged(
+                    run(
                         ev
-                        + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")],
-                        log,
+                        + ["plot", "--task", "ood", "--planner", "single", "--run", str(rd), "-o", str(out / f"ood-{label}.png")]
                     )
-                run_logged(
-                    ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")], log
-                )
+                run(ev + ["plot", "--task", "reach-desired", "--run", str(rd), "-o", str(out / f"reach-desired-{label}.png")])
                 times[f"eval {label}"] = time.perf_counter() - t0
             dirs = [str(rd) for rd, *_ in runs]
-            run_logged(ev + ["plot", "--curves", *dirs, "-o", str(out / "learning-curves.png")], log)
-            tables = run_logged(ev + ["table", *dirs, "-o", str(out / "tables")], log)
+            run(ev + ["plot", "--curves", *dirs, "-o", str(out / "learning-curves.png")])
+            tables = run(ev + ["table", *dirs, "-o", str(out / "tables")])
         total = time.perf_counter() - t_all
         stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
         wall = ", ".join(f"{k} {v / 60:.1f} min" for k, v in times.items())

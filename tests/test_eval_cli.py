@@ -187,7 +187,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
             sys.executable,
             "experiments/reproduce.py",
             "--steps",
-            "60",
+            "30",
             "--episodes",
             "6",
             "--checkpoints",
@@ -212,6 +212,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
             str(tmp_path / "res"),
             "--results-dir",
             str(pages),
+            "--in-process",
         ],
         capture_output=True,
         text=True,
@@ -221,7 +222,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     (page,) = pages.glob("*-chapter3-tables.md")
     text = page.read_text()
-    assert text.index("```\npython experiments/reproduce.py --steps 60") < text.index("Reproduced by `make results`")
+    assert text.index("```\npython experiments/reproduce.py --steps 30") < text.index("Reproduced by `make results`")
     assert (tmp_path / "res" / "results.md").read_text() in text
     assert "Table 3.1 analogue" in text and "Table 3.2 analogue" in text and "wall time" in text and "TD3-BC" in text
     assert "Oracle of the single-goal planner for gcsl" in text and "Reach-Novel" in text
@@ -229,6 +230,29 @@ def test_make_results_pipeline_end_to_end(tmp_path):
     assert (tmp_path / "res" / "tables-t31.csv").exists() and (tmp_path / "res" / "ood-gcsl.png").exists()
     assert "Oracle of the single-goal planner for gcsl-cont" in text and "runs/gcsl-cpu-cont" in text
     assert (tmp_path / "res" / "ood-gcsl-cont.png").exists()
+
+
+def test_in_process_command_lines_answer_as_subprocesses_do(tmp_path):
+    """`experiments/reproduce.py --in-process` runs `python -m MODULE ARGS` as MODULE.main(ARGS):
+    the same output and failure as the subprocess, one thread while it runs, the settings restored."""
+    import io
+    import os
+    import sys
+
+    from study_tools import run_logged
+
+    bad = [sys.executable, "-m", "aerohrl.eval.cli", "table", str(tmp_path / "no-run")]
+    errors = []
+    for in_process in (False, True):
+        log = io.StringIO()
+        with pytest.raises(UserError) as e:
+            run_logged(bad, log, in_process=in_process)
+        errors.append((str(e.value), log.getvalue()))
+    assert errors[0] == errors[1] and "(exit 2): aerohrl eval: error: no run at" in errors[0][0]
+    threads, omp = torch.get_num_threads(), os.environ.get("OMP_NUM_THREADS")
+    usage = run_logged([sys.executable, "-m", "aerohrl.eval.cli", "--help"], io.StringIO(), in_process=True)
+    assert usage.startswith("usage: aerohrl eval")  # argparse's exit(0) is a success
+    assert torch.get_num_threads() == threads and os.environ.get("OMP_NUM_THREADS") == omp
 
 
 def test_make_results_keeps_evaluations_that_cover_the_newest_checkpoints(tmp_path):

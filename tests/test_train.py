@@ -291,15 +291,15 @@ def test_end_to_end_cpu_preset(tmp_path, capsys):
                 "--preset",
                 "cpu",
                 "--steps",
-                "600",
+                "200",
                 "--eval-every",
-                "300",
+                "100",
                 "--eval-episodes",
                 "5",
                 "--checkpoint-every",
-                "300",
-                "--log-every",
                 "100",
+                "--log-every",
+                "50",
                 "--out",
                 str(tmp_path / "runs"),
                 "--name",
@@ -311,7 +311,7 @@ def test_end_to_end_cpu_preset(tmp_path, capsys):
     )
     assert runs.main(["show", str(tmp_path / "runs" / "e2e")]) == 0
     out = capsys.readouterr().out
-    assert "600 / 600" in out and "eval @ 600" in out
+    assert "200 / 200" in out and "eval @ 200" in out
 
 
 def test_cosine_schedule_resumes_exactly(data, tmp_path):
