@@ -218,7 +218,7 @@ def test_make_results_pipeline_end_to_end(tmp_path):
         text=True,
         cwd=Path(__file__).resolve().parent.parent,
         timeout=1800,
-    )  # minutes on an idle 2-core machine; 15+ at a load of 7 (Ray start-up included)
+    )  # generous: a loaded 2-core machine runs it several times slower (Ray start-up included)
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     (page,) = pages.glob("*-chapter3-tables.md")
     text = page.read_text()
