@@ -1,13 +1,14 @@
 # Two commands do all set-up on a fresh machine (see README):
-#   make demo   -> venv (Python 3.12) -> build a dataset, validate, plot, export; train GCSL briefly,
-#                  evaluate and plot it; one IPP baseline on 10 worlds (a few minutes)
+#   make demo   -> venv (Python 3.12) -> build a dataset, validate, plot, export; train GCSL (fast preset)
+#                  until it reaches DEMO_SUCCESS of its goals, evaluate, plot and fly it to MCAP; one IPP
+#                  baseline on 10 worlds (a few minutes)
 #   make test   -> venv -> the whole test suite, slow end-to-end tests included
 SHELL := /bin/bash
 VENV  ?= .venv
 BIN   := $(VENV)/bin
 OUT   ?= out
 GOALS ?= 250
-DEMO_STEPS ?= 3000
+DEMO_SUCCESS ?= 0.8
 # Python 3.12 (lerobot >= 0.5 needs it): the first candidate that actually runs (a pyenv shim
 # on PATH may exist but refuse), from PATH, else pyenv's versions; else fail with a clear line.
 PYTHON312 ?= $(shell for p in python3.12 $$(ls -d $${PYENV_ROOT:-$$HOME/.pyenv}/versions/3.12*/bin/python3.12 2>/dev/null | sort -rV); do \
@@ -32,14 +33,15 @@ demo: venv
 	$(BIN)/datagen info $$ds; \
 	$(BIN)/datagen plot $$ds -o $(OUT)/goals.png; \
 	$(BIN)/datagen export-mcap $$ds --episode 3 -o $(OUT)/ep3.mcap; \
-	if [ -f $$run/config.json ]; then $(BIN)/train --resume $$run; \
-	else $(BIN)/train --algo gcsl --dataset $$ds --steps $(DEMO_STEPS) --checkpoint-every $$(( $(DEMO_STEPS) / 3 )) --eval-every 0 --name demo-gcsl; fi; \
+	if [ -f $$run/config.json ]; then $(BIN)/train --resume $$run --stop-success $(DEMO_SUCCESS) --threads 1; \
+	else $(BIN)/train --algo gcsl --dataset $$ds --preset fast --stop-success $(DEMO_SUCCESS) --threads 1 --name demo-gcsl; fi; \
 	$(BIN)/aerohrl runs show $$run -o $(OUT)/learning_curve.png; \
-	$(BIN)/aerohrl eval --task reach-desired --run $$run --checkpoints 3; \
+	$(BIN)/aerohrl eval --task reach-desired --run $$run --checkpoints 1 --mcap-episode 3; \
+	cp $$(ls $$run/eval/reach-desired/flown-episode-3-step-*.mcap | tail -n1) $(OUT)/flown-ep3.mcap; \
 	$(BIN)/aerohrl eval --task reach-intermediate --run $$run --checkpoints 1; \
 	$(BIN)/aerohrl eval plot --task reach-desired --run $$run -o $(OUT)/reach-desired.png; \
 	$(BIN)/aerohrl ipp bench --planner greedy --envs 10 --out $(OUT)/ipp; \
-	echo "demo: dataset $$ds, run $$run, figures in $(OUT)/ (a short run: make results trains the cpu preset in full)"
+	echo "demo: dataset $$ds, run $$run, figures in $(OUT)/, episode 3 flown by the policy in $(OUT)/flown-ep3.mcap (make results trains the cpu preset in full)"
 
 # Everything CI runs: fast tests and the slow end-to-end ones.
 test: venv lint

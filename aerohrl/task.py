@@ -50,6 +50,11 @@ ACTION_NAMES = ["c", "wx_cmd", "wy_cmd", "wz_cmd"]
 
 NEAR_SUCCESS_SCALE = 2.5
 
+# Reach-Novel's goals: fresh draws from the dataset's own ranges, on the seed stream
+# NOVEL_SEED_OFFSET + seed (apart from any dataset's goal seeds); `aerohrl eval` and the
+# trainer's periodic hook draw the same set
+NOVEL_SEED_OFFSET = 2_000_003
+
 
 @dataclass(frozen=True)
 class GoalTolerance:

@@ -37,6 +37,8 @@ RESUMABLE = {
     "eval_every",
     "eval_episodes",
     "eval_horizon",
+    "eval_task",
+    "stop_success",
 }
 COMMON_FIELDS = ("seed", "device")  # TrainConfig settings that are common flags (aerohrl.cli_common)
 
@@ -164,6 +166,8 @@ def run(a: argparse.Namespace) -> int:
         print(f"run {run_dir}: {cfg.algo}, preset {cfg.preset}, dataset {tr.dataset['version']}", file=sys.stderr)
     print(f"precision: {tr.precision}", file=sys.stderr)
     step = tr.train()
+    if tr.stopped_at is not None:
+        print(f"stopped: the evaluation at step {step} reached success {tr.cfg.stop_success:g} (--stop-success)", file=sys.stderr)
     print(f"done: {tr.run_dir} at step {step}")
     return 0
 

@@ -1,4 +1,4 @@
-"""The trainer's periodic closed-loop evaluation hooks (Reach-Desired; the maze tasks on a maze dataset).
+"""The trainer's periodic closed-loop evaluation hooks (Reach-Desired or Reach-Novel; the maze tasks on a maze dataset).
 
 The rollout itself is the evaluation harness's (:func:`aerohrl.envs.rollout.rollout`,
 through the Gymnasium vector environment), so training-time and ``aerohrl eval``
@@ -6,6 +6,11 @@ numbers come from the same code. Reach-Desired (docs/spec.md "Evaluation tasks")
 vehicle starts at hover at the origin, gets one of the dataset's desired goals and
 flies the policy for ``horizon`` steps; success = the goal-reached test holds at some
 step (the episode ends there), near success = the same with every tolerance x 2.5.
+
+Reach-Novel (``--eval-task reach-novel``) flies the same way to ``eval_episodes`` *new*
+goals drawn from the dataset's own ranges on the task's seed stream
+(``task.NOVEL_SEED_OFFSET``, episode-set seed 0): with 250 episodes they are the goals of
+``aerohrl eval --task reach-novel``.
 
 On a dataset flown in a maze, the hook flies the maze's five frozen tasks instead
 (``aerohrl eval --task maze``, envs/maze.py), ``eval_episodes / 5`` episodes each (at
@@ -21,6 +26,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from aerohrl import task
 from aerohrl.envs.rollout import rollout_reach
 
 if TYPE_CHECKING:
@@ -35,7 +41,22 @@ def make_reach_desired_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[A
     goals = data.desired_goals()[data.rest_start_episodes()].cpu().numpy()
     rng = np.random.default_rng(cfg.seed + 12345)
     pick = rng.choice(len(goals), size=min(cfg.eval_episodes, len(goals)), replace=False)
-    goals = goals[np.sort(pick)]
+    return _reach_evaluator(goals[np.sort(pick)], data, cfg)
+
+
+def make_reach_novel_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[Algorithm, int], dict[str, float]]:
+    """Reach-Novel on ``cfg.eval_episodes`` new goals from the dataset's own goal ranges
+    (the task's seed stream, episode-set seed 0, as ``aerohrl eval --task reach-novel``)."""
+    from aerohrl.datagen.goals import goal_vectors, sample_goals
+
+    spec = data.info.get("spec") or {}
+    ranges = {k: tuple(spec[k]) for k in ("pos_range", "vel_range", "acc_range") if spec.get(k)}
+    goals = goal_vectors(sample_goals(np.random.default_rng(task.NOVEL_SEED_OFFSET), cfg.eval_episodes, **ranges))
+    return _reach_evaluator(goals, data, cfg)
+
+
+def _reach_evaluator(goals: np.ndarray, data: Dataset, cfg: TrainConfig) -> Callable[[Algorithm, int], dict[str, float]]:
+    """Fly ``goals`` from hover at the origin for ``cfg.eval_horizon`` steps with the dataset's vehicle and rates."""
     spec = data.info.get("spec") or {}
     kw = {
         "vehicle": spec.get("vehicle", "hummingbird"),
@@ -79,4 +100,4 @@ def make_maze_evaluator(data: Dataset, cfg: TrainConfig) -> Callable[[Algorithm,
     return evaluate
 
 
-__all__ = ["make_reach_desired_evaluator", "make_maze_evaluator"]
+__all__ = ["make_reach_desired_evaluator", "make_reach_novel_evaluator", "make_maze_evaluator"]

@@ -60,6 +60,7 @@ LR_SCHEDULES = ("constant", "cosine")
 AUGMENTATIONS = ("none", "mirror")  # = augment.AUGMENTATIONS
 RELABEL_OFFSETS = ("uniform", "geometric")  # = relabel.FUTURE_STRATEGIES
 BC_TARGETS = ("expert", "executed")
+EVAL_TASKS = ("reach-desired", "reach-novel")  # the periodic hook's free-space tasks (closed_loop.py)
 
 PRESET_DIR = Path(__file__).parent / "presets"  # cpu.toml, thesis.toml: presets are data
 
@@ -279,6 +280,16 @@ class TrainConfig:
     eval_every: int = param(5_000, "closed-loop evaluation every N steps (0: none)", ge=0)
     eval_episodes: int = param(25, "episodes per evaluation", ge=1)
     eval_horizon: int = param(500, "simulator steps per evaluation episode (100 Hz: 500 = 5 s)", ge=1)
+    eval_task: str = param(
+        "reach-desired",
+        "closed-loop evaluation task: reach-desired (the dataset's goals) | reach-novel (new goals from its ranges); "
+        "a maze dataset flies its maze tasks",
+        choices=EVAL_TASKS,
+    )
+    # time to a working skill: the run ends (with a checkpoint) at the first evaluation that reaches it
+    stop_success: float = param(
+        0.0, "stop training once a closed-loop evaluation's success reaches this (0: train every step)", ge=0, le=1
+    )
 
 
 # settings a user must not set from the command line (the identity of the run)

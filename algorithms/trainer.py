@@ -93,6 +93,7 @@ class Trainer:
         self._lock = lock or self.run.lock()  # held until train() returns
         self.evaluators = evaluators
         self.step = 0
+        self.stopped_at: int | None = None  # the step whose evaluation reached cfg.stop_success
         self.set_aside: list[tuple[Path, str]] = []  # damaged checkpoints skipped on resume, and why
         # what the metric line in progress has summed so far (restored on resume)
         self._acc: dict[str, Any] = {"sums": {}, "count": 0, "seconds": 0.0}  # loss sums, step count, seconds
@@ -189,11 +190,13 @@ class Trainer:
     def _default_evaluators(self) -> dict[str, Evaluator]:
         if self.cfg.eval_every <= 0:
             return {}
-        from aerohrl.algorithms.closed_loop import make_maze_evaluator, make_reach_desired_evaluator
+        from aerohrl.algorithms.closed_loop import make_maze_evaluator, make_reach_desired_evaluator, make_reach_novel_evaluator
 
         maze = make_maze_evaluator(self.data, self.cfg)
         if maze is not None:
             return {"maze": maze}
+        if self.cfg.eval_task == "reach-novel":
+            return {"reach_novel": make_reach_novel_evaluator(self.data, self.cfg)}
         return {"reach_desired": make_reach_desired_evaluator(self.data, self.cfg)}
 
     def evaluate(self) -> dict:
@@ -280,12 +283,20 @@ class Trainer:
                     rec = self._metrics_line()
                     log.write(rec)
                     bar.set_postfix({k: f"{rec[k]:.3g}" for k in list(metrics)[:2]})
+                reached = False
                 if self.evaluators and cfg.eval_every > 0 and (self.step % cfg.eval_every == 0 or self.step == cfg.steps):
                     self._acc["seconds"] += time.perf_counter() - self._t0
                     ev = self.evaluate()
                     if ev:
                         log.write({"step": self.step, **ev})
+                    reached = cfg.stop_success > 0 and any(v >= cfg.stop_success for k, v in ev.items() if k.endswith("/success"))
                     self._t0 = time.perf_counter()
+                if reached:  # the policy that reached it is the run's last checkpoint
+                    if self._acc["count"]:
+                        log.write(self._metrics_line())
+                    self.checkpoint()
+                    self.stopped_at = self.step
+                    break
                 if self.step % cfg.checkpoint_every == 0 or self.step == cfg.steps:
                     self.checkpoint()
         finally:

@@ -101,7 +101,7 @@ SCHEMAS = {
     },
     "aerohrl.Step": {
         "title": "aerohrl.Step",
-        "description": "Per-step reward and flags of the expert episode",
+        "description": "Per-step reward and flags of the episode",
         "type": "object",
         "properties": {
             "timestamp": _TIME,
@@ -208,18 +208,53 @@ def _q(q) -> dict:
 def export_mcap(root: str | Path, episode: int, out_path: str | Path) -> dict[str, int]:
     """Write episode ``episode`` of the dataset at ``root`` to ``out_path`` (MCAP, zstd
     chunks, JSON messages); return the number of messages per topic."""
-    from mcap.writer import CompressionType, Writer
-
     root, out_path = Path(root), Path(out_path)
     d, info = _episode_rows(root, episode)
-    L, fps = len(d["frame_index"]), info["fps"]
+    fps = info["fps"]
     # vehicle states: every frame's state, then the final next state
-    states = np.concatenate([d["observation.state"], d["next.observation.state"][-1:]]).astype(np.float64)
-    goal = d["observation.desired_goal"].astype(np.float64)
-    goal = np.concatenate([goal, goal[-1:]])
+    states = np.concatenate([d["observation.state"], d["next.observation.state"][-1:]])
+    goal = d["observation.desired_goal"]
     t_us = np.round(d["timestamp"].astype(np.float64) * 1e6).astype(np.int64)
     t_final = int(round((int(d["frame_index"][-1]) + 1) / fps * 1e6))
-    t_ns = np.append(t_us, t_final) * 1000 + EPOCH_NS
+    return write_flight_mcap(
+        out_path,
+        states,
+        np.concatenate([goal, goal[-1:]]),
+        d["action"],
+        np.append(t_us, t_final) * 1000 + EPOCH_NS,
+        episode_index=d["episode_index"],
+        frame_index=d["frame_index"],
+        reward=d["next.reward"],
+        done=d["next.done"],
+        success=d["next.success"],
+    )
+
+
+def write_flight_mcap(
+    out_path: str | Path,
+    states: np.ndarray,
+    goals: np.ndarray,
+    actions: np.ndarray,
+    t_ns: np.ndarray,
+    *,
+    episode_index: np.ndarray,
+    frame_index: np.ndarray,
+    reward: np.ndarray,
+    done: np.ndarray,
+    success: np.ndarray,
+) -> dict[str, int]:
+    """Write one flight to ``out_path`` (MCAP, the topics of :data:`TOPICS`): ``states``
+    (L + 1, 18) and the goals flown to ``goals`` (L + 1, 15) at the times ``t_ns`` (L + 1,),
+    ``actions`` (L, 4) and the per-step ``episode_index``, ``frame_index``, ``reward``,
+    ``done``, ``success`` (L,). A dataset episode (:func:`export_mcap`) and a policy's
+    flight (``aerohrl eval --mcap-episode``) are written alike; returns the messages per topic."""
+    from mcap.writer import CompressionType, Writer
+
+    out_path = Path(out_path)
+    states, goal = np.asarray(states, np.float64), np.asarray(goals, np.float64)
+    L = len(actions)
+    if states.shape != (L + 1, task.STATE_DIM) or goal.shape != (L + 1, task.GOAL_DIM) or len(t_ns) != L + 1:
+        raise ValueError(f"a flight of {L} actions needs {L + 1} states, goals and times")
     q_vehicle = _quats(states[:, task.ROT])
     q_goal = _quats(goal[:, task.ROT])
 
@@ -308,22 +343,22 @@ def export_mcap(root: str | Path, episode: int, out_path: str | Path) -> dict[st
                     },
                 )
                 if i < L:
-                    a = d["action"][i]
+                    a = actions[i]
                     emit("/action", ns, {"timestamp": ts, **{n: float(a[j]) for j, n in enumerate(task.ACTION_NAMES)}})
                     emit(
                         "/step",
                         ns,
                         {
                             "timestamp": ts,
-                            "episode_index": int(d["episode_index"][i]),
-                            "frame_index": int(d["frame_index"][i]),
-                            "reward": float(d["next.reward"][i]),
-                            "done": bool(d["next.done"][i]),
-                            "success": bool(d["next.success"][i]),
+                            "episode_index": int(episode_index[i]),
+                            "frame_index": int(frame_index[i]),
+                            "reward": float(reward[i]),
+                            "done": bool(done[i]),
+                            "success": bool(success[i]),
                         },
                     )
             w.finish()
     return counts
 
 
-__all__ = ["export_mcap", "TOPICS", "SCHEMAS"]
+__all__ = ["export_mcap", "write_flight_mcap", "TOPICS", "SCHEMAS"]

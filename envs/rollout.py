@@ -69,6 +69,7 @@ def rollout(
     goal_tol: float = 1.0,
     decline_margin: float | None = None,
     record: bool = False,
+    record_states: bool = False,
     vehicle: str = "hummingbird",
     fps: int = 100,
     substeps: int = 5,
@@ -93,7 +94,10 @@ def rollout(
     (E,)-arrays (success, near_success, first_success_step, first_near_step, steps,
     final_pos_err / final_vel_err / final_rot_err at the episode's last step,
     min_pos_err) plus the plan (``waypoints`` (E, n, 15), ``waypoint_frame``,
-    ``plan_score``, ``legs_reached``) and, with ``record``, ``positions`` (E, T+1, 3).
+    ``plan_score``, ``legs_reached``) and, with ``record``, ``positions`` (E, T+1, 3); with
+    ``record_states``, the observed ``states`` (E, T+1, 18), the ``actions`` flown (E, T, 4)
+    and the ``policy_goals`` the policy saw (E, T+1, 15), each episode's first
+    ``steps + 1`` (actions: ``steps``) rows being its flight.
     In a ``maze`` (the episodes fly in :class:`~aerohrl.envs.maze.QuadrotorMazeVectorEnv`)
     a collision at any step ends the episode as a failure: ``collision`` (E,) and
     ``collision_step`` (E,; -1 for none) say which and when (every other array is
@@ -170,6 +174,13 @@ def rollout(
     if record:
         assert pos is not None
         pos[:, 0] = obs["achieved_goal"][:, :3]
+    if record_states:
+        flown = {
+            "states": np.zeros((E, T + 1, task.STATE_DIM)),
+            "actions": np.zeros((E, T, task.ACTION_DIM)),
+            "policy_goals": np.zeros((E, T + 1, task.GOAL_DIM)),
+        }
+        flown["states"][:, 0], flown["policy_goals"][:, 0] = obs["observation"][:, : task.STATE_DIM], obs["desired_goal"]
     bar = tqdm(total=T, desc=desc, unit="step", disable=None if progress else True, leave=False, dynamic_ncols=True)
     try:
         for t in range(T):
@@ -179,6 +190,12 @@ def rollout(
             a[idx] = policy(obs["observation"][idx], obs["desired_goal"][idx])
             a[~active] = [9.81, 0.0, 0.0, 0.0]  # finished vehicles hover (their results are fixed)
             obs, _, term, trunc, info = env.step(a)
+            if record_states:
+                flown["actions"][:, t] = a
+                flown["states"][:, t + 1], flown["policy_goals"][:, t + 1] = (
+                    obs["observation"][:, : task.STATE_DIM],
+                    obs["desired_goal"],
+                )
             crash = info["collision"] & active
             ag = obs["achieved_goal"]
             if record:
@@ -249,6 +266,8 @@ def rollout(
         out.update(waypoints=wp, waypoint_frame=wp_frame, legs_reached=legs_reached, final_leg=leg)
     if record:
         out["positions"] = pos
+    if record_states:
+        out.update(flown)
     return out
 
 

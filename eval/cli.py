@@ -4,6 +4,7 @@
 
     aerohrl eval --task reach-desired --run runs/<run>           # last 10 checkpoints, 250 episodes each
     aerohrl eval --task reach-intermediate --run runs/<run>
+    aerohrl eval --task reach-desired --run runs/<run> --checkpoints 1 --mcap-episode 3   # + episode 3 as flown, for Foxglove
     aerohrl eval --task ood --run runs/<run> --planner single    # none | single (Eq. 3.7) | multi (Eq. 3.6)
     aerohrl eval --task fast --run runs/<run>                    # free space: goals at |v_i| in [3.5, 7] m/s
     aerohrl eval --task maze --run runs/<maze-run> [--planner single]   # the 5 frozen tasks of the run's maze
@@ -31,9 +32,9 @@ PROG = "aerohrl eval"
 
 
 # EvalOptions settings whose flags are written here rather than by aerohrl.config.add_flags:
-# --task is required, --horizon and --decline-margin are optional numbers, --family lists
+# --task is required, --horizon, --decline-margin and --mcap-episode are optional numbers, --family lists
 # its choices (numpy-free here), and --seed, --device, --out are every command's
-EVAL_OWN_FLAGS = ("task", "horizon", "family", "decline_margin", "seed", "device", "out")
+EVAL_OWN_FLAGS = ("task", "horizon", "family", "decline_margin", "mcap_episode", "seed", "device", "out")
 
 
 def _eval_parser() -> ArgumentParser:
@@ -71,6 +72,7 @@ def _eval_parser() -> ArgumentParser:
         metavar="M",
         help=describe(f["decline_margin"], "never: the thesis"),
     )
+    ap.add_argument("--mcap-episode", type=T.nonneg_int, default=None, metavar="N", help=describe(f["mcap_episode"], "none"))
     add_common(
         ap,
         out={"help": "result folder [RUN/eval/<task>[-<planner>]]"},
@@ -93,6 +95,7 @@ def cmd_eval(a: argparse.Namespace) -> int:
         horizon=a.horizon,
         family=a.family,
         decline_margin=a.decline_margin,
+        mcap_episode=a.mcap_episode,
         seed=a.seed,
         device=a.device,
         out=None if a.out is None else str(a.out),
@@ -110,7 +113,8 @@ def cmd_eval(a: argparse.Namespace) -> int:
         print(f"collision {100 * s['collision_mean']:.1f} ± {100 * s['collision_std']:.1f} % (maze {s['maze']['name']})")
         print(f"results:   {out}/summary.json, {out}/tasks.md, {out}/maze.png, {out}/episodes-step-*.csv")
         return 0
-    print(f"results:   {out}/summary.json, {out}/episodes-step-*.csv")
+    flown = f", {out}/flown-episode-{a.mcap_episode}-step-*.mcap" if a.mcap_episode is not None else ""
+    print(f"results:   {out}/summary.json, {out}/episodes-step-*.csv{flown}")
     return 0
 
 

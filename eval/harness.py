@@ -170,6 +170,11 @@ class EvalOptions:
     seed: int = param(0, "episode-set seed (and the perturbation's gusts and noise)", ge=0)
     device: str = param("cpu", "torch device")
     record: bool = param(True, "keep the trajectories of the newest checkpoint (for plots)", flag=False)
+    mcap_episode: int | None = param(
+        None,
+        "also write episode N as the newest checkpoint flew it: OUT/flown-episode-N-step-S.mcap (Foxglove)",
+        ge=0,
+    )
     progress: bool = param(True, "progress bars", flag=False)
     dataset: str | None = param(None, "the run's dataset at another path (identity is checked)")
     out: str | None = param(None, "result folder (none: RUN/eval/<name>)")
@@ -367,11 +372,19 @@ def build_episodes(data: Dataset, opt: EvalOptions) -> EpisodeSet:
 
 
 def fly(
-    algo: Algorithm, episodes: EpisodeSet, data: Dataset, opt: EvalOptions, *, record: bool = False, desc: str = "rollout"
+    algo: Algorithm,
+    episodes: EpisodeSet,
+    data: Dataset,
+    opt: EvalOptions,
+    *,
+    record: bool = False,
+    record_states: bool = False,
+    desc: str = "rollout",
 ) -> dict:
     """One checkpoint's flight of ``episodes`` with the planner ``opt`` asks for (legs of
     ``opt.leg_horizon`` steps, else the horizon shared among the legs) on the dataset's
-    vehicle: :func:`aerohrl.envs.rollout.rollout`'s per-episode results."""
+    vehicle: :func:`aerohrl.envs.rollout.rollout`'s per-episode results (``record_states``:
+    with every state and action flown)."""
     from aerohrl.envs.rollout import rollout
     from aerohrl.eval.tasks import dataset_maze
 
@@ -392,6 +405,7 @@ def fly(
         goal_tol=opt.goal_tol,
         decline_margin=opt.decline_margin,
         record=record,
+        record_states=record_states,
         progress=opt.progress,
         desc=desc,
         maze=dataset_maze(data) if episodes.task == "maze" else None,
@@ -399,6 +413,35 @@ def fly(
         perturb_seed=opt.seed,
         **sim_kwargs(data),
     )
+
+
+def write_flown_mcap(out_dir: str | Path, step: int, episode: int, r: dict, fps: int) -> Path:
+    """Episode ``episode`` of a flight recorded with ``record_states`` (:func:`fly`) as
+    ``OUT/flown-episode-N-step-S.mcap``: the vehicle's states, the goal the policy flew to,
+    its actions and, per step, the task goal's test; returns the path."""
+    from aerohrl.datagen.mcap_export import EPOCH_NS, write_flight_mcap
+
+    n = int(r["steps"][episode])
+    states = r["states"][episode, : n + 1]
+    goals = r["policy_goals"][episode, : n + 1]
+    reached = np.zeros(n, bool)
+    if r["success"][episode]:
+        reached[int(r["first_success_step"][episode]) - 1 :] = True
+    path = Path(out_dir) / f"flown-episode-{episode}-step-{step:09d}.mcap"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_flight_mcap(
+        path,
+        states,
+        goals,
+        r["actions"][episode, :n],
+        np.arange(n + 1, dtype=np.int64) * round(1e9 / fps) + EPOCH_NS,
+        episode_index=np.full(n, episode),
+        frame_index=np.arange(n),
+        reward=reached.astype(float),
+        done=reached,
+        success=reached,
+    )
+    return path
 
 
 def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, dict] | None = None) -> dict:
@@ -422,6 +465,8 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
     device = resolve_device(opt.device)
     data, meta = loaded if loaded is not None else load_run_dataset(run, opt.dataset)
     episodes = build_episodes(data, opt)
+    if opt.mcap_episode is not None and opt.mcap_episode >= len(episodes):
+        raise UserError(f"--mcap-episode {opt.mcap_episode}: the task has {len(episodes)} episodes (0..{len(episodes) - 1})")
     out_dir = Path(opt.out) if opt.out else run.path / "eval" / opt.name()
     atomic.remove_stale_temporaries(out_dir)  # left by an evaluation that was killed while writing
     per_ckpt = []
@@ -444,8 +489,9 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
             )["success"]
         algo = wrap_floor(algo, opt.floor)
         record = opt.record and i == len(ckpts) - 1
+        flown = opt.mcap_episode is not None and i == len(ckpts) - 1
         t0 = time.perf_counter()
-        r = fly(algo, episodes, data, opt, record=record, desc=f"step {ck['step']}")
+        r = fly(algo, episodes, data, opt, record=record, record_states=flown, desc=f"step {ck['step']}")
         wall = time.perf_counter() - t0
         results.write_episodes(out_dir, int(ck["step"]), episodes, r)
         per_ckpt.append(
@@ -461,6 +507,9 @@ def evaluate_run(run_dir: str | Path, opt: EvalOptions, loaded: tuple[Dataset, d
             }
         )
         bar.set_postfix(success=f"{per_ckpt[-1]['success']:.3f}")
+        if flown:
+            assert opt.mcap_episode is not None
+            write_flown_mcap(out_dir, int(ck["step"]), opt.mcap_episode, r, int(sim_kwargs(data)["fps"]))
         if record:
             results.write_trajectories(out_dir, int(ck["step"]), episodes, r)
             if episodes.task == "maze":  # the top-down maze with the flown paths

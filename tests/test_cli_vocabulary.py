@@ -175,7 +175,7 @@ def test_choices_are_shown_and_checked(capsys):
         "{constant,cosine}",
         "{auto,none,bf16}",
         "{expert,executed}",
-        "{cpu,thesis}",
+        "{cpu,fast,thesis}",
     ):
         assert choice in text, choice
     with pytest.raises(SystemExit):

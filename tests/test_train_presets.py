@@ -104,6 +104,8 @@ CPU_GCSL = {
     "eval_every": 5000,
     "eval_episodes": 25,
     "eval_horizon": 500,
+    "eval_task": "reach-desired",
+    "stop_success": 0.0,
 }
 
 # what the thesis preset changes under every algorithm (its [algo.NAME] tables add the rest)
@@ -130,12 +132,25 @@ THESIS = {
     "checkpoint_every": 50000,
 }
 
+# what the fast preset changes under every algorithm: a shorter run (the cosine schedule
+# anneals within it) evaluated on 250 episodes every 1,000 steps, stopping at 90 %
+FAST = {
+    "preset": "fast",
+    "steps": 10000,
+    "eval_every": 1000,
+    "eval_episodes": 250,
+    "stop_success": 0.9,
+}
+
 # what every other algorithm x preset changes from CPU_GCSL
 EXPECTED_CHANGES = {
     "cpu/gcsl": {},
     "cpu/td3bc": {"algo": "td3bc", "relabel_prob": 0.05},
     "cpu/td3awbc": {"algo": "td3awbc", "relabel_prob": 0.05},
     "cpu/cql": {"algo": "cql", "relabel_prob": 0.05},
+    "fast/gcsl": {**FAST},
+    "fast/td3bc": {**FAST, "algo": "td3bc", "relabel_prob": 0.05},
+    "fast/cql": {**FAST, "algo": "cql", "relabel_prob": 0.05},
     "thesis/gcsl": {**THESIS},
     "thesis/td3bc": {**THESIS, "algo": "td3bc"},
     "thesis/td3awbc": {**THESIS, "algo": "td3awbc"},
@@ -159,8 +174,9 @@ def test_presets_resolve_to_the_same_configs(name):
 
 
 def test_the_preset_files_are_the_presets():
-    assert C.presets() == ("cpu", "thesis")
+    assert C.presets() == ("cpu", "fast", "thesis")
     assert C.per_algo_values("cpu") == {"gcsl": {"relabel_prob": 0.01}}
+    assert C.per_algo_values("fast") == C.per_algo_values("cpu")
     assert C.preset_base("cpu") == C.TrainConfig()  # the cpu preset is the dataclass defaults
     cfg = C.make_config("thesis", algo="td3awbc")
     assert (cfg.td3bc.alpha, cfg.td3bc.policy_delay, cfg.td3awbc.awr_temperature, cfg.cql.cql_num_random) == (2.5, 2, 1.0, 10)
@@ -199,3 +215,14 @@ def test_a_preset_with_an_unknown_algorithm_table_is_refused(tmp_path, monkeypat
     monkeypatch.setattr(C, "PRESET_DIR", tmp_path)
     with pytest.raises(K.ConfigError, match=r"preset p \[algo\]: unknown key\(s\) sac"):
         C.make_config("p")
+
+
+def test_the_fast_preset_is_its_flags():
+    """``--preset fast`` is the cpu preset with the fast preset's values given as flags, one flag per setting."""
+    from aerohrl.algorithms.cli import config_from_args, parser
+
+    fast = config_from_args(parser().parse_args(["--preset", "fast", "--dataset", "/data/ds"]))
+    changes = {k: v for k, v in C.to_dict(fast).items() if k != "preset" and v != CPU_GCSL.get(k)}
+    assert changes == {"dataset": "/data/ds", **{k: v for k, v in FAST.items() if k != "preset"}}
+    flags = [f"--{k.replace('_', '-')}={v}" for k, v in changes.items()]
+    assert C.to_dict(config_from_args(parser().parse_args(flags))) == {**C.to_dict(fast), "preset": "cpu"}

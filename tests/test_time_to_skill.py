@@ -1,0 +1,68 @@
+"""Time to a working skill: the trainer stops at the first evaluation that reaches
+``stop_success`` (with a checkpoint there), the Reach-Novel hook flies the goals of
+``aerohrl eval --task reach-novel``, and bench/bench_time_to_skill.py runs end to end on
+a tiny setting."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+
+from aerohrl.algorithms import config as C
+from aerohrl.algorithms.trainer import start_run
+
+BENCH = Path(__file__).resolve().parent.parent / "bench" / "bench_time_to_skill.py"
+
+
+def test_training_stops_at_the_first_evaluation_that_reaches_the_target(tmp_path, data):
+    cfg = C.make_config("cpu", hidden=(8,), critic_hidden=(8,), batch_size=8, steps=100, eval_every=10, stop_success=0.5)
+    scores = iter([0.2, 0.6, 0.9])
+    tr = start_run(
+        cfg,
+        tmp_path / "run",
+        data=data,
+        progress=False,
+        logger="none",
+        evaluators={"fake": lambda algo, step: {"success": next(scores)}},
+    )
+    assert tr.train() == 20 and tr.stopped_at == 20
+    assert tr.run.checkpoints()[-1].name.startswith("step-") and "20" in tr.run.checkpoints()[-1].name
+    evals = [json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines() if "eval/fake/success" in x]
+    assert [e["step"] for e in evals] == [10, 20]
+
+
+def test_reach_novel_hook_flies_the_eval_tasks_goals(data):
+    from aerohrl.algorithms import closed_loop
+    from aerohrl.eval.tasks import reach_novel
+
+    seen = {}
+
+    def fake(goals, data, cfg):
+        seen["goals"] = goals
+        return lambda algo, step: {}
+
+    cfg = C.make_config("cpu", eval_task="reach-novel", eval_episodes=7)
+    orig = closed_loop._reach_evaluator
+    closed_loop._reach_evaluator = fake
+    try:
+        closed_loop.make_reach_novel_evaluator(data, cfg)
+    finally:
+        closed_loop._reach_evaluator = orig
+    np.testing.assert_array_equal(seen["goals"], reach_novel(data, 7, seed=0).goals)
+
+
+def test_the_bench_runs_on_a_tiny_setting(dataset_dir, capsys):
+    spec = importlib.util.spec_from_file_location("bench_time_to_skill", BENCH)
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    argv = ["--seeds", "0", "--dataset", str(dataset_dir), "--steps", "20", "--eval-every", "10", "--episodes", "3"]
+    assert bench.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "torch capability" in out and "target 90 % on 3 episodes" in out
+    row = next(line for line in out.splitlines() if line.split()[:1] == ["0"])
+    assert row.split()[1] == "no" and row.split()[5] in ("10", "20")
+    assert "reached by 0 of 1 seeds" in out
