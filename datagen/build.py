@@ -165,6 +165,7 @@ def rollout_expert(
     perturbation: Perturbation | None = None,
     perturb_seed: int | list[int] = 0,
     extra_steps: int = 0,
+    drop_ended: bool = False,
 ) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
 
@@ -182,6 +183,13 @@ def rollout_expert(
     seeded by ``perturb_seed``): the expert (and re-planning) sees the observed state, the
     states recorded are the true ones. ``extra_steps``: keep flying this many steps past the
     longest reference, holding its end (robustness curves judge the goal over a horizon).
+
+    ``drop_ended``: once a quarter of the vehicles still flown have passed their recorded
+    steps, the simulator keeps only the others (:meth:`aerohrl.sim.BatchedQuadrotor.select`,
+    bit for bit), and so do the reference and the command; the noise is still drawn for
+    every episode, so each keeps its own stream. The cost is that of the recorded steps,
+    not of the longest; ``states`` / ``actions`` past an episode's length are then left
+    unset. Not with re-planning, a perturbed plant, ``extra_steps`` or ``record_rotors``.
     """
     params = get_preset(spec.vehicle)
     n = len(T)
@@ -213,6 +221,9 @@ def rollout_expert(
     else:
         t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
+    drop_ended = drop_ended and not (replanning or perturbation is not None or extra_steps or record_rotors)
+    if drop_ended:
+        return _rollout_dropping_ended(out, sim, ctrl, coeffs, T, dt, noise, kmax, progress)
     for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
         if record_rotors:
             assert out.rotors is not None  # allocated with record_rotors
@@ -233,6 +244,39 @@ def rollout_expert(
     if record_rotors:
         assert out.rotors is not None
         out.rotors[kmax] = sim.rotor_speeds
+    return out
+
+
+# The batch never shrinks below this many vehicles: NumPy's kernels round differently in
+# the last bits for a batch of one vehicle, and the bytes must not depend on the dropping.
+_MIN_FLOWN = 16
+
+
+def _rollout_dropping_ended(out: Rollout, sim, ctrl, coeffs, T, dt, noise, kmax: int, progress: bool) -> Rollout:
+    """:func:`rollout_expert`'s loop (open-loop expert, nominal plant) over a batch that
+    shrinks as episodes pass their recorded steps: the same arithmetic per vehicle."""
+    states, actions, length = out.states, out.actions, out.length
+    act: np.ndarray = np.arange(len(T))  # the episodes in the simulator's batch, in order
+    s = states[0]
+    c, Ta = coeffs, T
+    if noise is not None:
+        lo, hi = ctrl.action_box
+    for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
+        ended = length[act] <= k
+        if 4 * ended.sum() >= len(act) and len(act) - ended.sum() >= _MIN_FLOWN:
+            keep = np.flatnonzero(~ended)
+            sim, act, s = sim.select(keep), act[keep], s[keep]
+            c, Ta = coeffs[act], T[act]
+        t = np.minimum(k * dt, Ta)
+        ref = [reference.evaluate(c, t, order=o) for o in range(4)]
+        a = ctrl(s, *ref, yaw=0.0)
+        if noise is not None:
+            assert out.expert_actions is not None  # allocated with the noise
+            out.expert_actions[k, act] = a
+            a = np.clip(a + noise()[act], lo, hi)
+        actions[k, act] = a
+        s = sim.step(a)
+        states[k + 1, act] = s
     return out
 
 
@@ -312,6 +356,7 @@ def _fly_block(
         rng,
         perturbation=pert,
         perturb_seed=[spec.seed, RANDOMIZE_STREAM, part, block],
+        drop_ended=True,
     )
     out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
     if r.expert_actions is not None:
@@ -639,7 +684,9 @@ def stream_dataset(spec: DatasetSpec, root: Path, progress: bool = True, runner:
     is a few blocks' frames whatever the number of goals. With continuations the
     rest-start flights are kept whole (their starts are drawn from those frames)."""
     task_text = TASK if spec.reach else (EXPLORE_TASK if spec.family == "explore" else MAZE_TASK)
-    writer = DatasetWriter(root, fps=spec.fps, task=task_text, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
+    writer = DatasetWriter(
+        root, fps=spec.fps, task=task_text, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES, stats=spec.stats_mode
+    )
     try:
         if not spec.reach:  # the maze families and exploration (datagen/maze_build.py)
             from aerohrl.datagen import maze_build

@@ -47,7 +47,15 @@ from aerohrl.datagen.lerobot_layout import (
     arrow_column,
     column_to_numpy,
 )
-from aerohrl.datagen.lerobot_stats import QUANTILE_KEYS, STAT_KEYS, episode_stats, index_stats, sorted_stats, stats_dtype
+from aerohrl.datagen.lerobot_stats import (
+    QUANTILE_KEYS,
+    STAT_KEYS,
+    StreamStats,
+    episode_stats,
+    index_stats,
+    sorted_stats,
+    stats_dtype,
+)
 from aerohrl.errors import UserError
 
 ROW_GROUP_SIZE = 1 << 16
@@ -74,6 +82,7 @@ def write_dataset(
     chunks_size: int = DEFAULT_CHUNK_SIZE,
     data_files_size_in_mb: int = DEFAULT_DATA_FILE_SIZE_IN_MB,
     episode_stats: bool = True,
+    stats: str = "exact",
 ) -> None:
     """Write ``columns`` (per-frame arrays, episodes contiguous and sorted) as a LeRobot
     v3.0 dataset in ``root`` (created if missing; must be empty).
@@ -82,7 +91,8 @@ def write_dataset(
     ``(1,)``) or 2-D ``(F, n)``; dtypes bool, integers or floats. ``episode_index`` is
     ``(F,)`` integers ``0..E-1``, non-decreasing in steps of one. ``names`` gives the
     per-dimension names of vector features (defaults: :data:`DEFAULT_NAMES`).
-    ``episode_stats=False`` leaves the per-episode ``stats/*`` columns out.
+    ``episode_stats=False`` leaves the per-episode ``stats/*`` columns out; ``stats``
+    chooses the dataset-level statistics (``"exact"`` or ``"sketch"``, :class:`DatasetWriter`).
     Bad inputs raise ``ValueError`` (a caller bug); a non-empty ``root`` raises UserError.
     The same bytes as :class:`DatasetWriter` fed the episodes in any number of pieces.
     """
@@ -95,6 +105,7 @@ def write_dataset(
         chunks_size=chunks_size,
         data_files_size_in_mb=data_files_size_in_mb,
         episode_stats=episode_stats,
+        stats=stats,
     )
     _, _, lengths = _check_episode_index(episode_index)
     w.append(columns, lengths)
@@ -115,6 +126,12 @@ class DatasetWriter:
     ``<root>/.stats-spill/``, deleted as used), and each dimension is sorted in memory
     (``F`` x 4 bytes for a float32 feature; the index columns follow from the episode
     lengths). The bytes are those of :func:`write_dataset` on all the frames at once.
+
+    ``stats="sketch"`` computes the dataset-level statistics while writing instead
+    (:class:`aerohrl.datagen.lerobot_stats.StreamStats`): each row group's summary is
+    merged as it is written, in file order, so nothing is read back or spilled and the
+    bytes still do not depend on how the episodes are cut into pieces (row groups are
+    fixed by the frames alone).
     """
 
     SPILL_DIR = ".stats-spill"
@@ -130,7 +147,12 @@ class DatasetWriter:
         chunks_size: int = DEFAULT_CHUNK_SIZE,
         data_files_size_in_mb: int = DEFAULT_DATA_FILE_SIZE_IN_MB,
         episode_stats: bool = True,
+        stats: str = "exact",
     ):
+        if stats not in ("exact", "sketch"):
+            raise ValueError(f"stats must be 'exact' or 'sketch', got {stats!r}")
+        self.stats_mode = stats
+        self._sketch: dict[str, StreamStats] = {}
         self.root = Path(root)
         self.layout = DatasetLayout(self.root)
         self.fps = _check_positive_int(fps, "fps")
@@ -178,7 +200,8 @@ class DatasetWriter:
             self.feats = feats
             self.root.mkdir(parents=True, exist_ok=True)
             (self.root / "meta").mkdir(exist_ok=True)
-            (self.root / self.SPILL_DIR).mkdir(exist_ok=True)
+            if self.stats_mode == "exact":
+                (self.root / self.SPILL_DIR).mkdir(exist_ok=True)
             self._frame_bytes = None
             self._ep_row_bytes = 7 * 8 + len(self.task.encode()) + 8
             if self.episode_stats:
@@ -283,6 +306,11 @@ class DatasetWriter:
         assert self.feats is not None  # set by the first append, before any rows
         keys = list(self.feats)
         meta = {b"huggingface": json.dumps(_hf_features(self.feats)).encode()}
+        if self.stats_mode == "sketch":  # one summary per row group, merged in file order
+            for k in keys:
+                if k not in INDEX_FEATURES:
+                    part = StreamStats.of_block(rows[k])
+                    self._sketch[k] = self._sketch[k].merge(part) if k in self._sketch else part
         table = pa.table([arrow_column(np.ascontiguousarray(rows[k])) for k in keys], names=keys)
         if self._schema is None:
             self._schema = table.schema.with_metadata(meta)
@@ -352,6 +380,8 @@ class DatasetWriter:
         for k, ft in self.feats.items():
             if k in INDEX_FEATURES:
                 g = index_stats(k, lengths, self.fps)
+            elif self.stats_mode == "sketch":
+                g = self._sketch.pop(k).result()
             else:
                 g = {s: [] for s in STAT_KEYS}
                 sdt = stats_dtype(np.dtype(ft["dtype"]))
