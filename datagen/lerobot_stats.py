@@ -241,12 +241,12 @@ class StreamStats:
     def of_block(cls, a: np.ndarray) -> "StreamStats":
         """The summary of one block of frames ``a`` ((F,) or (F, d), any dtype the
         writer accepts), values taken in their statistics dtype (:func:`stats_dtype`)."""
-        cols = a.reshape(len(a), -1)
+        cols = a.reshape(len(a), int(np.prod(a.shape[1:], dtype=np.int64)))
         sdt = stats_dtype(a.dtype)
         s = cls(cols.shape[1], sdt)
         if len(cols) == 0:
             return s
-        xt = np.ascontiguousarray(cols.T, dtype=sdt)  # one dimension per row
+        xt = np.array(cols.T, dtype=sdt, order="C", copy=True)  # one dimension per row; sorted in place below
         xt += 0  # -0.0 to +0.0: sorting ties them, and each bucket must be one run
         xt.sort(axis=1)  # min, max and the histogram's runs of equal buckets
         s.count = xt.shape[1]
