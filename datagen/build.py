@@ -369,6 +369,35 @@ def _fly_block(
     return out
 
 
+def _fly_block_columns(*args: Any) -> dict[str, Any]:
+    """:func:`_fly_block` (its arguments, then the block's goal vectors (n, 15)) turned into
+    what the writer and the episode summary take: ``columns`` (:func:`_pop_columns`),
+    ``ep_stats`` (the per-episode statistics of those columns,
+    :func:`aerohrl.datagen.lerobot_stats.episode_stats`), per episode ``success``,
+    ``first`` (first frame meeting the goal test, -1: none) and ``final`` (the state after
+    the last action, float64). Run where the block is flown, so a worker does this work."""
+    from aerohrl.datagen.lerobot_stats import episode_stats
+
+    *fly_args, goal_vec = args
+    r = _fly_block(*fly_args)
+    length = np.ceil(fly_args[2] * fly_args[0].fps - 1e-9).astype(np.int64)  # T of the block's spec
+    ends = np.cumsum(length)
+    e = np.repeat(np.arange(len(length)), length)
+    last = np.zeros(len(e), bool)
+    last[ends - 1] = True
+    hit = np.flatnonzero(r["success"])
+    eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
+    first = np.full(len(length), -1, np.int64)
+    first[eps] = hit[at] - (ends - length)[eps]
+    success = np.zeros(len(length), bool)
+    success[eps] = True
+    final = r["next_state"][ends - 1]
+    cols = _pop_columns(r, goal_vec.astype(np.float32)[e], last)
+    starts = ends - length
+    stats = {k: episode_stats(v, starts, length) for k, v in cols.items()}
+    return {"columns": cols, "ep_stats": stats, "success": success, "first": first, "final": final, "length": length}
+
+
 def block_bounds(n: int, block: int | None = None) -> np.ndarray:
     """ceil(n / ROLLOUT_BLOCK) blocks of equal size (+-1): no tiny remainder block (NumPy's
     kernels for a batch of 1 round differently in the last bits). The block is the unit of
@@ -390,14 +419,18 @@ def fly_blocks(
     record_rotors: bool = False,
     runner: BlockRunner | None = None,
     perturb: dict | None = None,
-) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
+    goal_vec: np.ndarray | None = None,
+) -> Iterator[tuple[int, int, dict[str, Any]]]:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
     ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
     episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of
     the goal episodes (0) and the continuations (1). ``runner`` (:class:`BlockRunner`)
     flies the blocks in worker processes or Ray tasks; they come back in block order, so
     the frames are byte-identical to flying them here. ``perturb``: each episode's
-    perturbation values (domain randomisation, :func:`episode_perturbations`)."""
+    perturbation values (domain randomisation, :func:`episode_perturbations`).
+    ``goal_vec`` (N, 15): each block comes back ready to write instead
+    (:func:`_fly_block_columns`: its LeRobot columns, per-episode statistics and results),
+    so that work runs where the block was flown."""
     n = len(T)
     bounds = block_bounds(n)
     nb = len(bounds) - 1
@@ -416,13 +449,15 @@ def fly_blocks(
             b,
             prog,
             None if perturb is None else {k: v[sl] for k, v in perturb.items()},
+            *(() if goal_vec is None else (goal_vec[sl],)),
         )
 
+    fn = _fly_block if goal_vec is None else _fly_block_columns
     results: Iterator[dict]
     if runner is None or nb < 2:
-        results = (_fly_block(*args(b, progress)) for b in range(nb))
+        results = (fn(*args(b, progress)) for b in range(nb))
     else:
-        results = runner.map(_fly_block, (args(b) for b in range(nb)))
+        results = runner.map(fn, (args(b) for b in range(nb)))
     for b, r in enumerate(
         tqdm(results, total=nb, desc="expert blocks", unit="block", disable=None if progress and nb >= 3 else True, leave=False)
     ):
@@ -497,13 +532,13 @@ class BlockRunner:
     def __init__(self, workers: int, ray_address: str | None = None):
         self.workers, self.ray_address = int(workers), ray_address
         self._pool: ProcessPoolExecutor | None = None
-        self._ray_fn: Any = None  # a ray remote function
+        self._ray_fn: dict | None = None  # ray remote functions, with ray_address
         if ray_address:
             from aerohrl.cluster import ray_connect
 
             ray = ray_connect(ray_address)
             self._ray = ray
-            self._ray_fn = ray.remote(num_cpus=1)(_fly_block)
+            self._ray_fn = {}  # a remote function per function mapped
         else:
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
@@ -517,9 +552,11 @@ class BlockRunner:
         from collections import deque
 
         window: deque = deque()
+        if self._ray_fn is not None and fn not in self._ray_fn:
+            self._ray_fn[fn] = self._ray.remote(num_cpus=1)(fn)
         # the pool exists whenever ray is not used (mypy does not carry the test into the lambda)
         submit = (
-            (lambda a: self._ray_fn.remote(*a))
+            (lambda a: self._ray_fn[fn].remote(*a))
             if self._ray_fn is not None
             else (lambda a: cast("ProcessPoolExecutor", self._pool).submit(fn, *a))
         )
@@ -703,6 +740,7 @@ def stream_dataset(spec: DatasetSpec, root: Path, progress: bool = True, runner:
     except BaseException:
         writer.abort()
         raise
+    summary.checksums = writer.checksums()
     return summary
 
 
@@ -717,18 +755,12 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
     first = np.full(n, -1, np.int64)
     final = np.empty((n, task.STATE_DIM))
     pert = episode_perturbations(spec, n)
-    for lo, hi, r in fly_blocks(spec, goals, T, coeffs, progress, part=0, start_state=start, runner=runner, perturb=pert):
-        L = length[lo:hi]
-        ends = np.cumsum(L)
-        e = np.repeat(np.arange(hi - lo), L)
-        last = np.zeros(len(e), bool)
-        last[ends - 1] = True
-        hit = np.flatnonzero(r["success"])
-        eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
-        first[lo + eps] = hit[at] - (ends - L)[eps]
-        success[lo + eps] = True
-        final[lo:hi] = r["next_state"][ends - 1]
-        writer.append(_pop_columns(r, goal_vec[lo:hi].astype(np.float32)[e], last), L)
+    blocks = fly_blocks(
+        spec, goals, T, coeffs, progress, part=0, start_state=start, runner=runner, perturb=pert, goal_vec=goal_vec
+    )
+    for lo, hi, r in blocks:
+        first[lo:hi], success[lo:hi], final[lo:hi] = r["first"], r["success"], r["final"]
+        writer.append(r.pop("columns"), length[lo:hi], ep_stats=r.pop("ep_stats") if writer.episode_stats else None)
         del r
     rate = float(success.mean())
     if rate < MIN_EXPERT_SUCCESS:
@@ -820,6 +852,7 @@ class EpisodeSummary:
     start_cell: np.ndarray | None = None  # (N, 2) maze expert families: start and goal cells (row, col)
     goal_cell: np.ndarray | None = None
     perturbation: dict | None = None  # {axis: (N,)} each episode's vehicle under domain randomisation
+    checksums: dict | None = None  # SHA-256 of the data files, taken by the writer as it closed them
 
     @property
     def frames(self) -> int:
@@ -1252,7 +1285,7 @@ def build(
         pq.write_table(episode_table(summary), tmp / EPISODES_FILE)
         meta = metadata(spec, summary, version)
         (tmp / "README.md").write_text(dataset_card(meta, read_info(tmp)["features"]))
-        write_manifest(tmp, meta)
+        write_manifest(tmp, meta, known=summary.checksums)
         os.rename(tmp, final)
     except OSError as e:
         if e.errno in (errno.EEXIST, errno.ENOTEMPTY) and final.is_dir():

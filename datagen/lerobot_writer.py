@@ -29,6 +29,7 @@ Format decisions (checked against lerobot 0.6.1's source and a dataset its write
 from __future__ import annotations
 
 import json
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from aerohrl import task as _task
+from aerohrl.atomic import sha256_file
 from aerohrl.datagen.lerobot_layout import (
     CODEBASE_VERSION,
     DATA_PATH,
@@ -175,12 +177,19 @@ class DatasetWriter:
         self._meta_file: tuple[int, int] | None = None
         self._meta_pending: list[dict] = []
         self._paths: list[Path] = []  # data files in order
+        self._hashes: dict[str, Future] = {}  # each closed data file's SHA-256, taken in a thread
+        self._hasher: ThreadPoolExecutor | None = None
         self._closed = False
 
     # -- frames
-    def append(self, columns: dict[str, np.ndarray], lengths: np.ndarray | list[int]) -> None:
+    def append(
+        self, columns: dict[str, np.ndarray], lengths: np.ndarray | list[int], ep_stats: dict[str, dict] | None = None
+    ) -> None:
         """Append whole episodes: ``columns`` as for :func:`write_dataset`, ``lengths``
-        the frames of each (their sum is the columns' length)."""
+        the frames of each (their sum is the columns' length). ``ep_stats``: per-episode
+        statistics of some of the columns, already computed elsewhere
+        (:func:`aerohrl.datagen.lerobot_stats.episode_stats` of exactly these frames, e.g.
+        in the process that flew them); the others are computed here."""
         if self._closed:
             raise ValueError("the writer is closed")
         lengths = np.asarray(lengths)
@@ -224,7 +233,12 @@ class DatasetWriter:
             self._frame_bytes = sum(_row_bytes(a) for a in arrays.values())
 
         # statistics: per episode now, dataset-level at close (from the written files)
-        ep_stats = {k: episode_stats(arrays[k], starts, lengths) for k in self.feats} if self.episode_stats else {}
+        given = ep_stats or {}
+        ep_stats = (
+            {k: given[k] if k in given else episode_stats(arrays[k], starts, lengths) for k in self.feats}
+            if self.episode_stats
+            else {}
+        )
 
         # data files: whole episodes, lerobot's size rule on uncompressed bytes
         data_file = self._data_roller.assign(lengths * self._frame_bytes)
@@ -337,6 +351,17 @@ class DatasetWriter:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
+            # its SHA-256 now, while its pages are cached and beside the next blocks' work
+            # (hashlib and the reads release the GIL), not in a pass over every file at the end
+            path = self._paths[-1]
+            if self._hasher is None:
+                self._hasher = ThreadPoolExecutor(1)
+            self._hashes[path.relative_to(self.root).as_posix()] = self._hasher.submit(sha256_file, path)
+
+    def checksums(self) -> dict[str, str]:
+        """The SHA-256 of every data file written, by path relative to ``root`` (after
+        :meth:`close`): for :func:`aerohrl.datagen.manifest.write_manifest`."""
+        return {rel: f.result() for rel, f in self._hashes.items()}
 
     def _finish_meta_file(self) -> None:
         if self._meta_file is None or not self._meta_pending:
@@ -416,6 +441,9 @@ class DatasetWriter:
         import shutil
 
         shutil.rmtree(self.root / self.SPILL_DIR, ignore_errors=True)
+        if self._hasher is not None:
+            self._hasher.shutdown(wait=True)
+            self._hasher = None
         self._closed = True
 
     def abort(self) -> None:
@@ -426,6 +454,9 @@ class DatasetWriter:
             except Exception:  # noqa: BLE001 - best effort on the way out
                 pass
             self._writer = None
+        if self._hasher is not None:
+            self._hasher.shutdown(wait=True, cancel_futures=True)
+            self._hasher = None
         self._closed = True
 
 

@@ -37,9 +37,9 @@ def test_tiny_blocks_stream_the_bytes_of_one_block(tmp_path, monkeypatch):
     pieces = []
     real = LW.DatasetWriter.append
 
-    def spy(self, columns, lengths):
+    def spy(self, columns, lengths, ep_stats=None):
         pieces.append(len(lengths))
-        return real(self, columns, lengths)
+        return real(self, columns, lengths, ep_stats)
 
     monkeypatch.setattr(LW.DatasetWriter, "append", spy)
     monkeypatch.setattr(LW, "ROW_GROUP_SIZE", 1000)  # row groups fill across pieces
