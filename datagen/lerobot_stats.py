@@ -104,6 +104,9 @@ def episode_stats(a: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> dic
     sdt = stats_dtype(a.dtype)
     out = {k: np.empty((E, d)) for k in STAT_KEYS if k != "count"}
     out["count"] = lengths.reshape(E, 1).astype(np.int64)
+    if d >= _BY_LENGTH_DIMS:
+        _episode_stats_by_length(cols.astype(sdt), starts, lengths, out)
+        return out
     e = 0
     while e < E:  # blocks of whole episodes, padded to their longest
         e1, lmax = e + 1, int(lengths[e])
@@ -129,6 +132,47 @@ def episode_stats(a: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> dic
             out[key][e:e1] = v
         e = e1
     return out
+
+
+# Vector features of at least this many dimensions take the per-length path of
+# :func:`_episode_stats_by_length` (for fewer, its per-group overhead outweighs the padding).
+_BY_LENGTH_DIMS = 4
+
+
+def _episode_stats_by_length(x: np.ndarray, starts: np.ndarray, lengths: np.ndarray, out: dict) -> None:
+    """:func:`episode_stats` into ``out`` for ``x`` (F, d) in its statistics dtype: the
+    same values (each episode's mean and std by the same float64 reductions, its order
+    statistics from a sort of its values) without padding. Episodes of one length are
+    sorted together, each dimension's values contiguous."""
+    E, d = len(lengths), x.shape[1]
+    e = 0
+    while e < E:  # mean and std: blocks of whole episodes, as episode_stats
+        e1 = e + 1
+        while e1 < E and int(starts[e1] + lengths[e1] - starts[e]) * d <= _STATS_BLOCK_CELLS:
+            e1 += 1
+        a0, b0 = int(starts[e]), int(starts[e1 - 1] + lengths[e1 - 1])
+        L = lengths[e:e1]
+        rel_starts = starts[e:e1] - a0
+        x64 = x[a0:b0].astype(np.float64)
+        mean = np.add.reduceat(x64, rel_starts, axis=0) / L[:, None]
+        dev = x64 - np.repeat(mean, L, axis=0)
+        out["mean"][e:e1] = mean
+        out["std"][e:e1] = np.sqrt(np.add.reduceat(dev * dev, rel_starts, axis=0) / L[:, None])
+        e = e1
+    order = np.argsort(lengths, kind="stable")
+    by_len = lengths[order]
+    bounds = np.flatnonzero(np.r_[True, by_len[1:] != by_len[:-1], True])
+    for g0, g1 in zip(bounds[:-1], bounds[1:]):
+        n = int(by_len[g0])
+        step = max(1, _STATS_BLOCK_CELLS // (n * d))
+        for h0 in range(g0, g1, step):
+            eps = order[h0 : min(g1, h0 + step)]
+            v = np.ascontiguousarray(x[starts[eps][:, None] + np.arange(n)].transpose(0, 2, 1))  # (m, d, n)
+            v.sort(axis=2)
+            out["min"][eps] = v[:, :, 0]
+            out["max"][eps] = v[:, :, n - 1]
+            for key, val in zip(QUANTILE_KEYS, _interp_quantiles(v, n, 2)):
+                out[key][eps] = val
 
 
 def sorted_stats(get: Callable[[int, int], np.ndarray], n: int) -> dict:
