@@ -342,9 +342,36 @@ def _fly_block(
     length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
     e = np.repeat(np.arange(n), length)
     kk = np.arange(int(length.sum())) - np.repeat(np.concatenate([[0], np.cumsum(length)[:-1]]), length)
+    r = _block_rollout(spec, goals, T, coeffs, start_state, rotor_speeds, record_rotors, part, block, progress, perturb)
+    out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
+    if r.expert_actions is not None:
+        out["expert_action"] = r.expert_actions[kk, e]
+    if record_rotors:
+        assert r.rotors is not None  # recorded with record_rotors
+        out["rotors"] = r.rotors[kk, e]
+    del r  # the rollout's (steps, N, .) buffers, before the goal test's temporaries
+    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
+    return out
+
+
+def _block_rollout(
+    spec: DatasetSpec,
+    goals: dict,
+    T: np.ndarray,
+    coeffs: np.ndarray,
+    start_state,
+    rotor_speeds,
+    record_rotors: bool,
+    part: int,
+    block: int,
+    progress: bool = False,
+    perturb: dict | None = None,
+) -> Rollout:
+    """The :func:`rollout_expert` of one block, with its own noise, gust and observation
+    streams (``[spec.seed, 11 | 19, part, block]``): :func:`_fly_block`'s flights."""
     rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, block]) if spec.noisy else None
     pert = Perturbation(**perturb) if perturb else None
-    r = rollout_expert(
+    return rollout_expert(
         spec,
         goals,
         T,
@@ -358,20 +385,16 @@ def _fly_block(
         perturb_seed=[spec.seed, RANDOMIZE_STREAM, part, block],
         drop_ended=True,
     )
-    out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
-    if r.expert_actions is not None:
-        out["expert_action"] = r.expert_actions[kk, e]
-    if record_rotors:
-        assert r.rotors is not None  # recorded with record_rotors
-        out["rotors"] = r.rotors[kk, e]
-    del r  # the rollout's (steps, N, .) buffers, before the goal test's temporaries
-    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
-    return out
+
+
+# Frames per piece when a block's recorded frames are gathered from the rollout: bounds
+# the float64 temporaries (the pieces are equal, none tiny).
+_GATHER_FRAMES = 1 << 16
 
 
 def _fly_block_columns(*args: Any) -> dict[str, Any]:
     """:func:`_fly_block` (its arguments, then the block's goal vectors (n, 15)) turned into
-    what the writer and the episode summary take: ``columns`` (:func:`_pop_columns`),
+    what the writer and the episode summary take: ``columns`` (those of :func:`frame_columns`),
     ``ep_stats`` (the per-episode statistics of those columns,
     :func:`aerohrl.datagen.lerobot_stats.episode_stats`), per episode ``success``,
     ``first`` (first frame meeting the goal test, -1: none) and ``final`` (the state after
@@ -379,21 +402,51 @@ def _fly_block_columns(*args: Any) -> dict[str, Any]:
     from aerohrl.datagen.lerobot_stats import episode_stats
 
     *fly_args, goal_vec = args
-    r = _fly_block(*fly_args)
-    length = np.ceil(fly_args[2] * fly_args[0].fps - 1e-9).astype(np.int64)  # T of the block's spec
+    spec, goals, T = fly_args[0], fly_args[1], fly_args[2]
+    r = _block_rollout(*fly_args)
+    n = len(T)
+    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
     ends = np.cumsum(length)
-    e = np.repeat(np.arange(len(length)), length)
-    last = np.zeros(len(e), bool)
-    last[ends - 1] = True
-    hit = np.flatnonzero(r["success"])
-    eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
-    first = np.full(len(length), -1, np.int64)
-    first[eps] = hit[at] - (ends - length)[eps]
-    success = np.zeros(len(length), bool)
-    success[eps] = True
-    final = r["next_state"][ends - 1]
-    cols = _pop_columns(r, goal_vec.astype(np.float32)[e], last)
     starts = ends - length
+    F = int(ends[-1])
+    e = np.repeat(np.arange(n), length)
+    kk = np.arange(F) - np.repeat(starts, length)
+    # the frames gathered straight into their float32 columns, piece by piece (no
+    # float64 copy of the block's frames); the goal test on the float64 next states
+    # (in frame_columns' order)
+    cols: dict[str, np.ndarray] = {
+        "observation.state": np.empty((F, task.STATE_DIM), np.float32),
+        "action": np.empty((F, task.ACTION_DIM), np.float32),
+        "observation.desired_goal": goal_vec.astype(np.float32)[e],
+        "next.observation.state": np.empty((F, task.STATE_DIM), np.float32),
+    }
+    success_f = np.empty(F, bool)
+    expert = np.empty((F, task.ACTION_DIM), np.float32) if r.expert_actions is not None else None
+    gv = goals_mod.goal_vectors(goals)
+    cuts = np.linspace(0, F, -(-F // _GATHER_FRAMES) + 1).round().astype(np.int64)
+    for c0, c1 in zip(cuts[:-1], cuts[1:]):
+        ee, k = e[c0:c1], kk[c0:c1]
+        nxt = r.states[k + 1, ee]
+        success_f[c0:c1] = task.goal_reached(task.achieved_goal(nxt), gv[ee])
+        cols["next.observation.state"][c0:c1] = nxt
+        cols["observation.state"][c0:c1] = r.states[k, ee]
+        cols["action"][c0:c1] = r.actions[k, ee]
+        if expert is not None:
+            assert r.expert_actions is not None
+            expert[c0:c1] = r.expert_actions[k, ee]
+    final = r.states[length, np.arange(n)]  # the state after each episode's last action
+    del r
+    last = np.zeros(F, bool)
+    last[ends - 1] = True
+    cols.update({"next.reward": success_f.astype(np.float32), "next.done": last, "next.success": success_f})
+    if expert is not None:
+        cols["action.expert"] = expert
+    hit = np.flatnonzero(success_f)
+    eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
+    first = np.full(n, -1, np.int64)
+    first[eps] = hit[at] - starts[eps]
+    success = np.zeros(n, bool)
+    success[eps] = True
     stats = {k: episode_stats(v, starts, length) for k, v in cols.items()}
     return {"columns": cols, "ep_stats": stats, "success": success, "first": first, "final": final, "length": length}
 
@@ -793,8 +846,8 @@ def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
 
 
 def _pop_columns(r: dict, goal_rows: np.ndarray, last: np.ndarray) -> dict[str, np.ndarray]:
-    """:func:`_columns` of one block's frames (:func:`_fly_block`), each float64 array
-    dropped from ``r`` as soon as its float32 copy exists (the block's peak memory)."""
+    """:func:`_columns` of one block's frames (a maze block, :mod:`aerohrl.datagen.maze_build`),
+    each float64 array dropped from ``r`` as soon as its float32 copy exists (the block's peak memory)."""
     out = {
         "observation.state": r.pop("state").astype(np.float32),
         "action": r.pop("action").astype(np.float32),
