@@ -252,7 +252,7 @@ def _bucket_edges(b: np.ndarray, dtype: np.dtype) -> tuple[np.ndarray, np.ndarra
     bits = 8 * dtype.itemsize
     ut = np.uint32 if bits == 32 else np.uint64
     shift = ut(bits - SKETCH_BITS)
-    lo_key = b.astype(ut) << shift
+    lo_key = np.left_shift(b.astype(ut), shift)
     hi_key = lo_key | ((ut(1) << shift) - ut(1))
 
     def value(key):
@@ -274,10 +274,10 @@ class StreamStats:
     def __init__(self, d: int, dtype: np.dtype):
         self.d, self.dtype = int(d), np.dtype(dtype)
         self.count = 0
-        self.mean = np.zeros(d)
-        self.m2 = np.zeros(d)
-        self.min = np.full(d, np.inf)
-        self.max = np.full(d, -np.inf)
+        self.mean: np.ndarray = np.zeros(d)
+        self.m2: np.ndarray = np.zeros(d)
+        self.min: np.ndarray = np.full(d, np.inf)
+        self.max: np.ndarray = np.full(d, -np.inf)
         self.hist: list | None = None  # dense: d arrays of 2**SKETCH_BITS counts
         self.sparse: list[tuple[np.ndarray, np.ndarray]] = []  # a block's: (buckets, counts) per dimension
 
