@@ -25,7 +25,7 @@ target: a maze build at no less than half the free-space frames per second.
 ``--workers`` runs every size with each worker count (``datagen build --workers N``:
 rollout blocks of 8,192 episodes flown in N processes); the peak RSS is then also the
 process tree's (parent + workers, summed from /proc every 0.1 s), and the speed-up is
-against 1 worker.
+against 1 worker, and ``cpu s`` is the user + system time of the build and its workers.
 """
 
 import argparse
@@ -126,10 +126,14 @@ def sharded(a):
         f"cpu: {describe_cpu()}   python: {sys.version.split()[0]}   recipe: {' '.join(a.recipe) or 'default'}   "
         f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}   load average at start: {os.getloadavg()[0]:.2f}"
     )
-    print(f"{'goals':>7} {'workers':>7} {'wall s':>8} {'ms/goal':>8} {'speed-up':>8} {'peak RSS GB (tree)':>19}  frames")
+    print(
+        f"{'goals':>7} {'workers':>7} {'wall s':>8} {'ms/goal':>8} {'cpu s':>8} {'speed-up':>8} {'peak RSS GB (tree)':>19}  frames"
+    )
     for n in sorted(a.goals):
         base = None
         for w in a.workers:
+            ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu0 = ru.ru_utime + ru.ru_stime
             with tempfile.TemporaryDirectory(dir=os.environ.get("BENCH_TMP")) as d:
                 wall, rss, out, _ = run_build(
                     [
@@ -147,9 +151,14 @@ def sharded(a):
                         *a.recipe,
                     ]
                 )
+            ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = ru.ru_utime + ru.ru_stime - cpu0  # the build and its workers (waited for), user + system
             base = base or wall
             frames = out.split(" frames")[0].rsplit(" ", 1)[-1]
-            print(f"{n:>7} {w:>7} {wall:>8.1f} {1000 * wall / n:>8.2f} {base / wall:>8.2f} {rss:>19.2f}  {frames}", flush=True)
+            print(
+                f"{n:>7} {w:>7} {wall:>8.1f} {1000 * wall / n:>8.2f} {cpu:>8.1f} {base / wall:>8.2f} {rss:>19.2f}  {frames}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -165,6 +165,7 @@ def rollout_expert(
     perturbation: Perturbation | None = None,
     perturb_seed: int | list[int] = 0,
     extra_steps: int = 0,
+    drop_ended: bool = False,
 ) -> Rollout:
     """Fly every reference at once with the geometric expert; record each step until T.
 
@@ -182,6 +183,13 @@ def rollout_expert(
     seeded by ``perturb_seed``): the expert (and re-planning) sees the observed state, the
     states recorded are the true ones. ``extra_steps``: keep flying this many steps past the
     longest reference, holding its end (robustness curves judge the goal over a horizon).
+
+    ``drop_ended``: once a quarter of the vehicles still flown have passed their recorded
+    steps, the simulator keeps only the others (:meth:`aerohrl.sim.BatchedQuadrotor.select`,
+    bit for bit), and so do the reference and the command; the noise is still drawn for
+    every episode, so each keeps its own stream. The cost is that of the recorded steps,
+    not of the longest; ``states`` / ``actions`` past an episode's length are then left
+    unset. Not with re-planning, a perturbed plant, ``extra_steps`` or ``record_rotors``.
     """
     params = get_preset(spec.vehicle)
     n = len(T)
@@ -213,6 +221,9 @@ def rollout_expert(
     else:
         t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
+    drop_ended = drop_ended and not (replanning or perturbation is not None or extra_steps or record_rotors)
+    if drop_ended:
+        return _rollout_dropping_ended(out, sim, ctrl, coeffs, T, dt, noise, kmax, progress)
     for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
         if record_rotors:
             assert out.rotors is not None  # allocated with record_rotors
@@ -233,6 +244,39 @@ def rollout_expert(
     if record_rotors:
         assert out.rotors is not None
         out.rotors[kmax] = sim.rotor_speeds
+    return out
+
+
+# The batch never shrinks below this many vehicles: NumPy's kernels round differently in
+# the last bits for a batch of one vehicle, and the bytes must not depend on the dropping.
+_MIN_FLOWN = 16
+
+
+def _rollout_dropping_ended(out: Rollout, sim, ctrl, coeffs, T, dt, noise, kmax: int, progress: bool) -> Rollout:
+    """:func:`rollout_expert`'s loop (open-loop expert, nominal plant) over a batch that
+    shrinks as episodes pass their recorded steps: the same arithmetic per vehicle."""
+    states, actions, length = out.states, out.actions, out.length
+    act: np.ndarray = np.arange(len(T))  # the episodes in the simulator's batch, in order
+    s = states[0]
+    c, Ta = coeffs, T
+    if noise is not None:
+        lo, hi = ctrl.action_box
+    for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
+        ended = length[act] <= k
+        if 4 * ended.sum() >= len(act) and len(act) - ended.sum() >= _MIN_FLOWN:
+            keep = np.flatnonzero(~ended)
+            sim, act, s = sim.select(keep), act[keep], s[keep]
+            c, Ta = coeffs[act], T[act]
+        t = np.minimum(k * dt, Ta)
+        ref = [reference.evaluate(c, t, order=o) for o in range(4)]
+        a = ctrl(s, *ref, yaw=0.0)
+        if noise is not None:
+            assert out.expert_actions is not None  # allocated with the noise
+            out.expert_actions[k, act] = a
+            a = np.clip(a + noise()[act], lo, hi)
+        actions[k, act] = a
+        s = sim.step(a)
+        states[k + 1, act] = s
     return out
 
 
@@ -298,9 +342,36 @@ def _fly_block(
     length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
     e = np.repeat(np.arange(n), length)
     kk = np.arange(int(length.sum())) - np.repeat(np.concatenate([[0], np.cumsum(length)[:-1]]), length)
+    r = _block_rollout(spec, goals, T, coeffs, start_state, rotor_speeds, record_rotors, part, block, progress, perturb)
+    out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
+    if r.expert_actions is not None:
+        out["expert_action"] = r.expert_actions[kk, e]
+    if record_rotors:
+        assert r.rotors is not None  # recorded with record_rotors
+        out["rotors"] = r.rotors[kk, e]
+    del r  # the rollout's (steps, N, .) buffers, before the goal test's temporaries
+    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
+    return out
+
+
+def _block_rollout(
+    spec: DatasetSpec,
+    goals: dict,
+    T: np.ndarray,
+    coeffs: np.ndarray,
+    start_state,
+    rotor_speeds,
+    record_rotors: bool,
+    part: int,
+    block: int,
+    progress: bool = False,
+    perturb: dict | None = None,
+) -> Rollout:
+    """The :func:`rollout_expert` of one block, with its own noise, gust and observation
+    streams (``[spec.seed, 11 | 19, part, block]``): :func:`_fly_block`'s flights."""
     rng = np.random.default_rng([spec.seed, NOISE_STREAM, part, block]) if spec.noisy else None
     pert = Perturbation(**perturb) if perturb else None
-    r = rollout_expert(
+    return rollout_expert(
         spec,
         goals,
         T,
@@ -312,16 +383,72 @@ def _fly_block(
         rng,
         perturbation=pert,
         perturb_seed=[spec.seed, RANDOMIZE_STREAM, part, block],
+        drop_ended=True,
     )
-    out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
-    if r.expert_actions is not None:
-        out["expert_action"] = r.expert_actions[kk, e]
-    if record_rotors:
-        assert r.rotors is not None  # recorded with record_rotors
-        out["rotors"] = r.rotors[kk, e]
-    del r  # the rollout's (steps, N, .) buffers, before the goal test's temporaries
-    out["success"] = task.goal_reached(task.achieved_goal(out["next_state"]), goals_mod.goal_vectors(goals)[e])
-    return out
+
+
+# Frames per piece when a block's recorded frames are gathered from the rollout: bounds
+# the float64 temporaries (the pieces are equal, none tiny).
+_GATHER_FRAMES = 1 << 16
+
+
+def _fly_block_columns(*args: Any) -> dict[str, Any]:
+    """:func:`_fly_block` (its arguments, then the block's goal vectors (n, 15)) turned into
+    what the writer and the episode summary take: ``columns`` (those of :func:`frame_columns`),
+    ``ep_stats`` (the per-episode statistics of those columns,
+    :func:`aerohrl.datagen.lerobot_stats.episode_stats`), per episode ``success``,
+    ``first`` (first frame meeting the goal test, -1: none) and ``final`` (the state after
+    the last action, float64). Run where the block is flown, so a worker does this work."""
+    from aerohrl.datagen.lerobot_stats import episode_stats
+
+    *fly_args, goal_vec = args
+    spec, goals, T = fly_args[0], fly_args[1], fly_args[2]
+    r = _block_rollout(*fly_args)
+    n = len(T)
+    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
+    ends = np.cumsum(length)
+    starts = ends - length
+    F = int(ends[-1])
+    e = np.repeat(np.arange(n), length)
+    kk = np.arange(F) - np.repeat(starts, length)
+    # the frames gathered straight into their float32 columns, piece by piece (no
+    # float64 copy of the block's frames); the goal test on the float64 next states
+    # (in frame_columns' order)
+    cols: dict[str, np.ndarray] = {
+        "observation.state": np.empty((F, task.STATE_DIM), np.float32),
+        "action": np.empty((F, task.ACTION_DIM), np.float32),
+        "observation.desired_goal": goal_vec.astype(np.float32)[e],
+        "next.observation.state": np.empty((F, task.STATE_DIM), np.float32),
+    }
+    success_f = np.empty(F, bool)
+    expert = np.empty((F, task.ACTION_DIM), np.float32) if r.expert_actions is not None else None
+    gv = goals_mod.goal_vectors(goals)
+    cuts = np.linspace(0, F, -(-F // _GATHER_FRAMES) + 1).round().astype(np.int64)
+    for c0, c1 in zip(cuts[:-1], cuts[1:]):
+        ee, k = e[c0:c1], kk[c0:c1]
+        nxt = r.states[k + 1, ee]
+        success_f[c0:c1] = task.goal_reached(task.achieved_goal(nxt), gv[ee])
+        cols["next.observation.state"][c0:c1] = nxt
+        cols["observation.state"][c0:c1] = r.states[k, ee]
+        cols["action"][c0:c1] = r.actions[k, ee]
+        if expert is not None:
+            assert r.expert_actions is not None
+            expert[c0:c1] = r.expert_actions[k, ee]
+    final = r.states[length, np.arange(n)]  # the state after each episode's last action
+    del r
+    last = np.zeros(F, bool)
+    last[ends - 1] = True
+    cols.update({"next.reward": success_f.astype(np.float32), "next.done": last, "next.success": success_f})
+    if expert is not None:
+        cols["action.expert"] = expert
+    hit = np.flatnonzero(success_f)
+    eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
+    first = np.full(n, -1, np.int64)
+    first[eps] = hit[at] - starts[eps]
+    success = np.zeros(n, bool)
+    success[eps] = True
+    stats = {k: episode_stats(v, starts, length) for k, v in cols.items()}
+    return {"columns": cols, "ep_stats": stats, "success": success, "first": first, "final": final, "length": length}
 
 
 def block_bounds(n: int, block: int | None = None) -> np.ndarray:
@@ -345,14 +472,18 @@ def fly_blocks(
     record_rotors: bool = False,
     runner: BlockRunner | None = None,
     perturb: dict | None = None,
-) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
+    goal_vec: np.ndarray | None = None,
+) -> Iterator[tuple[int, int, dict[str, Any]]]:
     """:func:`rollout_expert` over blocks of :data:`ROLLOUT_BLOCK` episodes: yields
     ``(lo, hi, frames)`` per block in block order, ``frames`` the recorded frames of
     episodes ``lo..hi-1`` (:func:`_fly_block`). ``part`` separates the noise streams of
     the goal episodes (0) and the continuations (1). ``runner`` (:class:`BlockRunner`)
     flies the blocks in worker processes or Ray tasks; they come back in block order, so
     the frames are byte-identical to flying them here. ``perturb``: each episode's
-    perturbation values (domain randomisation, :func:`episode_perturbations`)."""
+    perturbation values (domain randomisation, :func:`episode_perturbations`).
+    ``goal_vec`` (N, 15): each block comes back ready to write instead
+    (:func:`_fly_block_columns`: its LeRobot columns, per-episode statistics and results),
+    so that work runs where the block was flown."""
     n = len(T)
     bounds = block_bounds(n)
     nb = len(bounds) - 1
@@ -371,13 +502,15 @@ def fly_blocks(
             b,
             prog,
             None if perturb is None else {k: v[sl] for k, v in perturb.items()},
+            *(() if goal_vec is None else (goal_vec[sl],)),
         )
 
+    fn = _fly_block if goal_vec is None else _fly_block_columns
     results: Iterator[dict]
     if runner is None or nb < 2:
-        results = (_fly_block(*args(b, progress)) for b in range(nb))
+        results = (fn(*args(b, progress)) for b in range(nb))
     else:
-        results = runner.map(_fly_block, (args(b) for b in range(nb)))
+        results = runner.map(fn, (args(b) for b in range(nb)))
     for b, r in enumerate(
         tqdm(results, total=nb, desc="expert blocks", unit="block", disable=None if progress and nb >= 3 else True, leave=False)
     ):
@@ -452,13 +585,13 @@ class BlockRunner:
     def __init__(self, workers: int, ray_address: str | None = None):
         self.workers, self.ray_address = int(workers), ray_address
         self._pool: ProcessPoolExecutor | None = None
-        self._ray_fn: Any = None  # a ray remote function
+        self._ray_fn: dict | None = None  # ray remote functions, with ray_address
         if ray_address:
             from aerohrl.cluster import ray_connect
 
             ray = ray_connect(ray_address)
             self._ray = ray
-            self._ray_fn = ray.remote(num_cpus=1)(_fly_block)
+            self._ray_fn = {}  # a remote function per function mapped
         else:
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
@@ -472,9 +605,11 @@ class BlockRunner:
         from collections import deque
 
         window: deque = deque()
+        if self._ray_fn is not None and fn not in self._ray_fn:
+            self._ray_fn[fn] = self._ray.remote(num_cpus=1)(fn)
         # the pool exists whenever ray is not used (mypy does not carry the test into the lambda)
         submit = (
-            (lambda a: self._ray_fn.remote(*a))
+            (lambda a: self._ray_fn[fn].remote(*a))
             if self._ray_fn is not None
             else (lambda a: cast("ProcessPoolExecutor", self._pool).submit(fn, *a))
         )
@@ -639,7 +774,9 @@ def stream_dataset(spec: DatasetSpec, root: Path, progress: bool = True, runner:
     is a few blocks' frames whatever the number of goals. With continuations the
     rest-start flights are kept whole (their starts are drawn from those frames)."""
     task_text = TASK if spec.reach else (EXPLORE_TASK if spec.family == "explore" else MAZE_TASK)
-    writer = DatasetWriter(root, fps=spec.fps, task=task_text, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES)
+    writer = DatasetWriter(
+        root, fps=spec.fps, task=task_text, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES, stats=spec.stats_mode
+    )
     try:
         if not spec.reach:  # the maze families and exploration (datagen/maze_build.py)
             from aerohrl.datagen import maze_build
@@ -656,6 +793,7 @@ def stream_dataset(spec: DatasetSpec, root: Path, progress: bool = True, runner:
     except BaseException:
         writer.abort()
         raise
+    summary.checksums = writer.checksums()
     return summary
 
 
@@ -670,18 +808,12 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
     first = np.full(n, -1, np.int64)
     final = np.empty((n, task.STATE_DIM))
     pert = episode_perturbations(spec, n)
-    for lo, hi, r in fly_blocks(spec, goals, T, coeffs, progress, part=0, start_state=start, runner=runner, perturb=pert):
-        L = length[lo:hi]
-        ends = np.cumsum(L)
-        e = np.repeat(np.arange(hi - lo), L)
-        last = np.zeros(len(e), bool)
-        last[ends - 1] = True
-        hit = np.flatnonzero(r["success"])
-        eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
-        first[lo + eps] = hit[at] - (ends - L)[eps]
-        success[lo + eps] = True
-        final[lo:hi] = r["next_state"][ends - 1]
-        writer.append(_pop_columns(r, goal_vec[lo:hi].astype(np.float32)[e], last), L)
+    blocks = fly_blocks(
+        spec, goals, T, coeffs, progress, part=0, start_state=start, runner=runner, perturb=pert, goal_vec=goal_vec
+    )
+    for lo, hi, r in blocks:
+        first[lo:hi], success[lo:hi], final[lo:hi] = r["first"], r["success"], r["final"]
+        writer.append(r.pop("columns"), length[lo:hi], ep_stats=r.pop("ep_stats") if writer.episode_stats else None)
         del r
     rate = float(success.mean())
     if rate < MIN_EXPERT_SUCCESS:
@@ -714,8 +846,8 @@ def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
 
 
 def _pop_columns(r: dict, goal_rows: np.ndarray, last: np.ndarray) -> dict[str, np.ndarray]:
-    """:func:`_columns` of one block's frames (:func:`_fly_block`), each float64 array
-    dropped from ``r`` as soon as its float32 copy exists (the block's peak memory)."""
+    """:func:`_columns` of one block's frames (a maze block, :mod:`aerohrl.datagen.maze_build`),
+    each float64 array dropped from ``r`` as soon as its float32 copy exists (the block's peak memory)."""
     out = {
         "observation.state": r.pop("state").astype(np.float32),
         "action": r.pop("action").astype(np.float32),
@@ -773,6 +905,7 @@ class EpisodeSummary:
     start_cell: np.ndarray | None = None  # (N, 2) maze expert families: start and goal cells (row, col)
     goal_cell: np.ndarray | None = None
     perturbation: dict | None = None  # {axis: (N,)} each episode's vehicle under domain randomisation
+    checksums: dict | None = None  # SHA-256 of the data files, taken by the writer as it closed them
 
     @property
     def frames(self) -> int:
@@ -1205,7 +1338,7 @@ def build(
         pq.write_table(episode_table(summary), tmp / EPISODES_FILE)
         meta = metadata(spec, summary, version)
         (tmp / "README.md").write_text(dataset_card(meta, read_info(tmp)["features"]))
-        write_manifest(tmp, meta)
+        write_manifest(tmp, meta, known=summary.checksums)
         os.rename(tmp, final)
     except OSError as e:
         if e.errno in (errno.EEXIST, errno.ENOTEMPTY) and final.is_dir():

@@ -22,7 +22,9 @@ frame were measured on this project's builds (README "Speed"):
   noise: 20.66 M frames, peak RSS 13.98 GB);
 * scratch disk: the statistics spill, one feature at a time read back from the data
   files (the widest, 18 dimensions x 4 bytes per frame), deleted as used (on the same
-  file system as the output).
+  file system as the output). A spec whose statistics are the streamed sketch
+  (``spec.stats_mode == "sketch"``) has no spill and sorts nothing at the end; it holds
+  the merged histograms instead (:data:`SKETCH_BYTES`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,9 @@ EPISODE_BYTES = 800  # per episode for the whole build (goals, coefficients, per
 STATS_BYTES_PER_FRAME = 4  # one float32 feature dimension sorted at a time
 SPILL_DIMS = 18  # the widest feature (observation.state): the statistics spill holds one feature at a time
 SAMPLE_GOALS = 128
+# the merged quantile histograms of the streamed statistics: 2**20 int32 counts per
+# feature dimension (62 dimensions with action noise)
+SKETCH_BYTES = 62 * (1 << 20) * 4
 
 
 @dataclass(frozen=True)
@@ -76,7 +81,9 @@ def estimate(spec: DatasetSpec, workers: int = 1) -> Estimate:
     if episodes > ROLLOUT_BLOCK:
         block_eps = int(np.diff(block_bounds(episodes)).max())
     block = block_eps * (spec.t_max * spec.fps + 1) * BLOCK_BYTES_PER_EPISODE_STEP
-    spill = frames * 4 * SPILL_DIMS
+    sketch = spec.stats_mode == "sketch"
+    spill = 0 if sketch else frames * 4 * SPILL_DIMS
+    stats_memory = SKETCH_BYTES if sketch else frames * STATS_BYTES_PER_FRAME
     if spec.continuations:  # the rest-start flights' frames stay in memory
         memory = MEMORY_BASE + block + frames * MEMORY_BYTES_PER_FRAME
     else:
@@ -85,7 +92,7 @@ def estimate(spec: DatasetSpec, workers: int = 1) -> Estimate:
             MEMORY_BASE
             + in_flight * (block + block_eps * float(steps.mean()) * STREAM_BYTES_PER_FRAME)
             + episodes * EPISODE_BYTES
-            + frames * STATS_BYTES_PER_FRAME
+            + stats_memory
         )
     return Estimate(episodes, frames, frames * DISK_BYTES_PER_FRAME, memory, spill)
 
@@ -99,8 +106,10 @@ def _estimate_maze(spec: DatasetSpec) -> Estimate:
     steps = maze_build.plan(spec, min(spec.goals, SAMPLE_GOALS)).length
     frames = int(round(spec.goals * float(steps.mean())))
     block = min(maze_build.BLOCK_STEPS, spec.goals * int(steps.max())) * BLOCK_BYTES_PER_EPISODE_STEP
-    memory = MEMORY_BASE + block + spec.goals * EPISODE_BYTES + frames * STATS_BYTES_PER_FRAME
-    return Estimate(spec.goals, frames, frames * DISK_BYTES_PER_FRAME, memory, frames * 4 * SPILL_DIMS)
+    sketch = spec.stats_mode == "sketch"
+    stats_memory = SKETCH_BYTES if sketch else frames * STATS_BYTES_PER_FRAME
+    memory = MEMORY_BASE + block + spec.goals * EPISODE_BYTES + stats_memory
+    return Estimate(spec.goals, frames, frames * DISK_BYTES_PER_FRAME, memory, 0 if sketch else frames * 4 * SPILL_DIMS)
 
 
 def available_memory() -> float:

@@ -11,6 +11,24 @@ all frames rather than lerobot 0.6.1's count-weighted mean of per-episode quanti
 Per-episode stats go into the episodes parquet as ``stats/<feature>/<stat>`` columns
 (``list<double>``, ``count`` ``list<int64>``), which lerobot's dataset tools
 (``delete_episodes``, ``split``) aggregate; its loader drops them.
+
+Streamed dataset-level statistics (:class:`StreamStats`, the ``stats = "sketch"`` of a
+spec): one pass over the frames in blocks, each block summarised on its own and the
+summaries merged in any order, nothing read back. ``count``, ``min`` and ``max`` are
+exact; ``mean`` and ``std`` are float64 (Chan, Golub and LeVeque's pairwise update of
+count, mean and the sum of squared deviations), exact up to float64 rounding (not bit
+for bit the sorted-column sums of :func:`sorted_stats`). The quantiles come from a
+histogram per dimension whose buckets are fixed in advance and cover every finite value:
+the value's bits mapped to an order-preserving unsigned key, keeping its top
+:data:`SKETCH_BITS` bits (sign, exponent and the leading mantissa bits), so no range has
+to be known. The counts are exact and add across blocks. A quantile (linear
+interpolation between the order statistics at ``floor(q (n - 1))`` and the next, as
+numpy) takes each of the two order statistics from its bucket, interpolated linearly in
+rank within the bucket and clipped to the exact ``[min, max]``; each lies in the same
+bucket as the true order statistic, so the error is at most one bucket's width:
+``|q_hat - q| <= 2**-(SKETCH_BITS - 9) * 2**floor(log2 |v|)`` for float32 values ``v``
+near the quantile (relative ``2**-11`` with 20 bits), and ``2**-(SKETCH_BITS - 12)``
+relative for features whose statistics dtype is float64 (integers).
 """
 
 from __future__ import annotations
@@ -86,6 +104,9 @@ def episode_stats(a: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> dic
     sdt = stats_dtype(a.dtype)
     out = {k: np.empty((E, d)) for k in STAT_KEYS if k != "count"}
     out["count"] = lengths.reshape(E, 1).astype(np.int64)
+    if d >= _BY_LENGTH_DIMS:
+        _episode_stats_by_length(cols.astype(sdt), starts, lengths, out)
+        return out
     e = 0
     while e < E:  # blocks of whole episodes, padded to their longest
         e1, lmax = e + 1, int(lengths[e])
@@ -111,6 +132,47 @@ def episode_stats(a: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> dic
             out[key][e:e1] = v
         e = e1
     return out
+
+
+# Vector features of at least this many dimensions take the per-length path of
+# :func:`_episode_stats_by_length` (for fewer, its per-group overhead outweighs the padding).
+_BY_LENGTH_DIMS = 4
+
+
+def _episode_stats_by_length(x: np.ndarray, starts: np.ndarray, lengths: np.ndarray, out: dict) -> None:
+    """:func:`episode_stats` into ``out`` for ``x`` (F, d) in its statistics dtype: the
+    same values (each episode's mean and std by the same float64 reductions, its order
+    statistics from a sort of its values) without padding. Episodes of one length are
+    sorted together, each dimension's values contiguous."""
+    E, d = len(lengths), x.shape[1]
+    e = 0
+    while e < E:  # mean and std: blocks of whole episodes, as episode_stats
+        e1 = e + 1
+        while e1 < E and int(starts[e1] + lengths[e1] - starts[e]) * d <= _STATS_BLOCK_CELLS:
+            e1 += 1
+        a0, b0 = int(starts[e]), int(starts[e1 - 1] + lengths[e1 - 1])
+        L = lengths[e:e1]
+        rel_starts = starts[e:e1] - a0
+        x64 = x[a0:b0].astype(np.float64)
+        mean = np.add.reduceat(x64, rel_starts, axis=0) / L[:, None]
+        dev = x64 - np.repeat(mean, L, axis=0)
+        out["mean"][e:e1] = mean
+        out["std"][e:e1] = np.sqrt(np.add.reduceat(dev * dev, rel_starts, axis=0) / L[:, None])
+        e = e1
+    order = np.argsort(lengths, kind="stable")
+    by_len = lengths[order]
+    bounds = np.flatnonzero(np.r_[True, by_len[1:] != by_len[:-1], True])
+    for g0, g1 in zip(bounds[:-1], bounds[1:]):
+        n = int(by_len[g0])
+        step = max(1, _STATS_BLOCK_CELLS // (n * d))
+        for h0 in range(g0, g1, step):
+            eps = order[h0 : min(g1, h0 + step)]
+            v = np.ascontiguousarray(x[starts[eps][:, None] + np.arange(n)].transpose(0, 2, 1))  # (m, d, n)
+            v.sort(axis=2)
+            out["min"][eps] = v[:, :, 0]
+            out["max"][eps] = v[:, :, n - 1]
+            for key, val in zip(QUANTILE_KEYS, _interp_quantiles(v, n, 2)):
+                out[key][eps] = val
 
 
 def sorted_stats(get: Callable[[int, int], np.ndarray], n: int) -> dict:
@@ -169,6 +231,165 @@ def index_stats(k: str, lengths: np.ndarray, fps: int) -> dict:
     return {s: [out[s]] for s in STAT_KEYS}
 
 
+# Order-preserving key bits kept per value in the quantile histogram (2**SKETCH_BITS
+# buckets per dimension); see the module docstring for the error bound.
+SKETCH_BITS = 20
+
+
+def _sketch_keys(x: np.ndarray) -> np.ndarray:
+    """The bucket of each value of ``x`` (float32 or float64): its bits as an unsigned
+    integer, reordered so that the integers ascend with the values (negative values'
+    bits inverted, positive values' sign bit set), top :data:`SKETCH_BITS` bits."""
+    bits = 8 * x.dtype.itemsize
+    u = x.view(np.uint32 if bits == 32 else np.uint64)
+    sign = u >> np.array(bits - 1, u.dtype)
+    mask = (np.array(0, u.dtype) - sign) | (np.array(1, u.dtype) << np.array(bits - 1, u.dtype))
+    return ((u ^ mask) >> np.array(bits - SKETCH_BITS, u.dtype)).astype(np.int64)
+
+
+def _bucket_edges(b: np.ndarray, dtype: np.dtype) -> tuple[np.ndarray, np.ndarray]:
+    """The smallest and the largest value of buckets ``b`` (float64)."""
+    bits = 8 * dtype.itemsize
+    ut = np.uint32 if bits == 32 else np.uint64
+    shift = ut(bits - SKETCH_BITS)
+    lo_key = np.left_shift(b.astype(ut), shift)
+    hi_key = lo_key | ((ut(1) << shift) - ut(1))
+
+    def value(key):
+        top = ut(1) << ut(bits - 1)
+        neg = (key & top) == 0  # negative values: their keys are the inverted bits
+        u = np.where(neg, ~key, key ^ top).astype(ut)
+        return u.view(np.float32 if bits == 32 else np.float64).astype(np.float64)
+
+    return value(lo_key), value(hi_key)
+
+
+class StreamStats:
+    """Mergeable dataset-level statistics of one feature (module docstring): update with
+    blocks of frames (:meth:`of_block`) and :meth:`merge` the summaries in any order;
+    :meth:`result` gives the ``stats.json`` entries. The histogram is held sparse in a
+    block's summary (the buckets it touches) and dense (``2**SKETCH_BITS`` counts per
+    dimension) once merged."""
+
+    def __init__(self, d: int, dtype: np.dtype):
+        self.d, self.dtype = int(d), np.dtype(dtype)
+        self.count = 0
+        self.mean: np.ndarray = np.zeros(d)
+        self.m2: np.ndarray = np.zeros(d)
+        self.min: np.ndarray = np.full(d, np.inf)
+        self.max: np.ndarray = np.full(d, -np.inf)
+        self.hist: list | None = None  # dense: d arrays of 2**SKETCH_BITS counts
+        self.sparse: list[tuple[np.ndarray, np.ndarray]] = []  # a block's: (buckets, counts) per dimension
+
+    @classmethod
+    def of_block(cls, a: np.ndarray) -> "StreamStats":
+        """The summary of one block of frames ``a`` ((F,) or (F, d), any dtype the
+        writer accepts), values taken in their statistics dtype (:func:`stats_dtype`)."""
+        cols = a.reshape(len(a), int(np.prod(a.shape[1:], dtype=np.int64)))
+        sdt = stats_dtype(a.dtype)
+        s = cls(cols.shape[1], sdt)
+        if len(cols) == 0:
+            return s
+        xt = np.array(cols.T, dtype=sdt, order="C", copy=True)  # one dimension per row; sorted in place below
+        xt += 0  # -0.0 to +0.0: sorting ties them, and each bucket must be one run
+        xt.sort(axis=1)  # min, max and the histogram's runs of equal buckets
+        s.count = xt.shape[1]
+        s.min, s.max = xt[:, 0].astype(np.float64), xt[:, -1].astype(np.float64)
+        s.mean = np.add.reduce(xt, axis=1, dtype=np.float64) / s.count
+        for j in range(s.d):
+            dev = xt[j].astype(np.float64)
+            dev -= s.mean[j]
+            dev *= dev
+            s.m2[j] = np.add.reduce(dev)
+            keys = _sketch_keys(xt[j])
+            ends = np.append(np.flatnonzero(keys[1:] != keys[:-1]), len(keys) - 1)
+            s.sparse.append((keys[ends].astype(np.int32), np.diff(ends, prepend=-1).astype(np.int64)))
+        return s
+
+    def merge(self, other: "StreamStats") -> "StreamStats":
+        """Add ``other``'s frames to this summary (in place; returns self)."""
+        if other.d != self.d or other.dtype != self.dtype:
+            raise ValueError("merging statistics of different features")
+        if other.count == 0:
+            return self
+        n = self.count + other.count
+        delta = other.mean - self.mean
+        self.m2 = self.m2 + other.m2 + delta * delta * (self.count * other.count / n)
+        self.mean = self.mean + delta * (other.count / n)
+        self.count = n
+        self.min, self.max = np.minimum(self.min, other.min), np.maximum(self.max, other.max)
+        # dense counts in int32 while they fit (half the memory), int64 beyond
+        dt = np.int32 if n < np.iinfo(np.int32).max else np.int64
+        if self.hist is None:
+            self.hist = [np.zeros(1 << SKETCH_BITS, dt) for _ in range(self.d)]
+            for j, (b, c) in enumerate(self.sparse):
+                self.hist[j][b] += c.astype(dt)
+            self.sparse = []
+        elif self.hist[0].dtype != dt:
+            self.hist = [h.astype(dt) for h in self.hist]
+        for j in range(self.d):
+            if other.hist is not None:
+                self.hist[j] += other.hist[j].astype(dt)
+            else:
+                b, c = other.sparse[j]
+                self.hist[j][b] += c.astype(dt)
+        return self
+
+    def _counts(self, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """(buckets, counts) of dimension ``j``, ascending, nonzero only."""
+        if self.hist is not None:
+            b = np.flatnonzero(self.hist[j])
+            return b, self.hist[j][b]
+        return self.sparse[j][0].astype(np.int64), self.sparse[j][1]
+
+    def quantiles(self, j: int) -> dict[str, float]:
+        """Dimension ``j``'s quantiles from the histogram (module docstring)."""
+        b, c = self._counts(j)
+        cum = np.cumsum(c, dtype=np.int64)
+        lo_edge, hi_edge = _bucket_edges(b, self.dtype)
+        n = self.count
+
+        def order_stat(r: int) -> float:
+            i = int(np.searchsorted(cum, r, side="right"))  # the bucket holding rank r (0-based)
+            below = int(cum[i - 1]) if i else 0
+            f = (r - below + 0.5) / int(c[i])  # rank within the bucket, as a fraction of it
+            if lo_edge[i] <= 0.0 <= hi_edge[i]:  # the bucket of +0 or -0 (and subnormals): 0
+                return 0.0
+            v = lo_edge[i] + f * (hi_edge[i] - lo_edge[i])
+            return float(min(max(v, self.min[j]), self.max[j]))
+
+        out = {}
+        for key, q in zip(QUANTILE_KEYS, QUANTILES):  # as _interp_quantiles
+            pos = q * (n - 1)
+            lo = int(np.floor(pos))
+            hi = min(lo + 1, n - 1)
+            vlo, vhi = order_stat(lo), order_stat(hi)
+            out[key] = vlo + (vhi - vlo) * (pos - lo)
+        return out
+
+    def result(self) -> dict[str, list]:
+        """``{stat: [per dimension]}`` in :data:`STAT_KEYS` order (``count`` ``[n]``)."""
+        if self.count == 0:
+            raise ValueError("no frames")
+        out: dict[str, list] = {
+            "min": self.min.tolist(),
+            "max": self.max.tolist(),
+            "mean": self.mean.tolist(),
+            "std": np.sqrt(np.maximum(self.m2, 0.0) / self.count).tolist(),
+            "count": [int(self.count)],
+        }
+        qs = [self.quantiles(j) for j in range(self.d)]
+        for key in QUANTILE_KEYS:
+            out[key] = [q[key] for q in qs]
+        return {k: out[k] for k in STAT_KEYS}
+
+    def bucket_width(self, v: float) -> float:
+        """The width of the bucket holding the value ``v``: the sketch's error bound there."""
+        b = _sketch_keys(np.array([v], self.dtype))
+        lo, hi = _bucket_edges(b, self.dtype)
+        return float(hi[0] - lo[0])
+
+
 __all__ = [
     "QUANTILES",
     "QUANTILE_KEYS",
@@ -178,4 +399,6 @@ __all__ = [
     "episode_stats",
     "sorted_stats",
     "index_stats",
+    "SKETCH_BITS",
+    "StreamStats",
 ]

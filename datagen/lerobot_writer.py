@@ -29,6 +29,7 @@ Format decisions (checked against lerobot 0.6.1's source and a dataset its write
 from __future__ import annotations
 
 import json
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from aerohrl import task as _task
+from aerohrl.atomic import sha256_file
 from aerohrl.datagen.lerobot_layout import (
     CODEBASE_VERSION,
     DATA_PATH,
@@ -47,7 +49,15 @@ from aerohrl.datagen.lerobot_layout import (
     arrow_column,
     column_to_numpy,
 )
-from aerohrl.datagen.lerobot_stats import QUANTILE_KEYS, STAT_KEYS, episode_stats, index_stats, sorted_stats, stats_dtype
+from aerohrl.datagen.lerobot_stats import (
+    QUANTILE_KEYS,
+    STAT_KEYS,
+    StreamStats,
+    episode_stats,
+    index_stats,
+    sorted_stats,
+    stats_dtype,
+)
 from aerohrl.errors import UserError
 
 ROW_GROUP_SIZE = 1 << 16
@@ -74,6 +84,7 @@ def write_dataset(
     chunks_size: int = DEFAULT_CHUNK_SIZE,
     data_files_size_in_mb: int = DEFAULT_DATA_FILE_SIZE_IN_MB,
     episode_stats: bool = True,
+    stats: str = "exact",
 ) -> None:
     """Write ``columns`` (per-frame arrays, episodes contiguous and sorted) as a LeRobot
     v3.0 dataset in ``root`` (created if missing; must be empty).
@@ -82,7 +93,8 @@ def write_dataset(
     ``(1,)``) or 2-D ``(F, n)``; dtypes bool, integers or floats. ``episode_index`` is
     ``(F,)`` integers ``0..E-1``, non-decreasing in steps of one. ``names`` gives the
     per-dimension names of vector features (defaults: :data:`DEFAULT_NAMES`).
-    ``episode_stats=False`` leaves the per-episode ``stats/*`` columns out.
+    ``episode_stats=False`` leaves the per-episode ``stats/*`` columns out; ``stats``
+    chooses the dataset-level statistics (``"exact"`` or ``"sketch"``, :class:`DatasetWriter`).
     Bad inputs raise ``ValueError`` (a caller bug); a non-empty ``root`` raises UserError.
     The same bytes as :class:`DatasetWriter` fed the episodes in any number of pieces.
     """
@@ -95,6 +107,7 @@ def write_dataset(
         chunks_size=chunks_size,
         data_files_size_in_mb=data_files_size_in_mb,
         episode_stats=episode_stats,
+        stats=stats,
     )
     _, _, lengths = _check_episode_index(episode_index)
     w.append(columns, lengths)
@@ -115,6 +128,12 @@ class DatasetWriter:
     ``<root>/.stats-spill/``, deleted as used), and each dimension is sorted in memory
     (``F`` x 4 bytes for a float32 feature; the index columns follow from the episode
     lengths). The bytes are those of :func:`write_dataset` on all the frames at once.
+
+    ``stats="sketch"`` computes the dataset-level statistics while writing instead
+    (:class:`aerohrl.datagen.lerobot_stats.StreamStats`): each row group's summary is
+    merged as it is written, in file order, so nothing is read back or spilled and the
+    bytes still do not depend on how the episodes are cut into pieces (row groups are
+    fixed by the frames alone).
     """
 
     SPILL_DIR = ".stats-spill"
@@ -130,7 +149,12 @@ class DatasetWriter:
         chunks_size: int = DEFAULT_CHUNK_SIZE,
         data_files_size_in_mb: int = DEFAULT_DATA_FILE_SIZE_IN_MB,
         episode_stats: bool = True,
+        stats: str = "exact",
     ):
+        if stats not in ("exact", "sketch"):
+            raise ValueError(f"stats must be 'exact' or 'sketch', got {stats!r}")
+        self.stats_mode = stats
+        self._sketch: dict[str, StreamStats] = {}
         self.root = Path(root)
         self.layout = DatasetLayout(self.root)
         self.fps = _check_positive_int(fps, "fps")
@@ -153,12 +177,19 @@ class DatasetWriter:
         self._meta_file: tuple[int, int] | None = None
         self._meta_pending: list[dict] = []
         self._paths: list[Path] = []  # data files in order
+        self._hashes: dict[str, Future] = {}  # each closed data file's SHA-256, taken in a thread
+        self._hasher: ThreadPoolExecutor | None = None
         self._closed = False
 
     # -- frames
-    def append(self, columns: dict[str, np.ndarray], lengths: np.ndarray | list[int]) -> None:
+    def append(
+        self, columns: dict[str, np.ndarray], lengths: np.ndarray | list[int], ep_stats: dict[str, dict] | None = None
+    ) -> None:
         """Append whole episodes: ``columns`` as for :func:`write_dataset`, ``lengths``
-        the frames of each (their sum is the columns' length)."""
+        the frames of each (their sum is the columns' length). ``ep_stats``: per-episode
+        statistics of some of the columns, already computed elsewhere
+        (:func:`aerohrl.datagen.lerobot_stats.episode_stats` of exactly these frames, e.g.
+        in the process that flew them); the others are computed here."""
         if self._closed:
             raise ValueError("the writer is closed")
         lengths = np.asarray(lengths)
@@ -178,7 +209,8 @@ class DatasetWriter:
             self.feats = feats
             self.root.mkdir(parents=True, exist_ok=True)
             (self.root / "meta").mkdir(exist_ok=True)
-            (self.root / self.SPILL_DIR).mkdir(exist_ok=True)
+            if self.stats_mode == "exact":
+                (self.root / self.SPILL_DIR).mkdir(exist_ok=True)
             self._frame_bytes = None
             self._ep_row_bytes = 7 * 8 + len(self.task.encode()) + 8
             if self.episode_stats:
@@ -201,7 +233,12 @@ class DatasetWriter:
             self._frame_bytes = sum(_row_bytes(a) for a in arrays.values())
 
         # statistics: per episode now, dataset-level at close (from the written files)
-        ep_stats = {k: episode_stats(arrays[k], starts, lengths) for k in self.feats} if self.episode_stats else {}
+        given = ep_stats or {}
+        ep_stats = (
+            {k: given[k] if k in given else episode_stats(arrays[k], starts, lengths) for k in self.feats}
+            if self.episode_stats
+            else {}
+        )
 
         # data files: whole episodes, lerobot's size rule on uncompressed bytes
         data_file = self._data_roller.assign(lengths * self._frame_bytes)
@@ -283,6 +320,11 @@ class DatasetWriter:
         assert self.feats is not None  # set by the first append, before any rows
         keys = list(self.feats)
         meta = {b"huggingface": json.dumps(_hf_features(self.feats)).encode()}
+        if self.stats_mode == "sketch":  # one summary per row group, merged in file order
+            for k in keys:
+                if k not in INDEX_FEATURES:
+                    part = StreamStats.of_block(rows[k])
+                    self._sketch[k] = self._sketch[k].merge(part) if k in self._sketch else part
         table = pa.table([arrow_column(np.ascontiguousarray(rows[k])) for k in keys], names=keys)
         if self._schema is None:
             self._schema = table.schema.with_metadata(meta)
@@ -309,6 +351,17 @@ class DatasetWriter:
         if self._writer is not None:
             self._writer.close()
             self._writer = None
+            # its SHA-256 now, while its pages are cached and beside the next blocks' work
+            # (hashlib and the reads release the GIL), not in a pass over every file at the end
+            path = self._paths[-1]
+            if self._hasher is None:
+                self._hasher = ThreadPoolExecutor(1)
+            self._hashes[path.relative_to(self.root).as_posix()] = self._hasher.submit(sha256_file, path)
+
+    def checksums(self) -> dict[str, str]:
+        """The SHA-256 of every data file written, by path relative to ``root`` (after
+        :meth:`close`): for :func:`aerohrl.datagen.manifest.write_manifest`."""
+        return {rel: f.result() for rel, f in self._hashes.items()}
 
     def _finish_meta_file(self) -> None:
         if self._meta_file is None or not self._meta_pending:
@@ -352,6 +405,8 @@ class DatasetWriter:
         for k, ft in self.feats.items():
             if k in INDEX_FEATURES:
                 g = index_stats(k, lengths, self.fps)
+            elif self.stats_mode == "sketch":
+                g = self._sketch.pop(k).result()
             else:
                 g = {s: [] for s in STAT_KEYS}
                 sdt = stats_dtype(np.dtype(ft["dtype"]))
@@ -386,6 +441,9 @@ class DatasetWriter:
         import shutil
 
         shutil.rmtree(self.root / self.SPILL_DIR, ignore_errors=True)
+        if self._hasher is not None:
+            self._hasher.shutdown(wait=True)
+            self._hasher = None
         self._closed = True
 
     def abort(self) -> None:
@@ -396,6 +454,9 @@ class DatasetWriter:
             except Exception:  # noqa: BLE001 - best effort on the way out
                 pass
             self._writer = None
+        if self._hasher is not None:
+            self._hasher.shutdown(wait=True, cancel_futures=True)
+            self._hasher = None
         self._closed = True
 
 

@@ -80,9 +80,12 @@ def _dataset_files(root: Path) -> list[str]:
     return sorted(out)
 
 
-def write_manifest(root: str | Path, metadata: dict) -> dict:
+def write_manifest(root: str | Path, metadata: dict, known: dict[str, str] | None = None) -> dict:
     """Write ``meta/aerohrl.json`` = ``metadata`` + checksums of every other file under
-    ``root`` + the self-hash; return the manifest written. Call it last."""
+    ``root`` + the self-hash; return the manifest written. Call it last. ``known``: SHA-256
+    digests already taken of files that have not changed since (relative POSIX paths, as
+    the data files a writer hashed when it closed them); the other files are read here."""
+    known = known or {}
     root = Path(root)
     if not isinstance(metadata, dict):
         raise ValueError("metadata must be a dict")
@@ -90,7 +93,9 @@ def write_manifest(root: str | Path, metadata: dict) -> dict:
         if k in metadata:
             raise ValueError(f"metadata must not contain the reserved key {k!r}")
     manifest = _jsonable(metadata)
-    manifest[CHECKSUMS_KEY] = {rel: sha256_file(root / rel) for rel in _dataset_files(root) if rel != MANIFEST_PATH}
+    manifest[CHECKSUMS_KEY] = {
+        rel: known[rel] if rel in known else sha256_file(root / rel) for rel in _dataset_files(root) if rel != MANIFEST_PATH
+    }
     manifest[SELF_HASH_KEY] = _self_hash(manifest)
     atomic.write_bytes(root / MANIFEST_PATH, canonical_json(manifest))
     return manifest

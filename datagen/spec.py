@@ -28,6 +28,10 @@ EXPERTS = ("open-loop", "replan")
 START_STATES = ("rest", "perturbed")
 WORLDS = ("free", "maze-medium", "maze-large", "maze-giant")
 FAMILIES = ("navigate", "stitch", "explore")
+STATS_MODES = ("auto", "exact", "sketch")
+# stats = "auto": the exact dataset statistics below this many episodes, the streamed
+# sketch from it on (datagen/README.md "Statistics").
+STATS_SKETCH_EPISODES = 100_000
 MAZE_TASK = "Fly the quadrotor through the maze from hover at one cell centre to hover at another (the desired goal state)."
 EXPLORE_TASK = "Random-velocity flights (not goal-directed); the desired goal is the episode's last achieved goal."
 # Recipe fields added after datasets were published: left out of the spec's dict (and so
@@ -54,6 +58,7 @@ RECIPE_DEFAULTS = {
     "explore_climb": 1.0,
     "explore_hold": (0.5, 1.0),
     "explore_duration": 10.0,
+    "stats": "auto",
 }
 
 
@@ -143,6 +148,17 @@ class DatasetSpec:
     explore_climb: float = param(1.0, "free-space explore: vertical speed bound of the velocity commands", unit="m/s", ge=0, le=5)
     explore_hold: tuple[float, float] = param((0.5, 1.0), "explore: range of each command's hold time", unit="s", gt=0)
     explore_duration: float = param(10.0, "explore: flight length (a maze flight ends earlier at a collision)", unit="s", gt=0)
+    # How meta/stats.json is computed (datagen/README.md "Statistics"): "exact" order
+    # statistics and sorted-column means of every frame (a read-back pass and scratch disk at
+    # the end), or "sketch": streamed while writing, exact min/max/mean/std/count, quantiles
+    # from a fixed-bucket histogram within a stated bound. "auto" is exact below
+    # STATS_SKETCH_EPISODES episodes. Only "sketch" (as resolved) enters the hash.
+    stats: str = param(
+        "auto",
+        "dataset statistics: exact (sorted, read back at the end) | sketch (streamed; quantiles within 2^-11 relative) | "
+        f"auto (exact below {STATS_SKETCH_EPISODES:,} episodes)",
+        choices=STATS_MODES,
+    )
 
     def __post_init__(self):
         for f in ("pos_range", "vel_range", "acc_range"):
@@ -227,6 +243,15 @@ class DatasetSpec:
         return self.world == "free" and self.family == "navigate"
 
     @property
+    def stats_mode(self) -> str:
+        """``"exact"`` or ``"sketch"``: the dataset statistics this spec's build computes
+        (``stats = "auto"`` resolved by the number of episodes)."""
+        if self.stats != "auto":
+            return self.stats
+        episodes = self.goals * self.rollouts_per_goal + self.continuations if self.reach else self.goals
+        return "sketch" if episodes >= STATS_SKETCH_EPISODES else "exact"
+
+    @property
     def noisy(self) -> bool:
         """True when any action-noise standard deviation is positive."""
         return any(x > 0 for x in self.action_noise)
@@ -255,6 +280,8 @@ class DatasetSpec:
             "explore_hold": self.family == "explore",
             "explore_duration": self.family == "explore",
         }
+        # the statistics as resolved: "auto" and "exact" give today's bytes, "sketch" others
+        d["stats"] = "sketch" if self.stats_mode == "sketch" else "auto"
         for f, default in RECIPE_DEFAULTS.items():
             if not on.get(f, True) or d[f] == (list(default) if isinstance(default, tuple) else default):
                 del d[f]

@@ -37,9 +37,9 @@ def test_tiny_blocks_stream_the_bytes_of_one_block(tmp_path, monkeypatch):
     pieces = []
     real = LW.DatasetWriter.append
 
-    def spy(self, columns, lengths):
+    def spy(self, columns, lengths, ep_stats=None):
         pieces.append(len(lengths))
-        return real(self, columns, lengths)
+        return real(self, columns, lengths, ep_stats)
 
     monkeypatch.setattr(LW.DatasetWriter, "append", spy)
     monkeypatch.setattr(LW, "ROW_GROUP_SIZE", 1000)  # row groups fill across pieces
@@ -129,7 +129,9 @@ def test_memory_estimate_is_bounded_in_the_number_of_goals():
     per_frame = (big.memory - small.memory) / (big.frames - small.frames)
     assert big.memory < 8e9 and per_frame < 20  # bytes per added frame (before streaming: 650)
     assert E.shortfall(big, memory=20e9, disk=float("inf")) is None
-    assert E.shortfall(big, memory=20e9, disk=big.disk) is not None  # the statistics spill needs scratch disk
+    exact = E.estimate(DatasetSpec(goals=1_000_000, action_noise=(1.0, 0.5), stats="exact"))
+    assert E.shortfall(exact, memory=20e9, disk=exact.disk) is not None  # the exact statistics' spill needs scratch disk
+    assert big.scratch == 0 and E.shortfall(big, memory=20e9, disk=big.disk) is None  # the streamed sketch spills nothing
     two = E.estimate(DatasetSpec(goals=1_000_000, action_noise=(1.0, 0.5)), workers=2)
     assert two.memory > big.memory
     cont = E.estimate(DatasetSpec(goals=1_000_000, continuations=10))
