@@ -320,6 +320,15 @@ class _Frames:
     success: np.ndarray  # (F,) the goal-reached test at the next state
 
 
+def _frame_index(T: np.ndarray, fps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A block's recorded frames, episode-major: per episode its ``length`` (steps until its
+    reference ends) and first frame ``starts``; per frame its episode ``e`` and step ``kk``."""
+    length = np.ceil(T * fps - 1e-9).astype(np.int64)
+    starts = np.cumsum(length) - length
+    e = np.repeat(np.arange(len(T)), length)
+    return length, starts, e, np.arange(int(length.sum())) - np.repeat(starts, length)
+
+
 def _fly_block(
     spec: DatasetSpec,
     goals: dict,
@@ -338,10 +347,7 @@ def _fly_block(
     arguments alone (noise stream ``[spec.seed, 11, part, block]``), so the bytes do not
     depend on where it runs. ``perturb``: each episode's perturbation values (domain
     randomisation), its gusts and noise from ``[spec.seed, 19, part, block]``."""
-    n = len(T)
-    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
-    e = np.repeat(np.arange(n), length)
-    kk = np.arange(int(length.sum())) - np.repeat(np.concatenate([[0], np.cumsum(length)[:-1]]), length)
+    length, _, e, kk = _frame_index(T, spec.fps)
     r = _block_rollout(spec, goals, T, coeffs, start_state, rotor_speeds, record_rotors, part, block, progress, perturb)
     out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
     if r.expert_actions is not None:
@@ -405,12 +411,9 @@ def _fly_block_columns(*args: Any) -> dict[str, Any]:
     spec, goals, T = fly_args[0], fly_args[1], fly_args[2]
     r = _block_rollout(*fly_args)
     n = len(T)
-    length = np.ceil(T * spec.fps - 1e-9).astype(np.int64)
-    ends = np.cumsum(length)
-    starts = ends - length
+    length, starts, e, kk = _frame_index(T, spec.fps)
+    ends = starts + length
     F = int(ends[-1])
-    e = np.repeat(np.arange(n), length)
-    kk = np.arange(F) - np.repeat(starts, length)
     # the frames gathered straight into their float32 columns, piece by piece (no
     # float64 copy of the block's frames); the goal test on the float64 next states
     # (in frame_columns' order)
