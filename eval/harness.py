@@ -89,6 +89,16 @@ class EvalOptions:
         "-edge{:g}",
         planned=True,
     )
+    legs: str = _in_name(
+        param(
+            "any",
+            "graph in a maze: any legs (within --max-edge) | corridor (only along straight free corridors, Maze.in_corridor)",
+            choices=("any", "corridor"),
+        ),
+        4,
+        "-{}",
+        planned=True,
+    )
     replan: bool = param(True, "multi: re-plan the remaining goals at each reached intermediate goal")
     replan_every: int = _in_name(
         param(
@@ -303,8 +313,15 @@ def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Plan
             from aerohrl.planning.graph import GraphPlanner
 
             n = graph_waypoints(opt)
+            edge_filter = maze.in_corridor if opt.legs == "corridor" else None
             return GraphPlanner(
-                algo, candidates_from_maze(maze), n=n, alpha=opt.alpha, max_edge=opt.max_edge, min_leg=opt.min_leg
+                algo,
+                candidates_from_maze(maze),
+                n=n,
+                alpha=opt.alpha,
+                max_edge=opt.max_edge,
+                min_leg=opt.min_leg,
+                edge_filter=edge_filter,
             ), n
         n = 1 if opt.planner == "single" else opt.waypoints
         return Planner(algo, candidates_from_maze(maze), n=n, alpha=opt.alpha, beam=opt.beam, min_leg=opt.min_leg), n
@@ -335,6 +352,8 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError(f"--planner {opt.planner} applies to --task ood only (and to --task maze)")
     if opt.task == "maze" and opt.candidate_source != "dataset":
         raise UserError("--task maze plans over the maze's free cells; it takes no --candidate-source")
+    if opt.legs != "any" and not (opt.task == "maze" and opt.planner == "graph"):
+        raise UserError("--legs corridor applies to --task maze with --planner graph only")
     if opt.planner == "multi" and opt.waypoints < 2:
         raise UserError(f"--planner multi needs --waypoints >= 2, got {opt.waypoints}")
     if opt.floor != "none" and opt.planner != "none":

@@ -30,12 +30,15 @@ a wall gets the value of an open leg of that length, and a plan through such a s
 edge flies into the wall. Among waypoints at the free cells' centres of a grid maze, a
 radius below the diagonal of a cell (``sqrt 2 cell``) leaves only legs between adjacent
 free cells, which no wall separates: the planner then knows the map's free cells and
-their neighbours, and learns only how long each leg takes.
+their neighbours, and learns only how long each leg takes. ``edge_filter`` gives the map
+another way: legs along straight free corridors only (``Maze.in_corridor``), the legs a
+maze expert flies between the corners of its path, of any length.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -69,6 +72,7 @@ class GraphPlanner:
         min_leg_value: float = 0.0,
         max_edge: float = 0.0,
         min_leg: float = 0.0,
+        edge_filter: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
         chunk: int = DEFAULT_CHUNK,
     ):
         if len(candidates) == 0:
@@ -90,6 +94,8 @@ class GraphPlanner:
             int(chunk),
         )
         self.max_edge = float(max_edge)  # m; 0: no limit
+        # legs from positions p to q (..., 3) that the map allows (e.g. Maze.in_corridor); None: all
+        self.edge_filter = edge_filter
         # candidates closer than this to the vehicle are no first goal (Planner's min_leg): a
         # goal it already sits at is no leg, and the skills never learned to fly one
         if not min_leg >= 0:
@@ -110,10 +116,15 @@ class GraphPlanner:
         np.fill_diagonal(self.dist, 0.0)
 
     def _radius(self, lengths: torch.Tensor, p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """``lengths`` with legs from positions ``p`` to ``q`` (broadcast) longer than ``max_edge`` removed."""
-        if self.max_edge <= 0:
-            return lengths
-        return lengths.masked_fill(torch.linalg.norm(q - p, dim=-1) > self.max_edge, math.inf)
+        """``lengths`` with legs from positions ``p`` to ``q`` (broadcast) longer than
+        ``max_edge`` or refused by ``edge_filter`` removed."""
+        if self.max_edge > 0:
+            lengths = lengths.masked_fill(torch.linalg.norm(q - p, dim=-1) > self.max_edge, math.inf)
+        if self.edge_filter is not None:
+            ok = self.edge_filter(p.double().cpu().numpy(), q.double().cpu().numpy())
+            refused = torch.as_tensor(~np.broadcast_to(ok, lengths.shape), device=lengths.device)
+            lengths = lengths.masked_fill(refused, math.inf)
+        return lengths
 
     def _path(self, i: int, j: int) -> list[int]:
         """Candidate indices of the shortest path from ``i`` to ``j`` (both included)."""

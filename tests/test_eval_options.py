@@ -122,6 +122,10 @@ NAMES = [
         },
         "ood-position-0.5-1-single-replan10-floor-hover",
     ),
+    (
+        {"task": "maze", "planner": "graph", "max_edge": 2.5, "legs": "corridor", "min_leg": 1.0},
+        "maze-graph-corridor-edge2.5-minleg1",
+    ),
 ]
 
 
@@ -148,6 +152,11 @@ def test_declared_checks_and_cross_field_rules():
         ({"task": "ood", "planner": "single", "floor": "hover"}, "takes no --planner"),
         ({"family": "position"}, "apply to --task ood only"),
         ({"task": "ood", "ring": "2"}, "--ring needs --family"),
+        (
+            {"task": "maze", "planner": "single", "legs": "corridor"},
+            "--legs corridor applies to --task maze with --planner graph",
+        ),
+        ({"task": "maze", "legs": "tunnel"}, "legs must be one of any, corridor"),
     ):
         with pytest.raises(UserError, match=match) as e:
             check_options(EvalOptions(**options))

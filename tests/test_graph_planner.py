@@ -68,3 +68,22 @@ def test_bad_settings_are_refused():
         GraphPlanner(LineCritics(), _candidates([]))
     with pytest.raises(ValueError, match=r"\[0, 1\)"):
         GraphPlanner(LineCritics(), _candidates([1.0]), min_leg_value=1.0)
+
+
+def test_an_edge_filter_removes_the_legs_it_refuses():
+    # any leg reaches (reach 10): the best plan is the straight leg; a filter that refuses
+    # legs across x = 2.5 except from the candidate at 2 to the one at 3 forces that gate
+    algo = LineCritics(reach=10.0)
+
+    def gate(p, q):
+        a, b = p[..., 0], q[..., 0]
+        crosses = (np.minimum(a, b) < 2.5) & (np.maximum(a, b) > 2.5)
+        return ~crosses | ((a == 2.0) & (b == 3.0))
+
+    free = GraphPlanner(algo, _candidates([2.0, 3.0, 4.0]), n=2, alpha=0.0)
+    gated = GraphPlanner(algo, _candidates([2.0, 3.0, 4.0]), n=2, alpha=0.0, edge_filter=gate)
+    s0, G = _state([0.0]), _state([5.0])[:, :15]
+    assert free.plan(s0, G).score[0] == pytest.approx(0.9**5, rel=1e-5)
+    p = gated.plan(s0, G)
+    assert p.goals[0, :, 0].tolist() == [2.0, 3.0]  # 0 -> 2 -> 3 (-> 5): through the gate
+    assert p.score[0] == pytest.approx(0.9**5, rel=1e-5)  # the same length, now the only way

@@ -70,3 +70,19 @@ def test_metadata_round_trips_the_layout():
     d = m.to_dict()
     assert (parse_layout("\n".join(d["layout"])) == m.walls).all()
     assert d["vehicle_radius"] == VEHICLE_RADIUS and len(d["tasks"]) == 5
+
+
+def test_corridor_legs_follow_free_rows_and_columns():
+    m = load_maze("large")
+    c = m.cell_center
+    # row 1 is "#....#.....#": columns 1-4 are one free corridor, column 5 a wall
+    assert m.in_corridor(c(np.array([1, 1])), c(np.array([1, 4])))
+    assert not m.in_corridor(c(np.array([1, 4])), c(np.array([1, 6])))  # through the wall at (1, 5)
+    assert not m.in_corridor(c(np.array([1, 1])), c(np.array([3, 2])))  # no shared row or column
+    # column 1 is free from row 1 to row 7
+    assert m.in_corridor(c(np.array([7, 1])), c(np.array([1, 1])))
+    assert m.in_corridor(c(np.array([3, 3])), c(np.array([3, 3])))  # a cell with itself
+    # batched and broadcast: (2, 1, 3) against (1, 2, 3); outside the grid is no corridor
+    p = np.stack([c(np.array([1, 1])), np.array([-1.0, 3.0, 1.5])])[:, None]
+    q = np.stack([c(np.array([1, 3])), c(np.array([5, 1]))])[None]
+    assert m.in_corridor(p, q).tolist() == [[True, True], [False, False]]

@@ -118,6 +118,33 @@ class Maze:
         p = np.asarray(p, dtype=np.float64)
         return np.sqrt(self._wall_distance_sq(p))
 
+    @functools.cached_property
+    def _walls_before(self) -> tuple[np.ndarray, np.ndarray]:
+        """Prefix counts of wall cells along each row (rows, cols + 1) and each column (rows + 1, cols)."""
+        w = self.walls.astype(np.int64)
+        row = np.concatenate([np.zeros((w.shape[0], 1), np.int64), w.cumsum(1)], axis=1)
+        col = np.concatenate([np.zeros((1, w.shape[1]), np.int64), w.cumsum(0)], axis=0)
+        return row, col
+
+    def in_corridor(self, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """(...) bool: the cells under ``p`` and ``q`` (..., 3, broadcast) share a row or a
+        column and every cell from one to the other is free, so that a flight along the
+        cells' centre line meets no wall (a straight corridor leg, as the expert flies
+        between its corners). A point outside the grid is in no corridor."""
+        a, b = self.cell_of(p), self.cell_of(q)
+        a, b = np.broadcast_arrays(a, b)
+        rows, cols = self.shape
+        inside = (a[..., 0] >= 0) & (a[..., 0] < rows) & (a[..., 1] >= 0) & (a[..., 1] < cols)
+        inside &= (b[..., 0] >= 0) & (b[..., 0] < rows) & (b[..., 1] >= 0) & (b[..., 1] < cols)
+        r0, c0 = np.clip(a[..., 0], 0, rows - 1), np.clip(a[..., 1], 0, cols - 1)
+        r1, c1 = np.clip(b[..., 0], 0, rows - 1), np.clip(b[..., 1], 0, cols - 1)
+        row, col = self._walls_before
+        lo, hi = np.minimum(c0, c1), np.maximum(c0, c1)
+        same_row = (r0 == r1) & (row[r0, hi + 1] - row[r0, lo] == 0)
+        lo, hi = np.minimum(r0, r1), np.maximum(r0, r1)
+        same_col = (c0 == c1) & (col[hi + 1, c0] - col[lo, c0] == 0)
+        return inside & (same_row | same_col)
+
     def collides(self, p: np.ndarray, radius: float = VEHICLE_RADIUS) -> np.ndarray:
         """(...) bool: a sphere of ``radius`` at ``p`` (..., 3) touches a wall, the floor or the ceiling."""
         p = np.asarray(p, dtype=np.float64)
