@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from aerohrl.planning.planner import ChainPlanner, Planner
     from aerohrl.sim.perturb import Perturbation
 
-PLANNERS = ("none", "single", "multi", "graph")
+PLANNERS = ("none", "single", "multi", "graph", "subgoal")
 # graph: a plan has as many intermediate goals as its shortest path needs, up to this many
 # (a shorter plan repeats its last goal, reached at once), and each leg its own budget
 GRAPH_WAYPOINTS = 32
@@ -76,7 +76,8 @@ class EvalOptions:
     planner: str = param(
         "none",
         "ood and maze: none (fly straight) | single (Eq. 3.7) | multi (Eq. 3.6, beam search) | graph (Eq. 3.6 exactly, "
-        "shortest paths over the candidates, planning/graph.py); in a maze over the free cells' centres",
+        "shortest paths over the candidates, planning/graph.py) | subgoal (a hierarchical agent's high-level "
+        "subgoals snapped to the candidates, planning/subgoals.py); in a maze over the free cells' centres",
         choices=PLANNERS,
     )
     waypoints: int = param(2, "multi: intermediate goals (Eq. 3.6 n)", ge=1)
@@ -304,6 +305,22 @@ def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Plan
 
     if opt.planner == "none":
         return None, 0
+    if opt.planner == "subgoal":  # the high level's own choice among the maze's free cells or the dataset's goals
+        from aerohrl.planning.subgoals import SubgoalPlanner
+
+        if opt.task == "maze":
+            from aerohrl.eval.tasks import dataset_maze
+
+            maze = dataset_maze(data)
+            assert maze is not None  # build_episodes refused --task maze on free space
+            cand = candidates_from_maze(maze)
+        else:
+            cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
+        n = graph_waypoints(opt)
+        try:
+            return SubgoalPlanner(algo, cand, n=n, min_leg=opt.min_leg), n
+        except ValueError as e:
+            raise UserError(f"--planner subgoal: {e}") from None
     if opt.task == "maze":  # waypoints: hover at the free cells' centres of the dataset's maze
         from aerohrl.eval.tasks import dataset_maze
 
@@ -408,7 +425,10 @@ def fly(
     from aerohrl.eval.tasks import dataset_maze
 
     planner, nw = make_planner(algo, data, opt)
-    if opt.planner == "graph":  # legs of their own budget: the plan's length varies, re-planning at each goal reached
+    if opt.planner in (
+        "graph",
+        "subgoal",
+    ):  # legs of their own budget: the plan's length varies, re-planning at each goal reached
         leg_h = opt.leg_horizon or GRAPH_LEG_HORIZON
     else:
         leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
