@@ -13,7 +13,9 @@ a free-space dataset on ``reach-novel`` and ``fast``.
 
 An agent is an algorithm (``train --algo``), or ``ALGO+planner``: the thesis's planner over
 that algorithm's skills and critics (Eq. 3.6 solved by shortest paths over the
-candidates, ``aerohrl eval --planner graph``), which flies the same trained runs. Training and evaluation go through the sweep's Ray tasks
+candidates, ``aerohrl eval --planner graph``), or ``hiql+subgoals``: HIQL's high level as the
+candidate source (its subgoals snapped to the nearest candidate, ``aerohrl eval --planner
+subgoal``); both fly the same trained runs. Training and evaluation go through the sweep's Ray tasks
 (aerohrl/sweep.py): every run resumable, a rerun does only what is missing.
 
 The leaderboard is the success rate at each run's final checkpoint, per agent x dataset x
@@ -38,6 +40,8 @@ from aerohrl.errors import ArgumentParser, UserError, run_cli
 
 PROG = "aerohrl bench"
 PLANNER_SUFFIX = "+planner"
+SUBGOALS_SUFFIX = "+subgoals"  # a hierarchical agent's high level as the candidate source (planning/subgoals.py)
+HIERARCHICAL = ("hiql",)  # the algorithms with a high level an ALGO+subgoals agent reads
 # The planner an ALGO+planner agent evaluates with. In a maze: Eq. 3.6 solved exactly over
 # the free cells' centres (planning/graph.py), legs only between adjacent cells (a connection
 # radius of 1.25 cells, below a cell's diagonal: no leg crosses a wall) and never to the cell
@@ -45,6 +49,11 @@ PLANNER_SUFFIX = "+planner"
 # space: the thesis's multi-waypoint plan (Eq. 3.6) with the declining chain.
 MAZE_PLANNER_ARGS = ("--planner", "graph", "--max-edge", "2.5", "--min-leg", "1")
 FREE_PLANNER_ARGS = ("--planner", "multi", "--decline-margin", "0")
+# ALGO+subgoals: the high level's subgoal snapped to the nearest candidate (a maze's free cells,
+# never the cell the vehicle sits in; in free space the dataset's achieved goals), asked again
+# from the flown state every second
+MAZE_SUBGOALS_ARGS = ("--planner", "subgoal", "--min-leg", "1", "--replan-every", "100")
+FREE_SUBGOALS_ARGS = ("--planner", "subgoal", "--replan-every", "100")
 FREE_TASKS = ("reach-novel", "fast")
 MAZE_TASKS = ("maze",)
 DEFAULT_DATASETS = ("maze-large-navigate", "maze-large-stitch", "maze-large-explore")
@@ -77,7 +86,7 @@ class SuiteSpec:
     """The suite's grid (flags or ``--config`` TOML)."""
 
     agents: tuple[str, ...] = K.param(
-        (), "agents: an algorithm, or ALGO+planner (the thesis planner over its skills); none: the size's"
+        (), "agents: an algorithm, ALGO+planner (the thesis planner over its skills) or hiql+subgoals; none: the size's"
     )
     datasets: tuple[str, ...] = K.param(
         (), "datasets by name (datasets/<name>.toml), NAME@EPISODES for another size of it; none: the size's"
@@ -132,20 +141,34 @@ def tasks_for(world: str) -> tuple[str, ...]:
     return FREE_TASKS if world == "free" else MAZE_TASKS
 
 
-def split_agent(agent: str) -> tuple[str, bool]:
-    """(algorithm, planned) of an agent name; UserError for an unknown algorithm."""
+def split_agent(agent: str) -> tuple[str, str]:
+    """(algorithm, kind) of an agent name, kind ``""`` (flat), ``"planner"`` (ALGO+planner) or
+    ``"subgoals"`` (ALGO+subgoals); UserError for an unknown algorithm or a kind it cannot fly."""
     from aerohrl.algorithms.config import ALGORITHMS
 
-    algo, planned = (agent[: -len(PLANNER_SUFFIX)], True) if agent.endswith(PLANNER_SUFFIX) else (agent, False)
+    algo, kind = agent, ""
+    for suffix in (PLANNER_SUFFIX, SUBGOALS_SUFFIX):
+        if agent.endswith(suffix):
+            algo, kind = agent[: -len(suffix)], suffix[1:]
     if algo not in ALGORITHMS:
-        raise UserError(f"unknown agent {agent!r} (an algorithm: {', '.join(ALGORITHMS)}; or ALGO{PLANNER_SUFFIX})")
-    return algo, planned
+        raise UserError(
+            f"unknown agent {agent!r} (an algorithm: {', '.join(ALGORITHMS)}; or ALGO{PLANNER_SUFFIX}, "
+            f"{'|'.join(HIERARCHICAL)}{SUBGOALS_SUFFIX})"
+        )
+    if kind == "subgoals" and algo not in HIERARCHICAL:
+        raise UserError(f"agent {agent!r}: {SUBGOALS_SUFFIX} needs a hierarchical agent ({', '.join(HIERARCHICAL)})")
+    return algo, kind
 
 
-def eval_entries(world: str, planned: bool) -> list[tuple[str, ...]]:
-    """The ``aerohrl eval`` argument tuples of one agent on a world's tasks."""
-    args = FREE_PLANNER_ARGS if world == "free" else MAZE_PLANNER_ARGS
-    return [("--task", t, *args) if planned else ("--task", t) for t in tasks_for(world)]
+def eval_entries(world: str, kind: str) -> list[tuple[str, ...]]:
+    """The ``aerohrl eval`` argument tuples of one agent kind (:func:`split_agent`) on a world's tasks."""
+    free = world == "free"
+    args = {
+        "": (),
+        "planner": FREE_PLANNER_ARGS if free else MAZE_PLANNER_ARGS,
+        "subgoals": FREE_SUBGOALS_ARGS if free else MAZE_SUBGOALS_ARGS,
+    }[kind]
+    return [("--task", t, *args) for t in tasks_for(world)]
 
 
 # ----------------------------------------------------------------------------- running
@@ -301,15 +324,14 @@ def run_suite(
 # ----------------------------------------------------------------------------- the leaderboard
 
 
-def _evaluated(run_dir: Path, args: list[str], episodes: int) -> bool:
-    """Does the run hold an evaluation of ``aerohrl eval ARGS`` with ``episodes`` episodes at its newest checkpoint?"""
+def _summaries(run_dir: Path, args: list[str] | tuple[str, ...]):
+    """The evaluation summaries of a run (sorted by folder) made by ``aerohrl eval ARGS``: the
+    same task and planner, and every option ARGS gives at the value it gives."""
     import json
 
-    from aerohrl.algorithms.run import Run
-
-    ckpts = Run(run_dir).checkpoints()
-    task, planner = args[args.index("--task") + 1], args[args.index("--planner") + 1] if "--planner" in args else "none"
-    for f in (run_dir / "eval").glob("*/summary.json"):
+    task = args[args.index("--task") + 1]
+    planner = args[args.index("--planner") + 1] if "--planner" in args else "none"
+    for f in sorted((run_dir / "eval").glob("*/summary.json")):
         try:
             s = json.loads(f.read_text())
         except (OSError, ValueError):
@@ -320,26 +342,27 @@ def _evaluated(run_dir: Path, args: list[str], episodes: int) -> bool:
             for k, v in zip(args[::2], args[1::2])
             if k not in ("--task", "--planner")
         )
-        if (
-            s.get("task") == task
-            and s.get("planner", "none") == planner
-            and same
-            and s.get("episodes") == episodes
-            and ckpts
-            and [c.get("checkpoint") for c in s.get("checkpoints", [])][-1:] == [ckpts[-1].name]
-        ):
-            return True
-    return False
+        if s.get("task") == task and s.get("planner", "none") == planner and same:
+            yield s
 
 
-def _final_success(run_dir: Path, task: str, planned: bool) -> float | None:
-    """Success rate at the final checkpoint of one evaluation of a run, or None when not evaluated."""
-    import json
+def _evaluated(run_dir: Path, args: list[str], episodes: int) -> bool:
+    """Does the run hold an evaluation of ``aerohrl eval ARGS`` with ``episodes`` episodes at its newest checkpoint?"""
+    from aerohrl.algorithms.run import Run
 
-    for f in sorted((run_dir / "eval").glob("*/summary.json")):
-        s = json.loads(f.read_text())
-        if s.get("task") == task and (s.get("planner", "none") != "none") == planned:
-            return float(s["checkpoints"][-1]["success"])
+    ckpts = Run(run_dir).checkpoints()
+    return any(
+        s.get("episodes") == episodes
+        and ckpts
+        and [c.get("checkpoint") for c in s.get("checkpoints", [])][-1:] == [ckpts[-1].name]
+        for s in _summaries(run_dir, args)
+    )
+
+
+def _final_success(run_dir: Path, args: tuple[str, ...]) -> float | None:
+    """Success rate at the final checkpoint of the run's evaluation by ``aerohrl eval ARGS``, or None when not evaluated."""
+    for s in _summaries(run_dir, args):
+        return float(s["checkpoints"][-1]["success"])
     return None
 
 
@@ -352,11 +375,12 @@ def leaderboard(out: Path, sp: SuiteSpec, runs: list[SuiteRun]) -> list[dict]:
     for d in sp.datasets:
         for task in tasks_for(worlds[d]):
             for agent in sp.agents:
-                algo, planned = split_agent(agent)
+                algo, kind = split_agent(agent)
+                args = next(e for e in eval_entries(worlds[d], kind) if e[1] == task)
                 vals, seeds = [], []
                 for r in runs:
                     if r.algo == algo and r.dataset == d:
-                        v = _final_success(out / "runs" / r.name(), task, planned)
+                        v = _final_success(out / "runs" / r.name(), args)
                         if v is not None:
                             vals.append(100 * v)
                             seeds.append(r.seed)
@@ -448,7 +472,10 @@ def cmd_list(specs: Path = Path("datasets")) -> int:
     for p in sorted(specs.glob("quadrotor-*.toml")):
         world = dataset_world(load_spec(p))
         print(f"  {p.stem:36s} {world:12s} {' '.join(tasks_for(world))}")
-    print("agents: " + " ".join([*ALGORITHMS, *(a + PLANNER_SUFFIX for a in ALGORITHMS)]))
+    print(
+        "agents: "
+        + " ".join([*ALGORITHMS, *(a + PLANNER_SUFFIX for a in ALGORITHMS), *(a + SUBGOALS_SUFFIX for a in HIERARCHICAL)])
+    )
     return 0
 
 

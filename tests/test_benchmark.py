@@ -23,12 +23,16 @@ def test_dataset_names_resolve_to_spec_files():
 
 
 def test_agents_and_their_evaluations():
-    assert B.split_agent("gcsl") == ("gcsl", False)
-    assert B.split_agent("td3bc+planner") == ("td3bc", True)
+    assert B.split_agent("gcsl") == ("gcsl", "")
+    assert B.split_agent("td3bc+planner") == ("td3bc", "planner")
+    assert B.split_agent("hiql+subgoals") == ("hiql", "subgoals")
+    with pytest.raises(UserError, match=r"\+subgoals needs a hierarchical agent \(hiql\)"):
+        B.split_agent("gcsl+subgoals")
     with pytest.raises(UserError, match="unknown agent 'hql'"):
         B.split_agent("hql")
-    assert B.eval_entries("free", False) == [("--task", "reach-novel"), ("--task", "fast")]
-    assert B.eval_entries("maze-large", True) == [("--task", "maze", *B.MAZE_PLANNER_ARGS)]
+    assert B.eval_entries("free", "") == [("--task", "reach-novel"), ("--task", "fast")]
+    assert B.eval_entries("maze-large", "planner") == [("--task", "maze", *B.MAZE_PLANNER_ARGS)]
+    assert B.eval_entries("maze-large", "subgoals") == [("--task", "maze", *B.MAZE_SUBGOALS_ARGS)]
 
 
 def test_runs_are_shared_by_an_agent_and_its_planner():
@@ -40,18 +44,22 @@ def test_runs_are_shared_by_an_agent_and_its_planner():
     assert B.with_size_defaults(B.SuiteSpec(size="ci")).seeds == B.SIZES["ci"].seeds
 
 
-def _summary(run: Path, task: str, planner: str, success: float) -> None:
-    d = run / "eval" / (task if planner == "none" else f"{task}-{planner}")
+def _summary(run: Path, task: str, planner: str, success: float, folder: str = "", **options) -> None:
+    d = run / "eval" / (folder or (task if planner == "none" else f"{task}-{planner}"))
     d.mkdir(parents=True)
-    (d / "summary.json").write_text(json.dumps({"task": task, "planner": planner, "checkpoints": [{"success": success}]}))
+    s = {"task": task, "planner": planner, "options": options, "checkpoints": [{"success": success}]}
+    (d / "summary.json").write_text(json.dumps(s))
 
 
 def test_leaderboard_aggregates_seeds_at_the_final_checkpoint(tmp_path):
     sp = B.SuiteSpec(agents=("gcsl", "gcsl+planner"), datasets=("m",), seeds=(0, 1, 2))
     runs = B.suite_runs(sp, {"m": ("/d/m", "maze-large")})
+    suite_planner = {"max_edge": 2.5, "min_leg": 1.0}
     for r, (flat, planned) in zip(runs, [(0.1, 0.7), (0.2, 0.8), (0.3, 0.9)]):
         _summary(tmp_path / "runs" / r.name(), "maze", "none", flat)
-        _summary(tmp_path / "runs" / r.name(), "maze", "multi", planned)
+        _summary(tmp_path / "runs" / r.name(), "maze", "graph", planned, **suite_planner)
+        # another planner variant flown on the same run (a study's) is not the agent's row
+        _summary(tmp_path / "runs" / r.name(), "maze", "graph", 0.0, "maze-corridor-study", legs="corridor", min_leg=1.0)
     rows = B.leaderboard(tmp_path, sp, runs)
     by = {r["agent"]: r for r in rows}
     assert by["gcsl"]["stats"]["values"] == pytest.approx([10, 20, 30])
