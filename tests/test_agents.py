@@ -80,7 +80,7 @@ def test_gciql_losses_match_hand_computation(small):
         qp = torch.minimum(*(net(ab["observation"], pi).squeeze(-1) for net in a.critic.nets))
         actor = (
             -qp.mean() / (qp.abs().mean() + 1e-6)
-            + 0.3 * (0.5 * ((ab["action"] - pi) ** 2).sum(-1) + 2 * math.log(2 * math.pi)).mean()
+            + a.cfg.gciql.gciql_alpha * (0.5 * ((ab["action"] - pi) ** 2).sum(-1) + 2 * math.log(2 * math.pi)).mean()
         )
     assert torch.isclose(out["loss_value"], value, rtol=1e-5)
     assert torch.isclose(out["loss_critic"], critic, rtol=1e-5)

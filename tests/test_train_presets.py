@@ -142,6 +142,13 @@ FAST = {
     "stop_success": 0.9,
 }
 
+# the cpu and fast presets' actors of the reference agents: a strong BC term, the episodes' desired goals
+AGENT_ACTORS = {
+    "gciql": {"gciql_alpha": 10.0, "gciql_actor_p_trajgoal": 0.0},
+    "crl": {"crl_alpha": 100.0, "crl_actor_p_trajgoal": 0.0},
+    "qrl": {"qrl_alpha": 10.0, "qrl_actor_p_trajgoal": 0.0},
+}
+
 # what every other algorithm x preset changes from CPU_GCSL
 EXPECTED_CHANGES = {
     "cpu/gcsl": {},
@@ -155,9 +162,10 @@ EXPECTED_CHANGES = {
     "thesis/td3bc": {**THESIS, "algo": "td3bc"},
     "thesis/td3awbc": {**THESIS, "algo": "td3awbc"},
     "thesis/cql": {**THESIS, "algo": "cql"},
-    "cpu/gciql": {"algo": "gciql", "relabel_prob": 0.05},
-    "cpu/crl": {"algo": "crl", "relabel_prob": 0.05},
-    "cpu/qrl": {"algo": "qrl", "relabel_prob": 0.05},
+    "cpu/gciql": {"algo": "gciql", "relabel_prob": 0.05, **AGENT_ACTORS["gciql"]},
+    "cpu/crl": {"algo": "crl", "relabel_prob": 0.05, **AGENT_ACTORS["crl"]},
+    "cpu/qrl": {"algo": "qrl", "relabel_prob": 0.05, **AGENT_ACTORS["qrl"]},
+    "fast/qrl": {**FAST, "algo": "qrl", "relabel_prob": 0.05, **AGENT_ACTORS["qrl"]},
     "cpu/hiql": {"algo": "hiql", "relabel_prob": 0.05},
     "thesis/crl": {**THESIS, "algo": "crl", "crl_latent_dim": 512},
     "thesis/qrl": {**THESIS, "algo": "qrl", "qrl_latent_dim": 512},
@@ -175,7 +183,7 @@ def test_presets_resolve_to_the_same_configs(name):
 
 def test_the_preset_files_are_the_presets():
     assert C.presets() == ("cpu", "fast", "thesis")
-    assert C.per_algo_values("cpu") == {"gcsl": {"relabel_prob": 0.01}}
+    assert C.per_algo_values("cpu") == {"gcsl": {"relabel_prob": 0.01}, **AGENT_ACTORS}
     assert C.per_algo_values("fast") == C.per_algo_values("cpu")
     assert C.preset_base("cpu") == C.TrainConfig()  # the cpu preset is the dataclass defaults
     cfg = C.make_config("thesis", algo="td3awbc")
