@@ -179,6 +179,9 @@ def _seed_band(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np.nd
     return np.array(common), vals.mean(0), vals.min(0), vals.max(0)
 
 
+CURVE_TASKS = ("reach-desired", "reach-intermediate", "reach-novel", "maze")  # flat evaluations drawn as curves
+
+
 def plot_learning_curves(runs: Sequence[str | Path], out: str | Path) -> Path:
     """Closed-loop success against training steps for ``runs``; seeds of one experiment as
     a mean line with a min-max band. Written to ``out``; returns it."""
@@ -197,7 +200,7 @@ def plot_learning_curves(runs: Sequence[str | Path], out: str | Path) -> Path:
             for k in sorted({k for r in metrics for k in r if k.startswith("eval/") and k.endswith("/success")}):
                 pts = [(int(r["step"]), 100 * r[k]) for r in metrics if k in r]
                 series.setdefault((k.split("/")[1].replace("_", "-"), "training log"), []).append(pts)
-            for task_name in ("reach-desired", "reach-intermediate"):  # the harness's per-checkpoint results
+            for task_name in CURVE_TASKS:  # the harness's per-checkpoint results
                 sm = read_summary(rd, task_name)
                 if sm:
                     pts = [(int(c["step"]), 100 * c["success"]) for c in sm["checkpoints"]]
