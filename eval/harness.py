@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from aerohrl.envs.episodes import EpisodeSet
     from aerohrl.planning.graph import GraphPlanner
     from aerohrl.planning.planner import ChainPlanner, Planner
+    from aerohrl.planning.subgoals import SubgoalPlanner
     from aerohrl.sim.perturb import Perturbation
 
 PLANNERS = ("none", "single", "multi", "graph", "subgoal")
@@ -298,34 +299,31 @@ def graph_waypoints(opt: EvalOptions) -> int:
     return opt.waypoints if opt.waypoints != default else GRAPH_WAYPOINTS
 
 
-def make_planner(algo: Algorithm, data: Dataset, opt: EvalOptions) -> tuple[Planner | ChainPlanner | GraphPlanner | None, int]:
+def make_planner(
+    algo: Algorithm, data: Dataset, opt: EvalOptions
+) -> tuple[Planner | ChainPlanner | GraphPlanner | SubgoalPlanner | None, int]:
     """The planner of ``opt.planner`` over ``data``'s achieved goals (or synthetic offsets,
     or a maze's free cells) and its number of intermediate goals; ``(None, 0)`` without one."""
     from aerohrl.planning.planner import Planner, candidates_from_dataset, candidates_from_maze
 
     if opt.planner == "none":
         return None, 0
-    if opt.planner == "subgoal":  # the high level's own choice among the maze's free cells or the dataset's goals
-        from aerohrl.planning.subgoals import SubgoalPlanner
-
-        if opt.task == "maze":
-            from aerohrl.eval.tasks import dataset_maze
-
-            maze = dataset_maze(data)
-            assert maze is not None  # build_episodes refused --task maze on free space
-            cand = candidates_from_maze(maze)
-        else:
-            cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
-        n = graph_waypoints(opt)
-        try:
-            return SubgoalPlanner(algo, cand, n=n, min_leg=opt.min_leg), n
-        except ValueError as e:
-            raise UserError(f"--planner subgoal: {e}") from None
+    maze = None
     if opt.task == "maze":  # waypoints: hover at the free cells' centres of the dataset's maze
         from aerohrl.eval.tasks import dataset_maze
 
         maze = dataset_maze(data)
         assert maze is not None  # build_episodes refused --task maze on free space
+    if opt.planner == "subgoal":  # the high level's own choice among the maze's free cells or the dataset's goals
+        from aerohrl.planning.subgoals import SubgoalPlanner
+
+        cand = candidates_from_maze(maze) if maze is not None else candidates_from_dataset(data, opt.candidates, seed=opt.seed)
+        n = graph_waypoints(opt)
+        try:
+            return SubgoalPlanner(algo, cand, n=n, min_leg=opt.min_leg), n
+        except ValueError as e:
+            raise UserError(f"--planner subgoal: {e}") from None
+    if maze is not None:
         if opt.planner == "graph":
             from aerohrl.planning.graph import GraphPlanner
 
@@ -425,10 +423,8 @@ def fly(
     from aerohrl.eval.tasks import dataset_maze
 
     planner, nw = make_planner(algo, data, opt)
-    if opt.planner in (
-        "graph",
-        "subgoal",
-    ):  # legs of their own budget: the plan's length varies, re-planning at each goal reached
+    # graph, subgoal: legs of their own budget (the plan's length varies), re-planning at each goal reached
+    if opt.planner in ("graph", "subgoal"):
         leg_h = opt.leg_horizon or GRAPH_LEG_HORIZON
     else:
         leg_h = opt.leg_horizon or max(1, int(episodes.horizons.max()) // (nw + 1))
