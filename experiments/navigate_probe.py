@@ -62,16 +62,18 @@ def main(argv: list[str] | None = None) -> int:
 
     import aerohrl
     from aerohrl.algorithms.run import Run
-    from aerohrl.eval.tasks import dataset_maze
+    from aerohrl.datagen.dataset import open_dataset
+    from aerohrl.worlds.maze import maze_from_dict
 
     torch.set_num_threads(a.threads)
     run = Run(a.run)
     path = run.config.dataset
-    data = aerohrl.load_dataset(path, as_="numpy")
-    maze = dataset_maze(aerohrl.load_dataset(path, as_="torch"))
-    if maze is None:
+    layout = open_dataset(path).maze  # the layout recorded with the data (None in free space)
+    if not layout:
         print(f"navigate_probe: error: {a.run} was not trained on a maze dataset", file=sys.stderr)
         return 2
+    maze = maze_from_dict(layout)
+    data = aerohrl.load_dataset(path, as_="numpy")
     policy = aerohrl.load_policy(a.run)
     ep, S, G = data["episode_index"], data["observation.state"], data["observation.desired_goal"]
     last_ep = int(ep[-1])
