@@ -108,14 +108,14 @@ class GraphPlanner:
         s = self.cs[torch.arange(C * C, device=self.device) // C]
         g = self.cg[torch.arange(C * C, device=self.device) % C]
         lt = leg_lengths(leg_values(algo, s, g, self.chunk).reshape(-1, C, C), self.alpha, self.min_leg_value)
-        L = self._radius(lt, self.cs[:, task.POS][:, None], self.cg[:, task.POS][None]).cpu().numpy()
+        L = self._prune(lt, self.cs[:, task.POS][:, None], self.cg[:, task.POS][None]).cpu().numpy()
         np.fill_diagonal(L, np.inf)  # no self-loops (a zero-length edge would read as "no edge" below)
         L = np.maximum(L, 1e-12)  # csgraph's dense input: 0 means no edge, so a free leg costs a hair
         graph = csgraph_from_dense(L, null_value=np.inf)
         self.dist, self.pred = shortest_path(graph, method="D", directed=True, return_predecessors=True)
         np.fill_diagonal(self.dist, 0.0)
 
-    def _radius(self, lengths: torch.Tensor, p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    def _prune(self, lengths: torch.Tensor, p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
         """``lengths`` with legs from positions ``p`` to ``q`` (broadcast) longer than
         ``max_edge`` or refused by ``edge_filter`` removed."""
         if self.max_edge > 0:
@@ -146,11 +146,11 @@ class GraphPlanner:
         ie, ic = torch.arange(E * C, device=self.device) // C, torch.arange(E * C, device=self.device) % C
         la = leg_lengths(leg_values(self.algo, s0[ie], self.cg[ic], self.chunk), self.alpha, self.min_leg_value)
         lb = leg_lengths(leg_values(self.algo, self.cs[ic], Gt[ie], self.chunk), self.alpha, self.min_leg_value)
-        la = self._radius(la.reshape(E, C), s0[:, None, task.POS], self.cg[None, :, task.POS])
+        la = self._prune(la.reshape(E, C), s0[:, None, task.POS], self.cg[None, :, task.POS])
         if self.min_leg > 0:
             near = torch.linalg.norm(self.cg[None, :, task.POS] - s0[:, None, task.POS], dim=-1) < self.min_leg
             la = la.masked_fill(near, math.inf)
-        lb = self._radius(lb.reshape(E, C), self.cs[None, :, task.POS], Gt[:, None, task.POS])
+        lb = self._prune(lb.reshape(E, C), self.cs[None, :, task.POS], Gt[:, None, task.POS])
         a, b = la.cpu().numpy(), lb.cpu().numpy()
         direct = leg_lengths(leg_values(self.algo, s0, Gt, self.chunk), self.alpha).cpu().numpy()
         best_i, best_j, best = np.zeros(E, np.int64), np.zeros(E, np.int64), np.full(E, np.inf)
