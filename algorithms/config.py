@@ -233,6 +233,14 @@ class TrainConfig:
         choices=AMP_MODES,
     )
     ema_decay: float = param(0.999, "act with an exponential moving average of the policy weights (0: off)", ge=0, lt=1)
+    # In a maze the choice of corridor is a function of position with jumps at the walls;
+    # Fourier features of the positions let every network fit it (networks.position_features)
+    pos_octaves: int = param(
+        0,
+        "worlds with obstacles: sin/cos features of the state's and the goal's position at this many octaves (0: none)",
+        ge=0,
+        le=12,
+    )
     # goal-conditioned RL (thesis Alg. 2)
     relabel_prob: float = param(0.05, "delta: probability of relabelling a goal with a later achieved goal", ge=0, le=1)
     relabel_offset: str = param(

@@ -395,12 +395,18 @@ class GoalBatchSampler:
 
 
 def fit_normalizer(
-    data: Dataset, delta: float, seed: int = 0, future: dict | None = None, bc_target: str = "expert"
+    data: Dataset,
+    delta: float,
+    seed: int = 0,
+    future: dict | None = None,
+    bc_target: str = "expert",
+    pos_octaves: int = 0,
 ) -> Normalizer:
     """Input statistics over every frame with its desired goal and with a relabelled
     (strictly later achieved, drawn as in training: ``future``) goal, action bounds over
     every frame's BC target (what the policy's [-1, 1] output must span; flown noisy
-    actions beyond it stay valid critic inputs)."""
+    actions beyond it stay valid critic inputs). ``pos_octaves``: the position features
+    of :class:`Normalizer` (their frequencies are fixed; nothing to fit)."""
     from aerohrl.algorithms.networks import Normalizer
     from aerohrl.algorithms.relabel import relabel_goals
 
@@ -409,7 +415,7 @@ def fit_normalizer(
     if len(data) > NORMALIZER_FRAMES:  # large datasets: the statistics of a seeded subset (bounded memory)
         idx = torch.randperm(len(data), generator=g)[:NORMALIZER_FRAMES].sort().values
     later, _ = relabel_goals(data.goal[idx], idx, data.episode_end[idx], data.achieved_goal, 1.0, g, **(future or {}))
-    norm = Normalizer.for_dataset_spec(data.info.get("spec"))  # 33-d input in a world with obstacles
+    norm = Normalizer.for_dataset_spec(data.info.get("spec"), pos_octaves)  # 33-d input in a world with obstacles
     state = data.state[idx]
     x = torch.cat([norm.raw_inputs(state, data.goal[idx]), norm.raw_inputs(state, later)])
     return norm.fit(x, data.bc_actions(bc_target))  # action bounds: every frame (min/max, no copy)

@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from aerohrl import atomic, task
+from aerohrl.algorithms.networks import fourier_inputs
 from aerohrl.errors import UserError
 
 FORMATS = ("torchscript", "onnx")
@@ -49,13 +50,18 @@ class ExportedPolicy(nn.Module):
         self.register_buffer("in_std", n.in_std.detach().clone().float())
         self.register_buffer("act_center", n.act_center.detach().clone().float())
         self.register_buffer("act_half", n.act_half.detach().clone().float())
+        self.pos_octaves = n.pos_octaves
+        self.register_buffer("pos_freq", n.pos_freq.detach().clone().float() if n.pos_octaves else torch.zeros(0))
 
     def forward(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The action (B, 4) in physical units for states (B, 18) and goals (B, 15)."""
         parts = [state[:, 3:18], goal[:, 0:3] - state[:, 0:3], goal[:, 3:15]]
         if self.absolute_position:
             parts.append(state[:, 0:3])
-        x = (torch.cat(parts, 1) - self.in_mean) / self.in_std
+        raw = torch.cat(parts, 1)
+        x = (raw - self.in_mean) / self.in_std
+        if self.pos_octaves:
+            x = torch.cat([x, fourier_inputs(raw, self.in_mean, self.in_std, self.pos_freq)], 1)
         a = self.act_center + self.act_half * self.net(x)
         return torch.maximum(torch.minimum(a, self.act_center + self.act_half), self.act_center - self.act_half)
 
@@ -72,12 +78,20 @@ def metadata(algo: Any, ck: dict, run_path: Path) -> dict:
         "output": {"action": {"shape": ["B", task.ACTION_DIM], "names": ["c", "wx", "wy", "wz"]}},
         "units": "p m, v m/s, R body-to-world row-major, w rad/s (body); c m/s^2 (mass-normalised collective thrust)",
         "frame": "world frame, z up, gravity -9.81 m/s^2 along z",
-        "network_input": "([v, R, w, p_g - p, v_g, R_g]" + (" + [p]" if n.absolute_position else "") + " - in_mean) / in_std",
+        "network_input": "([v, R, w, p_g - p, v_g, R_g]"
+        + (" + [p]" if n.absolute_position else "")
+        + " - in_mean) / in_std"
+        + (
+            ", then [sin(f p_n), cos(f p_n)] for p_n the standardised p and p_g (by in_mean/in_std of p), f = pos_freq"
+            if n.pos_octaves
+            else ""
+        ),
         "normalisation": {
             "in_mean": n.in_mean.tolist(),
             "in_std": n.in_std.tolist(),
             "act_center": n.act_center.tolist(),
             "act_half": n.act_half.tolist(),
+            **({"pos_freq": n.pos_freq.tolist()} if n.pos_octaves else {}),
         },
         "action_clip": "[act_center - act_half, act_center + act_half]",
         "control_rate_hz": 100,

@@ -10,6 +10,7 @@ a world with obstacles, :class:`Normalizer`), ``"action"`` the action scaled to 
 
 from __future__ import annotations
 
+import math
 import warnings
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
@@ -22,6 +23,7 @@ from torchrl.objectives import SoftUpdate, TD3BCLoss
 from torchrl.objectives.value import TD0Estimator
 
 from aerohrl import task
+from aerohrl.errors import UserError
 from aerohrl.algorithms import quiet_torchrl
 
 if TYPE_CHECKING:
@@ -48,6 +50,11 @@ class Normalizer(nn.Module):
     :meth:`for_state_dict` rebuilds the right size from a checkpoint; a free-space
     normaliser's state dict is exactly what it was before the layout existed.
 
+    Position features (``pos_octaves`` K > 0, world with obstacles only): the standardised
+    input is followed by the Fourier features of the state's and the goal's standardised
+    positions, ``x = [o, rel, p, F(p), F(p_g)]`` (33 + 12 K, :func:`position_features`);
+    the frequencies are the ``pos_freq`` buffer, whose presence and length record K.
+
     Actions: an affine map of the data range (widened by :data:`ACTION_MARGIN`) onto
     ``[-1, 1]``, so thrust (~10 m/s^2) and rates (~1 rad/s) weigh alike and TD3's/CQL's
     ``[-1, 1]`` bounds, noise and random actions are meaningful.
@@ -59,32 +66,45 @@ class Normalizer(nn.Module):
     act_center: torch.Tensor
     act_half: torch.Tensor
 
-    def __init__(self, absolute_position: bool = False):
+    def __init__(self, absolute_position: bool = False, pos_octaves: int = 0):
         super().__init__()
+        if pos_octaves and not absolute_position:
+            raise UserError("position features (--pos-octaves) need a dataset flown in a world with obstacles")
         self.absolute_position = bool(absolute_position)
-        self.in_dim = IN_DIM + (POS_DIM if absolute_position else 0)
-        self.register_buffer("in_mean", torch.zeros(self.in_dim))
-        self.register_buffer("in_std", torch.ones(self.in_dim))
+        self.pos_octaves = int(pos_octaves)
+        raw = IN_DIM + (POS_DIM if absolute_position else 0)
+        self.in_dim = raw + 4 * POS_DIM * self.pos_octaves
+        self.register_buffer("in_mean", torch.zeros(raw))
+        self.register_buffer("in_std", torch.ones(raw))
         self.register_buffer("act_center", torch.zeros(ACT_DIM))
         self.register_buffer("act_half", torch.ones(ACT_DIM))
+        if self.pos_octaves:  # registered only when used: other state dicts keep their keys
+            self.register_buffer("pos_freq", position_frequencies(self.pos_octaves))
         # column indices of the normalised input: what describes the state alone ([o] and,
-        # with absolute position, [p]) and what describes the goal relative to it ([rel] and [p])
-        extra = list(range(IN_DIM, self.in_dim))
-        self.state_index = [*range(task.OBS_DIM), *extra]
-        self.goal_index = [*range(task.OBS_DIM, IN_DIM), *extra]
+        # with absolute position, [p] and its features) and what describes the goal relative
+        # to it ([rel], [p] and its features, the goal position's features)
+        pos = list(range(IN_DIM, raw))
+        f = 2 * POS_DIM * self.pos_octaves
+        p_feat, g_feat = list(range(raw, raw + f)), list(range(raw + f, raw + 2 * f))
+        self.state_index = [*range(task.OBS_DIM), *pos, *p_feat]
+        self.goal_index = [*range(task.OBS_DIM, IN_DIM), *pos, *p_feat, *g_feat]
 
     @staticmethod
-    def for_dataset_spec(spec: dict | None) -> "Normalizer":
+    def for_dataset_spec(spec: dict | None, pos_octaves: int = 0) -> "Normalizer":
         """An unfitted normaliser with the input layout of a dataset with this spec: the
-        absolute position appended when ``spec["world"]`` names a world other than ``"free"``."""
-        return Normalizer(absolute_position=(spec or {}).get("world", "free") != "free")
+        absolute position appended when ``spec["world"]`` names a world other than ``"free"``
+        (and its Fourier features at ``pos_octaves`` octaves)."""
+        return Normalizer(absolute_position=(spec or {}).get("world", "free") != "free", pos_octaves=pos_octaves)
 
     @staticmethod
     def for_state_dict(state: dict, prefix: str = "normalizer.") -> "Normalizer":
         """An unfitted normaliser with the input layout of a saved model state dict (the
         length of its ``in_mean``), to load that state into."""
-        mean = state.get(prefix + "in_mean")
-        return Normalizer(absolute_position=mean is not None and mean.shape[-1] == IN_DIM + POS_DIM)
+        mean, freq = state.get(prefix + "in_mean"), state.get(prefix + "pos_freq")
+        return Normalizer(
+            absolute_position=mean is not None and mean.shape[-1] == IN_DIM + POS_DIM,
+            pos_octaves=0 if freq is None else freq.shape[-1],
+        )
 
     @property
     def state_dim(self) -> int:
@@ -126,8 +146,14 @@ class Normalizer(nn.Module):
 
     def inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """Standardised network inputs (B, in_dim) from states (B, 18) and goals (B, 15):
-        :meth:`raw_inputs` minus the dataset mean, over the dataset std."""
-        return (self.raw_inputs(state, goal) - self.in_mean) / self.in_std
+        :meth:`raw_inputs` minus the dataset mean, over the dataset std; then, with
+        ``pos_octaves``, the Fourier features of the state's and the goal's standardised
+        positions (:func:`position_features`)."""
+        raw = self.raw_inputs(state, goal)
+        x = (raw - self.in_mean) / self.in_std
+        if not self.pos_octaves:
+            return x
+        return torch.cat([x, fourier_inputs(raw, self.in_mean, self.in_std, self.pos_freq)], -1)
 
     def action_to_unit(self, a: torch.Tensor) -> torch.Tensor:
         """Physical actions (B, 4) -> [-1, 1] (affine map of the fitted bounds)."""
@@ -136,6 +162,31 @@ class Normalizer(nn.Module):
     def action_from_unit(self, u: torch.Tensor) -> torch.Tensor:
         """[-1, 1] actions (B, 4) -> physical units (inverse of :meth:`action_to_unit`)."""
         return self.act_center + self.act_half * u
+
+
+def position_frequencies(octaves: int) -> torch.Tensor:
+    """Angular frequencies ``pi/2 * 2^k``, k = 0 .. octaves - 1, per unit of standardised
+    position: the lowest has a period of 4 standard deviations (a maze's whole extent, which
+    a uniform spread covers in about 3.5), each next one half of it."""
+    return (math.pi / 2) * 2.0 ** torch.arange(octaves, dtype=torch.float32)
+
+
+def position_features(p: torch.Tensor, freq: torch.Tensor) -> torch.Tensor:
+    """Fourier features of standardised positions p (B, 3) over the frequencies ``f`` (K):
+    ``[sin(f_k p_i)]`` then ``[cos(f_k p_i)]`` (B, 6 K), each axis-major (i outer, k inner). In a maze the expert's choice at rest is a
+    function of (cell, goal cell) with jumps at the walls; a ReLU network of raw coordinates
+    fits such a function slowly (spectral bias), one of these features in a few steps
+    (Tancik et al. 2020, "Fourier features let networks learn high frequency functions")."""
+    a = (p.unsqueeze(-1) * freq).flatten(-2)  # (B, 3 K)
+    return torch.cat([torch.sin(a), torch.cos(a)], -1)
+
+
+def fourier_inputs(raw: torch.Tensor, in_mean: torch.Tensor, in_std: torch.Tensor, freq: torch.Tensor) -> torch.Tensor:
+    """The features (B, 12 K) of an unstandardised 33-d input's state position ``p`` and goal
+    position ``p_g = p + (p_g - p)``, both standardised by the position's statistics."""
+    pos, rel = slice(IN_DIM, IN_DIM + POS_DIM), slice(task.OBS_DIM, task.OBS_DIM + POS_DIM)
+    p = raw[..., pos]
+    return torch.cat([position_features((q - in_mean[pos]) / in_std[pos], freq) for q in (p, p + raw[..., rel])], -1)
 
 
 def mlp(in_features: int, out_features: int, hidden: Sequence[int]) -> MLP:
@@ -344,6 +395,9 @@ def ensemble_values(
 
 __all__ = [
     "Normalizer",
+    "position_features",
+    "position_frequencies",
+    "fourier_inputs",
     "make_actor",
     "make_critic",
     "make_critic_loss",

@@ -126,7 +126,14 @@ class Trainer:
     def _fresh(self):
         cfg = self.cfg
         self.generator = seed_everything(cfg.seed)
-        norm = fit_normalizer(self.data, cfg.relabel_prob, seed=cfg.seed, future=C.relabel_future(cfg), bc_target=cfg.bc_target)
+        norm = fit_normalizer(
+            self.data,
+            cfg.relabel_prob,
+            seed=cfg.seed,
+            future=C.relabel_future(cfg),
+            bc_target=cfg.bc_target,
+            pos_octaves=cfg.pos_octaves,
+        )
         self.algo = build_algorithm(cfg, norm).to(self.device)
         self.dataset = dataset_identity(self.data)
         from aerohrl.algorithms.provenance import provenance

@@ -335,6 +335,43 @@ def test_maze_dataset_gives_33d_inputs_and_checkpoints_load(tmp_path):
     assert free.in_dim == 30 and free.state_dict()["in_mean"].shape == (30,)
 
 
+def test_position_features_layout_values_checkpoint_and_export(tmp_path):
+    import numpy as np
+
+    from aerohrl.algorithms.export import ExportedPolicy
+    from aerohrl.algorithms.networks import Normalizer
+    from aerohrl.errors import UserError
+
+    torch.set_num_threads(1)
+    root = write_synthetic_dataset(tmp_path / "maze" / "v1", spec={"world": "maze-medium"})
+    data = load_dataset(root)
+    cfg = make_config("cpu", algo="gcsl", dataset=str(root), pos_octaves=3, **dict(TINY, steps=20))
+    tr = start_run(cfg, tmp_path / "pf", data=data, progress=False)
+    tr.train()
+    n = tr.algo.normalizer
+    assert n.in_dim == 33 + 12 * 3 and tr.sampler.sample()["observation"].shape[-1] == 69
+    assert n.state_dict()["in_mean"].shape == (33,) and len(n.goal_index) == 15 + 3 + 36
+    # by hand: the features of the standardised state and goal positions, pi/2 * 2^k
+    st, g = data.state[:7], data.goal[:7]
+    x = n.inputs(st, g)
+    m, sd = n.in_mean[30:33], n.in_std[30:33]
+    for q, col in ((st[:, :3], 33), (g[:, :3], 33 + 18)):
+        qn = (q - m) / sd
+        for i in range(3):  # axis-major: axis i's three frequencies side by side
+            f = math.pi / 2 * 2.0 ** torch.arange(3)
+            assert torch.allclose(x[:, col + 3 * i : col + 3 * i + 3], torch.sin(f * qn[:, i : i + 1]), atol=1e-5)
+            assert torch.allclose(x[:, col + 9 + 3 * i : col + 12 + 3 * i], torch.cos(f * qn[:, i : i + 1]), atol=1e-5)
+    # the checkpoint records the layout; the loaded policy and the exported graph act alike
+    algo_l, _ = load_policy(tr.run.checkpoints()[-1])
+    assert algo_l.normalizer.pos_octaves == 3 and torch.equal(algo_l.act(st, g), tr.algo.act(st, g))
+    exported = ExportedPolicy(algo_l).eval()
+    with torch.no_grad():
+        np.testing.assert_allclose(exported(st.float(), g.float()).numpy(), algo_l.act(st, g).numpy(), atol=1e-5)
+    # free space has no absolute position to take features of
+    with pytest.raises(UserError, match="pos-octaves"):
+        Normalizer(absolute_position=False, pos_octaves=2)
+
+
 def test_bad_hyperparameters_are_one_line_errors():
     for kw, msg in [
         ({"algo": "gciql", "gciql_expectile": 1.5}, "gciql_expectile"),
