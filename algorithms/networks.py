@@ -153,7 +153,8 @@ class Normalizer(nn.Module):
         x = (raw - self.in_mean) / self.in_std
         if not self.pos_octaves:
             return x
-        return torch.cat([x, fourier_inputs(raw, self.in_mean, self.in_std, self.pos_freq)], -1)
+        freq = self.get_buffer("pos_freq")
+        return torch.cat([x, fourier_inputs(raw, self.in_mean, self.in_std, freq)], -1)
 
     def action_to_unit(self, a: torch.Tensor) -> torch.Tensor:
         """Physical actions (B, 4) -> [-1, 1] (affine map of the fitted bounds)."""

@@ -9,6 +9,10 @@ where the tests run as root and may mount one, else a folder whose writes fail w
 ENOSPC once ``fill()`` is called (a monkeypatched ``os.write`` path would miss torch's
 own writer, so the fallback patches the file object ``open`` returns).
 
+``fingerprint(x)`` and ``assert_fingerprint(x, ref)`` pin a float array across machines:
+numpy's SIMD paths (AVX2, AVX-512, NEON) round transcendental functions differently in
+the last bit, so a reference taken as bytes holds only on the CPU it was taken on.
+
 ``load_experiment(NAME)`` imports the script ``experiments/NAME.py`` (not a package:
 the scripts run as ``python experiments/NAME.py``) as a module, for tests that call
 its functions.
@@ -41,6 +45,28 @@ def load_experiment(name: str):
         sys.modules[key] = mod  # before running it: dataclasses look their module up
         spec.loader.exec_module(mod)
     return sys.modules[key]
+
+
+FINGERPRINT_RTOL = 1e-9  # of the array's L1 norm: far above round-off, far below any change of the arithmetic
+
+
+def fingerprint(x) -> list[float]:
+    """Four fixed random projections of the flattened array ``x``, then its L1 norm: a
+    reference of a large array that a test can keep inline."""
+    import numpy as np
+
+    x = np.asarray(x, dtype=np.float64).ravel()
+    w = np.random.default_rng(0).standard_normal((4, x.size))
+    return [float(v) for v in w @ x] + [float(np.abs(x).sum())]
+
+
+def assert_fingerprint(x, ref, what: str = "array") -> None:
+    """``x`` equals the array whose :func:`fingerprint` is ``ref``, to round-off: each
+    projection within ``FINGERPRINT_RTOL`` of the L1 norm."""
+    got = fingerprint(x)
+    tol = FINGERPRINT_RTOL * max(ref[-1], 1e-300)
+    bad = [i for i, (g, r) in enumerate(zip(got, ref)) if abs(g - r) > tol]
+    assert len(got) == len(ref) and not bad, f"{what} moved from its reference: fingerprint {got}, reference {ref}"
 
 
 class SmallDisk:

@@ -1,13 +1,15 @@
 """Expert-data recipes (datagen/recipes.py): action noise (DART), the replanning expert,
 perturbed starts, repeated flights; their bytes, statistics and consistency."""
 
-import hashlib
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
+from conftest import assert_fingerprint
 
 from aerohrl import task
 from aerohrl.datagen import build as build_mod
@@ -21,17 +23,68 @@ from aerohrl.errors import UserError
 from aerohrl.sim import BatchedQuadrotor, get_preset
 
 NOISE = (1.0, 0.5, 0.5, 0.5)
-# SHA-256 of the default 250-goal dataset's files as built before the recipes existed
-# (commit 8edf325, `datagen build --goals 250`, n250-s0-dbb240c0): the recipes at their
-# defaults must not change a byte of the thesis's dataset.
+# fingerprints (conftest.fingerprint) of each column of the default 250-goal dataset's files
+# as built before the recipes existed (commit 8edf325, `datagen build --goals 250`,
+# n250-s0-dbb240c0): the recipes at their defaults must not change the thesis's dataset.
 DEFAULT_250 = {
-    "data/chunk-000/file-000.parquet": "0551cf7bdde8952e48b551da423b42f8a7fd950858381246ff31551eb47479aa",
-    "meta/aerohrl_episodes.parquet": "048c8bc64654e3e1ec44a4fe85cc5c373f83211f659a01c1deebbbe0155ef685",
+    "data/chunk-000/file-000.parquet": {
+        "observation.state": [-490.7735654172298, 279.8019031295115, 1761.4334409600053, -1267.831188555967, 546706.1202132538],
+        "action": [2157.266790027085, 2590.345695107102, 3391.7068828744063, -4673.033995925195, 613761.0199234481],
+        "observation.desired_goal": [
+            -379.46281371959407,
+            -535.9156572113405,
+            -18.399992677706237,
+            233.60573163055153,
+            655697.3967518095,
+        ],
+        "next.observation.state": [
+            -556.5602223563567,
+            268.7379240086693,
+            1795.9710472652735,
+            -1304.0195096538898,
+            550013.5396170613,
+        ],
+        "next.reward": [0.6227080943026655, 46.51506183866985, 128.6722437979405, 60.94430634281249, 1472.0],
+        "next.done": [-14.74008482986026, 35.02297665635521, -5.963003498316151, 18.614843491608955, 250.0],
+        "next.success": [0.6227080943026655, 46.51506183866985, 128.6722437979405, 60.94430634281249, 1472.0],
+        "timestamp": [90.55549527603763, 91.47473515129974, 152.74558909425673, 213.0371286453735, 58487.769955299795],
+        "frame_index": [9055.549106116629, 9147.47287775154, 15274.55856537295, 21303.712428689763, 5848777.0],
+        "episode_index": [-18632.701749600317, -22334.91564571013, 22195.154722843094, 13930.151588691004, 6451830.0],
+        "index": [-3914552.269998486, -4838789.772247756, 4711859.648086258, 3001929.8002849664, 1379674185.0],
+        "task_index": [0.0, 0.0, 0.0, 0.0, 0.0],
+    },
+    "meta/aerohrl_episodes.parquet": {
+        "episode_index": [-1397.761091365366, -763.9774211075082, -2777.852111368394, -5791.625016310172, 31125.0],
+        "goal_pos": [-93.42841916929964, -7.048378485248353, -40.75994228053471, 20.196188692789708, 1139.3407088864196],
+        "goal_vel": [-6.961477749606682, 33.36447839536037, -26.82176977353244, -67.24069023727493, 977.774075536246],
+        "goal_acc": [-94.77826021720304, -25.743671532380702, 20.782196275580578, -75.48671900204405, 1876.2291155763405],
+        "reference_duration_s": [-5.324758729037923, -42.72666380583883, -33.23142035121333, -54.949032170163285, 524.203125],
+        "length": [-531.7900424519178, -4279.626695805848, -3324.991825764312, -5504.18838650913, 52530.0],
+        "expert_success": [-1.4804542119535207, -11.964495047056047, -10.019408891715734, -24.563918612261638, 250.0],
+        "first_success_step": [-520.0158015267813, -4216.593481362666, -3258.5802232218807, -5381.7196553915965, 51058.0],
+        "final_pos_error_m": [
+            0.12195137650074478,
+            -0.2769819929125347,
+            -0.09320381472249392,
+            -0.2719219718105937,
+            4.1319403786795945,
+        ],
+        "final_vel_error_mps": [
+            -0.028566284054184828,
+            0.1670183789234863,
+            -0.15000590835943733,
+            -0.4042633449897274,
+            7.883302938524478,
+        ],
+        "final_rot_error_rad": [
+            0.01567505797344155,
+            -0.09416248025286947,
+            0.12311141751802802,
+            -0.36701605413268634,
+            4.138188407023053,
+        ],
+    },
 }
-
-
-def _sha(p: Path) -> str:
-    return hashlib.sha256(p.read_bytes()).hexdigest()
 
 
 @pytest.fixture(scope="module")
@@ -52,8 +105,14 @@ def test_zero_noise_and_default_recipe_keep_todays_bytes(tmp_path):
     )  # sub-settings of recipes that are off
     assert version_name(explicit) == version_name(DatasetSpec()) == "n250-s0-dbb240c0"
     res = build(explicit, tmp_path, progress=False)
-    for f, digest in DEFAULT_250.items():
-        assert _sha(res.path / f) == digest, f
+    for f, columns in DEFAULT_250.items():
+        table = pq.read_table(res.path / f)
+        assert table.column_names == list(columns), f
+        for name, ref in columns.items():
+            col = table[name].combine_chunks()
+            while pa.types.is_list(col.type) or pa.types.is_fixed_size_list(col.type):
+                col = col.flatten()
+            assert_fingerprint(col.to_numpy(zero_copy_only=False).astype(np.float64), ref, f"{f}:{name}")
     assert "action.expert" not in read_columns(res.path)
 
 

@@ -27,6 +27,7 @@ CPU_GCSL = {
     "lr_schedule": "cosine",
     "amp": "auto",
     "ema_decay": 0.999,
+    "pos_octaves": 0,
     "relabel_prob": 0.01,
     "relabel_offset": "geometric",
     "relabel_window": 0,
