@@ -29,6 +29,7 @@ from .world import TEST_SEED
 if TYPE_CHECKING:
     from aerohrl.envs.rollout import PolicyFn
 
+    from .belief import BeliefModel
     from .policy import ActorCritic
 
 
@@ -67,8 +68,12 @@ def run_episodes(
     keep_env: bool = False,
     model: ActorCritic | None = None,
     skill: PolicyFn | None = None,
+    belief: BeliefModel | None = None,
 ) -> dict:
-    """Run ``name`` on the suite; returns per-env metrics, summary inputs and timing."""
+    """Run ``name`` on the suite; returns per-env metrics, summary inputs and timing.
+    With ``belief`` the planner plans over that learned belief
+    (:class:`~aerohrl.ipp.belief.BeliefView`; its forward pass counts as planning time);
+    the environment, and so every metric, is unchanged."""
     ids = np.arange(cfg.envs) if env_ids is None else np.asarray(env_ids)
     per_env: dict[str, list] = {}
     plan_time, decisions = 0.0, 0
@@ -96,7 +101,7 @@ def run_episodes(
 
             pl = RLPlanner(env, model)
         else:
-            pl = make_planner(name, env, cfg.planner)
+            pl = make_planner(name, env if belief is None else belief.view(env), cfg.planner)
         pl.reset()
         prev_done = 0
         while not env.done.all():

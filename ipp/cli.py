@@ -182,6 +182,13 @@ def _parser() -> argparse.ArgumentParser:
     world_flags(tr)
     tr.set_defaults(_defaults={a.dest: a.default for a in tr._actions})
 
+    bl = sub.add_parser("belief", help="the learned target belief: train, calibrate")
+    bsub = bl.add_subparsers(dest="bcmd", required=True, parser_class=_Parser)
+    bt = bsub.add_parser("train", help="record states along baseline planners, fit the belief, calibrate it")
+    _belief_flags(bt)
+    bc = bsub.add_parser("calibrate", help="fit the temperature on the validation states: calibration.json + reliability.png")
+    add_run(bc, help="belief run directory", type=str)
+
     cu = sub.add_parser("curve", help="learning curve of a training run (PNG)")
     add_run(cu, help="training run directory", type=str)
     add_common(cu, out={"type": str, "help": "figure path [RUN/learning_curve.png]"})
@@ -217,6 +224,20 @@ def _parser() -> argparse.ArgumentParser:
         "(directory: its last checkpoint; or a checkpoint file)",
     )
     be.add_argument(
+        "--belief",
+        metavar="RUN",
+        default=None,
+        help="plan over the learned belief of RUN (aerohrl ipp belief train) instead of the "
+        "hand-written posterior; the metrics stay the environment's (planners that read a belief)",
+    )
+    be.add_argument(
+        "--belief-temperature",
+        type=float,
+        default=None,
+        metavar="T",
+        help="--belief: temperature T > 0 [RUN's calibration.json, else 1]",
+    )
+    be.add_argument(
         "--budgets",
         type=_budget_list,
         default=None,
@@ -241,6 +262,44 @@ def _parser() -> argparse.ArgumentParser:
     sh.add_argument("--skill-run", default=None, help="--execution skill: policy run")
     env_flags(sh)
     return p
+
+
+BELIEF_OWN_FLAGS = ("seed", "threads", "env")  # --seed / --threads via add_common, env via --budget / --map-size
+
+
+def _belief_skip() -> list[str]:
+    from aerohrl.config import leaves
+
+    from .belief import BeliefConfig
+
+    return list(BELIEF_OWN_FLAGS) + [f.name for path, f, _ in leaves(BeliefConfig) if path[0] == "env"]
+
+
+def _belief_flags(bt) -> None:
+    """``ipp belief train``'s flags: preset, run folder, one flag per BeliefConfig setting."""
+    from aerohrl.config import add_flags
+
+    from .belief import BeliefConfig, preset, preset_names
+
+    cpu = preset("cpu")
+    bt.add_argument("--preset", default="cpu", choices=preset_names(), help="preset (ipp/presets/belief/NAME.toml) [cpu]")
+    bt.add_argument(
+        "--resume", metavar="RUN", help="continue RUN from its checkpoint.pt (only --epochs, --lattice, --quiet may be given)"
+    )
+    add_common(
+        bt,
+        out={"type": str, "help": "the run folder, must be new [runs/ipp-belief-PRESET-sSEED-YYYYMMDD-HHMMSS-XXXXXX]"},
+        quiet=True,
+        seed={"default": None, "help": f"random seed and training suite seed (>= 0) [cpu: {cpu.seed}]"},
+        threads={"help": f"torch threads [cpu: {cpu.threads}]"},
+    )
+    bt.add_argument("--lattice", help="lattice file (default: the shipped one)")
+    bt.add_argument("--map-size", type=T.positive_int, default=None, help=f"map side (cells) [{ENV_DEFAULTS['map_size']}]")
+    bt.add_argument(
+        "--budget", type=_budget, default=None, help=f"cost budget of the recorded episodes [{ENV_DEFAULTS['budget']:g}]"
+    )
+    add_flags(bt, BeliefConfig, skip=_belief_skip(), defaults=cpu, default_label="cpu")
+    bt.set_defaults(_defaults={a.dest: a.default for a in bt._actions})
 
 
 # TrainConfig settings whose flags are written here rather than by aerohrl.config.add_flags:
@@ -483,6 +542,28 @@ def _load_models(a, kind: str = "targets") -> dict:
     return out
 
 
+BELIEF_READERS = ("detect", "dp", "greedy", "prio_coverage", "cmaes")  # planners that read the belief
+
+
+def _load_belief(a, names, probe):
+    """The learned belief of ``--belief`` (None without it), checked against the bench."""
+    if a.belief is None:
+        if a.belief_temperature is not None:
+            raise UserError("--belief-temperature needs --belief RUN")
+        return None
+    if a.all or any(n not in BELIEF_READERS for n in names):
+        raise UserError(f"--belief plans one planner over the learned belief: --planner {'|'.join(BELIEF_READERS)}")
+    if a.budgets or a.execution != ("ideal",):
+        raise UserError("--belief runs ideal execution at one budget (drop --budgets / --execution)")
+    from .belief import check_temperature, load_belief
+
+    if a.belief_temperature is not None:
+        check_temperature(a.belief_temperature)
+    model = load_belief(a.belief, temperature=a.belief_temperature)
+    model.check_env(probe)
+    return model
+
+
 def _bench(a) -> int:
     from tqdm import tqdm
 
@@ -516,6 +597,7 @@ def _bench(a) -> int:
     for name in names:
         if name != "rl":
             make_planner(name, probe, pc)
+    belief = _load_belief(a, names, probe)
     rows = [(n, None) for n in names if n != "rl"] + list(models.items())
     if a.execution != ("ideal",) and env.kind != "targets":
         raise UserError("--execution flown is for target search (--world targets)")
@@ -538,7 +620,7 @@ def _bench(a) -> int:
             bar = tqdm(
                 total=a.envs, desc=f"{name} ({mode})", file=sys.stderr, disable=a.quiet or not sys.stderr.isatty(), leave=False
             )
-            r = run_episodes(name, lat, mcfg, progress=bar, model=model, skill=skill)
+            r = run_episodes(name, lat, mcfg, progress=bar, model=model, skill=skill, belief=belief)
             bar.close()
             r["summary"] = summarise(r["per_env"])
             res[name] = r
@@ -546,6 +628,9 @@ def _bench(a) -> int:
     results = by_mode[a.execution[-1]]
     labels = dict(THESIS_NAMES)
     labels = _variant_labels(labels, names, pc)
+    if belief is not None:
+        for n in names:
+            labels[n] = f"{labels[n]} over the learned belief ({belief.label}, T = {belief.temperature:.3g})"
     from .policy import describe_policy
 
     recipes: dict[str, dict] = {}  # one recipe, several training seeds: a claim over seeds
@@ -736,6 +821,83 @@ def _train(a) -> int:
     return 0
 
 
+def _belief(a) -> int:
+    if a.bcmd == "calibrate":
+        return _belief_calibrate(a)
+    from tqdm import tqdm
+
+    from .belief import BeliefConfig, preset, read_belief_config, train_belief
+    from .lattice import get_lattice
+
+    if a.resume:
+        allowed = {"resume", "epochs", "lattice", "quiet", "cmd", "bcmd", "_defaults"}
+        given = sorted(k for k, v in a._defaults.items() if k not in allowed and hasattr(a, k) and getattr(a, k) != v)
+        if given:
+            raise UserError(
+                "--resume continues a run with its own config.json; only --epochs, --lattice and --quiet may be given (got "
+                + ", ".join("--" + k.replace("_", "-") for k in given)
+                + ")"
+            )
+        run = Path(a.resume)
+        cfg = read_belief_config(run)
+        if a.epochs is not None:
+            cfg = replace(cfg, epochs=a.epochs)
+    else:
+        from aerohrl.config import given_flags
+
+        cfg = preset(a.preset, seed=a.seed, threads=a.threads, **given_flags(a, BeliefConfig, skip=_belief_skip()))
+        env = cfg.env
+        if a.map_size is not None:
+            from .world import WorldConfig
+
+            env = replace(env, map_size=a.map_size, world=WorldConfig(map_size=a.map_size))
+        if a.budget is not None:
+            env = replace(env, budget=a.budget)
+        cfg = replace(cfg, env=env)
+        run = Path(a.out) if a.out else Path("runs") / run_name("ipp-belief", a.preset, seed=cfg.seed)
+    cfg.validate()
+    lat = get_lattice(a.lattice, "targets")
+    from .factory import create_env
+
+    create_env(cfg.env, lat)
+    set_threads(cfg.threads)
+    bar = tqdm(total=cfg.epochs, desc="belief", file=sys.stderr, disable=a.quiet or not sys.stderr.isatty())
+    try:
+        last = train_belief(cfg, lat, run, progress=bar, resume=bool(a.resume))
+    finally:
+        bar.close()
+    print(_belief_summary(last["calibration"]))
+    print(
+        f"trained {last['epoch']} epochs in {last['time_s'] / 60:.1f} min: validation log-loss {last['val_logloss']:.4f} "
+        f"(hand-written posterior {last['val_logloss_posterior']:.4f}) -> {run} "
+        "(belief.pt, checkpoint.pt, data.npz, metrics.jsonl, calibration.json, reliability.png)"
+    )
+    return 0
+
+
+def _belief_summary(rep: dict) -> str:
+    def row(k):
+        r = rep[k]
+        return f"log-loss {r['logloss']:.4f}, ECE {r['ece']:.4f}, Brier {r['brier']:.5f}"
+
+    return (
+        f"validation ({rep['val_worlds']} worlds, {rep['states']} states): temperature {rep['temperature']:.3f}; "
+        f"hand-written posterior: {row('posterior')}; learned (T = 1): {row('learned')}; learned (T): {row('learned_T')}"
+    )
+
+
+def _belief_calibrate(a) -> int:
+    from .belief import calibrate
+
+    run = a.run or a.run_flag
+    if run is None:
+        raise UserError("belief calibrate needs RUN (a belief run directory)")
+    rep = calibrate(run)
+    print(_belief_summary(rep))
+    print(f"wrote {run}/calibration.json, {run}/reliability.png")
+    return 0
+
+
 def _compare(a) -> int:
     """``aerohrl ipp compare A B``: A − B paired over the same worlds, one line."""
     from .metrics import paired_comparison, read_per_env
@@ -820,6 +982,8 @@ def _dispatch(argv) -> int:
         return _train(a)
     if a.cmd == "curve":
         return _curve(a)
+    if a.cmd == "belief":
+        return _belief(a)
     if a.cmd == "compare":
         return _compare(a)
     raise UserError(f"unknown command {a.cmd!r}")

@@ -1,0 +1,170 @@
+"""The learned target belief: disjoint world suites, the loss, checkpoints and resume,
+one-line errors, and planning over it in ``ipp bench``."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from aerohrl.errors import UserError
+from aerohrl.ipp.baselines import make_planner
+from aerohrl.ipp.belief import (
+    BeliefModel,
+    BeliefNetConfig,
+    belief_loss,
+    check_temperature,
+    collect_states,
+    expected_calibration_error,
+    fit_temperature,
+    load_belief,
+    load_data,
+    preset,
+    save_belief,
+    train_belief,
+    training_indices,
+    validation_indices,
+)
+from aerohrl.ipp.cli import main
+from aerohrl.ipp.factory import make_env
+from aerohrl.ipp.lattice import default_lattice
+from aerohrl.ipp.world import TEST_SEED
+
+
+class _Interrupt(Exception):
+    """Raised by :class:`_StopAfter` to cut a training run short."""
+
+
+class _StopAfter:
+    """tqdm stand-in that interrupts training after ``k`` epochs (like Ctrl-C)."""
+
+    def __init__(self, k):
+        self.k, self.n = k, 0
+
+    def update(self, m):
+        self.n += m
+        if self.n >= self.k:
+            raise _Interrupt
+
+    def set_postfix(self, **kw):
+        """Nothing to show (tqdm's postfix)."""
+
+
+@pytest.fixture(scope="module")
+def belief_run(tmp_path_factory):
+    run = tmp_path_factory.mktemp("belief") / "run"
+    train_belief(preset("test"), default_lattice(), run)
+    return run
+
+
+def test_train_validation_and_test_worlds_never_overlap(belief_run):
+    cfg = preset("test")
+    train, val = load_data(belief_run / "data.npz")
+    assert set(train.seeds[:, 0]) == {cfg.seed} and set(val.seeds[:, 0]) == {cfg.val_seed}
+    assert len({cfg.seed, cfg.val_seed, TEST_SEED}) == 3
+    tr = {tuple(s) for s in train.seeds}
+    va = {tuple(s) for s in val.seeds}
+    assert not tr & va and all(s[0] != TEST_SEED for s in tr | va)
+    # no world of one suite is a world of another (the generator is keyed by (seed, index))
+    assert not any((train.targets[i] == val.targets[j]).all() for i in range(len(tr)) for j in range(len(va)))
+    # planners fly disjoint worlds of the training suite
+    idx = training_indices(replace(cfg, planners=("detect", "dp", "coverage"), n_worlds=5))
+    assert len(set(sum(idx, []))) == 15
+    assert len(set(sum(validation_indices(cfg), []))) == cfg.val_worlds * len(cfg.planners)
+    for bad in ({"seed": TEST_SEED}, {"val_seed": TEST_SEED}, {"val_seed": cfg.seed}):
+        with pytest.raises(UserError, match="never overlap"):
+            replace(cfg, **bad).validate()
+
+
+def test_loss_equals_a_hand_computation():
+    z = torch.tensor([[[2.0, -1.0], [0.0, -3.0]]])
+    y = torch.tensor([[[1, 0], [1, 0]]], dtype=torch.bool)
+    q = 1 / (1 + np.exp(-np.array([2.0, -1.0, 0.0, -3.0])))
+    yy = np.array([1, 0, 1, 0])
+    hand = -np.mean(yy * np.log(q) + (1 - yy) * np.log(1 - q))
+    assert belief_loss(z, y).item() == pytest.approx(hand, rel=1e-6)
+
+
+def test_untrained_belief_is_the_posterior_and_plans_like_detect():
+    lat = default_lattice()
+    env, _ = make_env(preset("test").env, lat, 3, range(4))
+    env.lazy_obs = True
+    env.step(make_planner("coverage", env).act())
+    model = BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), env.S)
+    np.testing.assert_allclose(model.predict(env), env.belief(), rtol=0, atol=1e-12)
+    a = make_planner("detect", env).act()
+    b = make_planner("detect", model.view(env)).act()
+    np.testing.assert_array_equal(a, b)
+
+
+def test_belief_for_another_grid_size_is_a_one_line_error(tmp_path):
+    save_belief(BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), 20), tmp_path / "belief.pt")
+    model = load_belief(tmp_path / "belief.pt")
+    env, _ = make_env(preset("test").env, default_lattice(), 3, range(1))
+    with pytest.raises(UserError, match="trained on 20 x 20 maps") as e:
+        model.view(env)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("T", [0.0, -1.0, float("nan"), float("inf")])
+def test_temperature_must_be_positive(T, tmp_path, capsys):
+    with pytest.raises(UserError, match="> 0"):
+        check_temperature(T)
+    with pytest.raises(UserError, match="> 0"):
+        BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), 30, temperature=T)
+    rc = main(["bench", "--planner", "detect", "--envs", "2", "--belief", str(tmp_path), "--belief-temperature", str(T)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "\n" not in err and "temperature" in err
+
+
+def test_temperature_fit_recovers_a_known_scale():
+    rng = np.random.default_rng(0)
+    z = rng.normal(0, 3, 20000)
+    y = rng.random(20000) < 1 / (1 + np.exp(-z / 2.0))  # true logits z / 2: fit T = 2
+    assert fit_temperature(z, y) == pytest.approx(2.0, rel=0.1)
+    p = 1 / (1 + np.exp(-z / 2.0))
+    assert expected_calibration_error(p, y) < 0.02 < expected_calibration_error(1 / (1 + np.exp(-z)), y)
+
+
+def test_resume_gives_the_uninterrupted_weights(belief_run, tmp_path):
+    cfg, lat = preset("test"), default_lattice()
+    run = tmp_path / "run"
+    with pytest.raises(_Interrupt):
+        train_belief(cfg, lat, run, progress=_StopAfter(1))
+    assert not (run / "calibration.json").exists()
+    train_belief(cfg, lat, run, resume=True)
+    a = torch.load(run / "checkpoint.pt", weights_only=True)["model"]
+    b = torch.load(belief_run / "checkpoint.pt", weights_only=True)["model"]
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert (run / "calibration.json").is_file() and (run / "reliability.png").is_file()
+
+
+def test_damaged_belief_is_a_one_line_error(belief_run, tmp_path):
+    import shutil
+
+    bad = tmp_path / "r"
+    shutil.copytree(belief_run, bad)
+    with open(bad / "belief.pt", "r+b") as f:
+        f.seek(40)
+        f.write(b"\x00\x01\x02")
+    with pytest.raises(UserError, match="damaged"):
+        load_belief(bad)
+
+
+def test_bench_with_belief_runs_end_to_end(belief_run, tmp_path, capsys):
+    out = tmp_path / "bench"
+    rc = main(
+        ["bench", "--planner", "detect", "--envs", "2", "--budget", "800", "--belief", str(belief_run), "-o", str(out), "--quiet"]
+    )
+    text = capsys.readouterr().out
+    assert rc == 0 and "over the learned belief" in text
+    assert (out / "ipp_bench_envs.csv").is_file()
+    rc = main(["bench", "--planner", "coverage", "--envs", "2", "--belief", str(belief_run), "-o", str(out)])
+    assert rc == 2
+
+
+def test_collect_records_live_states_only():
+    cfg = preset("test")
+    d = collect_states(cfg.env, default_lattice(), ("coverage",), cfg.seed, [[0, 1]], 1)
+    assert len(d) > 0 and d.L.shape[1:] == (30, 30) and set(d.world) <= {0, 1}
+    assert (d.rem > 0).all()
