@@ -212,7 +212,9 @@ def _net(cfg: BeliefNetConfig):
                 c = cfg.width
             self.body = nn.Sequential(*layers)
             self.head = nn.Conv2d(c, 1, 1)
+            # a zero residual at the start: the untrained belief is the Bayesian posterior
             nn.init.zeros_(self.head.weight)
+            assert self.head.bias is not None
             nn.init.zeros_(self.head.bias)
 
         def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -230,7 +232,15 @@ class BeliefModel:
         self.temperature = check_temperature(temperature)
         self.label = label
 
-    def logits(self, prior, L, cov, pos, rem, temperature: float | None = None) -> torch.Tensor:
+    def logits(
+        self,
+        prior: torch.Tensor,
+        L: torch.Tensor,
+        cov: torch.Tensor,
+        pos: torch.Tensor,
+        rem: torch.Tensor,
+        temperature: float | None = None,
+    ) -> torch.Tensor:
         """Calibrated log-odds (B, S, S): ``(base_logits(L) + c(x)) / T``."""
         T = self.temperature if temperature is None else check_temperature(temperature)
         return (base_logits(L) + self.net(belief_inputs(prior, L, cov, pos, rem))) / T
@@ -354,7 +364,7 @@ class BeliefView:
     def __init__(self, env: SearchEnv, model: BeliefModel):
         self._env, self._model = env, model
         self._key: tuple | None = None
-        self._q = np.zeros(0)
+        self._q: np.ndarray = np.zeros(0)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._env, name)
@@ -371,6 +381,8 @@ class BeliefView:
         return self._q
 
     def plan_cells(self, n_idx: np.ndarray, flat: np.ndarray) -> np.ndarray:
+        """The learned belief at cells ``flat`` of environments ``n_idx``, carrying the
+        Bayesian log-odds along as ``.logodds`` for the detection gain."""
         env = self._env
         q = self._qmap().reshape(env.n, -1)[n_idx, flat]
         out = q.view(PlannerCells)
@@ -378,9 +390,13 @@ class BeliefView:
         return out
 
     def prio_map(self) -> np.ndarray:
+        """(N, Hp, Hp) float32 priority map for the planners: the learned belief."""
         return self._qmap().astype(np.float32)
 
     def plan_detect_gain(self, b: np.ndarray, lp: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """Expected detections of one more look at cells ``b`` (from ``plan_cells``): the
+        chance the look moves the Bayesian log-odds over the found threshold, weighted by the
+        learned probability that a target is there."""
         L = getattr(b, "logodds", None)
         q = np.asarray(b)
         if L is None or np.shape(L) != q.shape:
@@ -415,7 +431,7 @@ class BeliefData:
     def __len__(self) -> int:
         return len(self.world)
 
-    def tensors(self, idx: np.ndarray):
+    def tensors(self, idx: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(inputs, base logits, targets) as torch tensors for states ``idx``."""
         import torch
 
