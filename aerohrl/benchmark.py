@@ -43,12 +43,19 @@ PLANNER_SUFFIX = "+planner"
 SUBGOALS_SUFFIX = "+subgoals"  # a hierarchical agent's high level as the candidate source (planning/subgoals.py)
 HIERARCHICAL = ("hiql",)  # the algorithms with a high level an ALGO+subgoals agent reads
 # The planner an ALGO+planner agent evaluates with. In a maze: Eq. 3.6 solved exactly over
-# the free cells' centres (planning/graph.py), legs only between adjacent cells (a connection
-# radius of 1.25 cells, below a cell's diagonal: no leg crosses a wall) and never to the cell
-# the vehicle sits in (half a cell), re-planned at every intermediate goal reached. In free
-# space: the thesis's multi-waypoint plan (Eq. 3.6) with the declining chain.
-MAZE_PLANNER_ARGS = ("--planner", "graph", "--max-edge", "2.5", "--min-leg", "1")
+# the free cells' centres (planning/graph.py), legs only along straight free corridors
+# (Maze.in_corridor: no leg crosses a wall) of at most 4 cells (8 m, the longest hop of the
+# stitch data, plus a quarter cell), never to the cell the vehicle sits in (half a cell),
+# re-planned at every intermediate goal reached. Corridor legs rather than legs between
+# adjacent cells: a hover at every cell makes the giant maze's paths outlast the horizon. In
+# free space: the thesis's multi-waypoint plan (Eq. 3.6) with the declining chain.
+MAZE_PLANNER_ARGS = ("--planner", "graph", "--legs", "corridor", "--max-edge", "8.5", "--min-leg", "1")
 FREE_PLANNER_ARGS = ("--planner", "multi", "--decline-margin", "0")
+# Train settings of every run on a maze's data, under the suite's --set: Fourier features of
+# the position (networks.position_features). The corridor to take is a function of the
+# position with jumps at the walls, which the raw coordinates fit slowly; with the features
+# the skills learn the turns in the suite's budget, and the corridor legs above need them.
+MAZE_TRAIN_SETTINGS = {"pos_octaves": 5}
 # ALGO+subgoals: the high level's subgoal snapped to the nearest candidate (a maze's free cells,
 # never the cell the vehicle sits in; in free space the dataset's achieved goals), asked again
 # from the flown state every second
@@ -215,7 +222,8 @@ def suite_runs(sp: SuiteSpec, datasets: dict[str, tuple[str, str]]) -> list[Suit
 
 
 def run_config(sp: SuiteSpec, r: SuiteRun) -> dict:
-    """The train config (flat dict) of one run: the preset, the size's steps, no in-training evaluation."""
+    """The train config (flat dict) of one run: the preset, the size's steps, no in-training
+    evaluation, a maze's settings (``MAZE_TRAIN_SETTINGS``), then ``--set``."""
     from aerohrl.algorithms import config as C
 
     steps = sp.steps or SIZES[sp.size].steps
@@ -229,6 +237,7 @@ def run_config(sp: SuiteSpec, r: SuiteRun) -> dict:
             "steps": steps,
             "checkpoint_every": max(1, steps // 10),
             "keep_checkpoints": 2,
+            **(MAZE_TRAIN_SETTINGS if r.world != "free" else {}),
             **sp.set,
             "algo": r.algo,
             "dataset": r.path,

@@ -44,6 +44,15 @@ def test_runs_are_shared_by_an_agent_and_its_planner():
     assert B.with_size_defaults(B.SuiteSpec(size="ci")).seeds == B.SIZES["ci"].seeds
 
 
+def test_maze_runs_get_position_features_unless_set():
+    sp = B.with_size_defaults(B.SuiteSpec(agents=("gcsl",), datasets=("a",), seeds=(0,), steps=100))
+    maze, free = B.SuiteRun("gcsl", "a", "/d/a", "maze-large", 0), B.SuiteRun("gcsl", "a", "/d/a", "free", 0)
+    assert B.run_config(sp, maze)["pos_octaves"] == B.MAZE_TRAIN_SETTINGS["pos_octaves"] > 0
+    assert B.run_config(sp, free)["pos_octaves"] == 0
+    sp0 = B.SuiteSpec(agents=("gcsl",), datasets=("a",), seeds=(0,), steps=100, set={"pos_octaves": 0})
+    assert B.run_config(sp0, maze)["pos_octaves"] == 0
+
+
 def _summary(run: Path, task: str, planner: str, success: float, folder: str = "", **options) -> None:
     d = run / "eval" / (folder or (task if planner == "none" else f"{task}-{planner}"))
     d.mkdir(parents=True)
@@ -54,12 +63,12 @@ def _summary(run: Path, task: str, planner: str, success: float, folder: str = "
 def test_leaderboard_aggregates_seeds_at_the_final_checkpoint(tmp_path):
     sp = B.SuiteSpec(agents=("gcsl", "gcsl+planner"), datasets=("m",), seeds=(0, 1, 2))
     runs = B.suite_runs(sp, {"m": ("/d/m", "maze-large")})
-    suite_planner = {"max_edge": 2.5, "min_leg": 1.0}
+    suite_planner = {"legs": "corridor", "max_edge": 8.5, "min_leg": 1.0}
     for r, (flat, planned) in zip(runs, [(0.1, 0.7), (0.2, 0.8), (0.3, 0.9)]):
         _summary(tmp_path / "runs" / r.name(), "maze", "none", flat)
         _summary(tmp_path / "runs" / r.name(), "maze", "graph", planned, **suite_planner)
         # another planner variant flown on the same run (a study's) is not the agent's row
-        _summary(tmp_path / "runs" / r.name(), "maze", "graph", 0.0, "maze-corridor-study", legs="corridor", min_leg=1.0)
+        _summary(tmp_path / "runs" / r.name(), "maze", "graph", 0.0, "maze-adjacent-study", max_edge=2.5, min_leg=1.0)
     rows = B.leaderboard(tmp_path, sp, runs)
     by = {r["agent"]: r for r in rows}
     assert by["gcsl"]["stats"]["values"] == pytest.approx([10, 20, 30])

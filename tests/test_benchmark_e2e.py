@@ -55,7 +55,7 @@ def test_ci_sized_suite_writes_the_leaderboard_and_resumes(tmp_path):
     assert len(csv) == 3 and (out / "leaderboard.png").stat().st_size > 1000
     run = out / "runs" / "gcsl-maze-medium-stitch-n8-s0"
     names = sorted(p.parent.name for p in run.glob("eval/*/summary.json"))
-    assert names == ["maze", "maze-graph-edge2.5-minleg1"]
+    assert names == ["maze", "maze-graph-corridor-edge8.5-minleg1"]
     assert json.loads((out / "suite.json").read_text())["seeds"] == [0]
 
     summaries = {f: f.stat().st_mtime for f in out.glob("runs/*/eval/*/summary.json")}
