@@ -13,8 +13,9 @@ It reads a suite folder (``aerohrl bench suite``; run that first, it is resumabl
    on the same episodes, flat and planned, pooled over seeds: the success difference and
    the exact two-sided sign test on the episodes only one of them succeeds in;
 3. **the planner's ablation** on the stitch dataset's runs: the graph planner without a
-   connection radius, with the radius only, and with the radius and no first leg to the
-   vehicle's own cell (the suite's), each over the seeds (``aerohrl eval``, resumable);
+   connection radius, with legs between adjacent cells only, the same and no first leg to
+   the vehicle's own cell, and the suite's legs along straight free corridors, each over
+   the seeds (``aerohrl eval``, resumable);
 4. **the critics' leg values** between the maze's free cells by path length, and for pairs
    close in space but far along the maze (a wall between them): why a planner that trusts
    learned values alone takes a shortcut through a wall;
@@ -34,12 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
+from aerohrl.benchmark import MAZE_PLANNER_ARGS
 from aerohrl.errors import UserError, run_cli
 
 ABLATION = {
     "graph, no radius": ["--planner", "graph"],
-    "graph, radius 2.5 m": ["--planner", "graph", "--max-edge", "2.5"],
-    "graph, radius 2.5 m, no leg to its own cell (suite)": ["--planner", "graph", "--max-edge", "2.5", "--min-leg", "1"],
+    "graph, radius 2.5 m (adjacent cells)": ["--planner", "graph", "--max-edge", "2.5"],
+    "graph, adjacent cells, no leg to its own cell": ["--planner", "graph", "--max-edge", "2.5", "--min-leg", "1"],
+    "graph, corridor legs up to 8.5 m, no leg to its own cell (suite)": list(MAZE_PLANNER_ARGS),
 }
 
 
@@ -178,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
                 opts: dict = {"checkpoints": 1, "episodes": a.episodes}
                 for k, v in zip(args[::2], args[1::2]):
                     key = k.lstrip("-").replace("-", "_")
-                    opts[key] = v if key == "planner" else float(v)
+                    opts[key] = v if key in ("planner", "legs") else float(v)
                 s = evaluate(r, "maze", **opts)
                 vals.append(100 * s["checkpoints"][-1]["success"])
                 coll.append(100 * s.get("collision_mean", float("nan")))
