@@ -188,6 +188,11 @@ class HIQLConfig:
     hiql_subgoal_steps: int = param(25, "HIQL: subgoal horizon k (the state k steps ahead)", unit="steps", ge=1)
     hiql_rep_dim: int = param(10, "HIQL: width of the goal representation phi([s, g]) (OGBench 10)", ge=1)
     hiql_low_actor_rep_grad: bool = param(False, "HIQL: the low-level actor's loss also trains the goal representation")
+    hiql_goal_switch: bool = param(
+        False,
+        "HIQL: act with the goal itself as the low level's subgoal once the value puts it within hiql_subgoal_steps "
+        "(OGBench always uses the high level's)",
+    )
     hiql_value_p_curgoal: float = param(0.2, "HIQL value goals: share of the transition's own achieved goal", ge=0, le=1)
     hiql_value_p_trajgoal: float = param(0.5, "HIQL value goals: share of later states of the trajectory", ge=0, le=1)
     hiql_value_p_randomgoal: float = param(0.3, "HIQL value goals: share of random dataset states", ge=0, le=1)

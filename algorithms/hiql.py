@@ -31,6 +31,16 @@ One joint step of the three losses (OGBench's), then the target value's Polyak s
 ``act(state, goal) = pi_l(s, normalise(pi_h(s, g)))`` (OGBench's deterministic
 ``sample_actions``; the high level's output is length-normalised like phi).
 
+**Goal switch** (``hiql_goal_switch``, off by default): once the value puts the goal within
+the subgoal horizon, ``d(s, g) = log(gamma^d) / log(gamma) <= k`` with
+``gamma^d = 1 + (1 - gamma) mean_j V_j(s, g)``, the low level is handed ``phi(s, g)``, the
+goal itself, in place of ``pi_h(s, g)``: the state k steps ahead of a goal closer than k
+steps is the goal (the low level's training targets, ``min(t + k, episode end)``, include
+it), and the high level's Gaussian mean regression lands near, not on, that
+representation, which the low level then tracks to within its error rather than to the
+goal's tolerances. Only ``act`` switches; ``policy_net`` (the EMA, exports) stays the two
+levels alone.
+
 **Subgoals for a planner**: :meth:`HIQL.subgoals` returns ``z = pi_h(s, g)``, normalised,
 (B, rep_dim): the representation ``phi(s, w)`` of the state w the high level proposes to
 be at k steps from now on the way to g. It is a representation, not a state: to use it
@@ -224,6 +234,26 @@ class HIQL(Algorithm):
         self.target_value.update_parameters(self.value)
         self.num_updates += 1
         return {k: v.detach() for k, v in out.items()}
+
+    @torch.no_grad()
+    def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The action (B, 4), in physical units, for states (B, 18) and goals (B, 15): the low
+        level towards the high level's subgoal, or with ``hiql_goal_switch`` towards the goal
+        itself where the value puts it within the subgoal horizon (module docstring)."""
+        x = self.normalizer.inputs(state, goal)
+        net = self._net()
+        z = net.subgoal(x)
+        if self.cfg.hiql.hiql_goal_switch:
+            near = self.steps_to_goal(state, goal) <= self.cfg.hiql.hiql_subgoal_steps
+            z = torch.where(near[:, None], self.value.phi(x), z)
+        return self.normalizer.action_from_unit(net.low_action(x, z))
+
+    @torch.no_grad()
+    def steps_to_goal(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The value's distance to the goal in steps, ``d = log(gamma^d) / log(gamma)`` with
+        ``gamma^d = 1 + (1 - gamma) mean_j V_j(s, g)`` (B,); inf where the value is at its floor."""
+        v = self.value(self.normalizer.inputs(state, goal)).mean(0)
+        return torch.log(success_value(v, self.cfg.gamma)) / math.log(self.cfg.gamma)
 
     @torch.no_grad()
     def subgoals(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:

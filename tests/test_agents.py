@@ -310,6 +310,21 @@ def test_train_resume_load(algo, extra, data, tmp_path):
         assert z.shape == (9, cfg.hiql.hiql_rep_dim)
         assert torch.allclose(z.norm(dim=-1), torch.full((9,), math.sqrt(cfg.hiql.hiql_rep_dim)), atol=1e-4)
         assert pol.algo.goal_representation(st, g).shape == z.shape
+        # the goal switch: rows the value puts within the horizon act towards phi(s, g), the rest as before
+        h = pol.algo
+        d = h.steps_to_goal(st, g)
+        assert d.shape == (9,) and (d >= 0).all()
+        v = h.value(h.normalizer.inputs(st, g)).mean(0)
+        assert torch.allclose(cfg.gamma**d, (1 + (1 - cfg.gamma) * v).clamp(0, 1), atol=1e-5)
+        h.steps_to_goal = lambda s, g: torch.arange(9.0)  # rows 0-4 within a horizon of 4 steps
+        h.cfg.hiql.hiql_goal_switch, h.cfg.hiql.hiql_subgoal_steps = True, 4
+        x = h.normalizer.inputs(st, g)
+        towards_goal = h.normalizer.action_from_unit(h._net().low_action(x, h.value.phi(x)))
+        near = torch.arange(9) <= 4
+        switched = h.act(st, g)
+        assert torch.allclose(switched[near], towards_goal[near]) and torch.equal(switched[~near], out[~near])
+        h.cfg.hiql.hiql_goal_switch = False
+        assert torch.equal(h.act(st, g), out)
 
 
 def test_maze_dataset_gives_33d_inputs_and_checkpoints_load(tmp_path):
