@@ -229,6 +229,7 @@ class GoalBatchSampler:
         bc_target: str = "expert",
         goal_mixes: dict[str, GoalMix] | None = None,
         subgoal_steps: int = 0,
+        subgoal_end: str = "achieved",
     ):
         from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
@@ -269,8 +270,16 @@ class GoalBatchSampler:
         # level's target), "target_observation" (that state's input for the mix's goal) and
         # "subgoal_observation" (the current state's input for the target's achieved goal);
         # and td["subgoal"] holds the transitions with the achieved goal of the state
-        # min(t + subgoal_steps, episode end) as goal (the low level's)
+        # min(t + subgoal_steps, episode end) as goal (the low level's).
+        # subgoal_end "desired": where that state is cut off by the episode's end, the
+        # subgoal is the episode's desired goal instead of its last achieved state (the low
+        # level's goal, and the high level's target for the mix's kept desired goals): the
+        # data's expert aimed at the desired goal, and its last state lies anywhere within
+        # the goal test's tolerances of it
+        if subgoal_end not in ("achieved", "desired"):
+            raise ValueError(f"subgoal_end {subgoal_end!r}: achieved | desired")
         self.subgoal_steps = int(subgoal_steps)
+        self.subgoal_end = subgoal_end
         self.next_states = data.next_state
 
     def sample(self) -> TensorDict:
@@ -312,17 +321,27 @@ class GoalBatchSampler:
 
             ep_end = b.get("episode_end")
             sub = subgoal_index(index, ep_end, self.subgoal_steps) if self.subgoal_steps > 0 else None
+            desired = b.get("goal")
+            # the subgoal cut off by the episode's end becomes the desired goal (subgoal_end)
+            at_end = None
+            if sub is not None and self.subgoal_end == "desired":
+                at_end = (index + self.subgoal_steps - 1 >= ep_end).unsqueeze(-1)
             for name, mix in self.goal_mixes.items():
                 kk, src = sample_goal_index(index, ep_end, len(self.achieved_goals), mix, self.generator)
                 mgoal = torch.where((src == GOAL_KEEP).unsqueeze(-1), goal, self.achieved_goals[kk])
-                target = None
+                target, sgoal = None, None
                 if sub is not None:  # k steps ahead, but not past a trajectory goal (OGBench's high_traj_target)
                     along = (src == GOAL_TRAJ) | (src == GOAL_CUR)
                     target = self.next_states[torch.where(along, torch.minimum(sub, kk), sub)]
-                mixed[name] = [mgoal, *self._reward_done(next_state, mgoal), target]
+                    sgoal = task.achieved_goal(target)
+                    if at_end is not None:
+                        sgoal = torch.where(at_end & (src == GOAL_KEEP).unsqueeze(-1), desired, sgoal)
+                mixed[name] = [mgoal, *self._reward_done(next_state, mgoal), target, sgoal]
             if sub is not None:
                 lgoal = self.achieved_goals[sub]
-                mixed["subgoal"] = [lgoal, *self._reward_done(next_state, lgoal), None]
+                if at_end is not None:
+                    lgoal = torch.where(at_end, desired, lgoal)
+                mixed["subgoal"] = [lgoal, *self._reward_done(next_state, lgoal), None, None]
         action = b.get("action")
         bc_action = b.get("action_expert") if self.bc_expert else None
         if self.augment == "mirror":
@@ -338,6 +357,7 @@ class GoalBatchSampler:
             for v in mixed.values():
                 v[0] = mirror_goal(v[0], m)
                 v[3] = None if v[3] is None else mirror_state(v[3], m)
+                v[4] = None if v[4] is None else mirror_goal(v[4], m)
         more = {"index": index, "relabelled": relabelled}
         if bc_action is not None:
             more["bc_action"] = bc_action
@@ -345,15 +365,16 @@ class GoalBatchSampler:
         if critic is not None:
             cgoal, creward, cdone, cextra = critic
             td.set("critic", self._batch(state, action, next_state, cgoal, creward, cdone, cextra, {}))
-        for name, (mgoal, mreward, mdone, target) in mixed.items():
+        for name, (mgoal, mreward, mdone, target, sgoal) in mixed.items():
             mmore = {} if bc_action is None else {"bc_action": bc_action}
             if target is not None:
                 mmore["target_state"] = target
+                mmore["subgoal_goal"] = sgoal
             sub_td = self._batch(state, action, next_state, mgoal, mreward, mdone, {}, mmore)
             if target is not None:
                 ts = sub_td.get("target_state")
                 sub_td.set("target_observation", self.normalizer.inputs(ts, sub_td.get("goal")))
-                sub_td.set("subgoal_observation", self.normalizer.inputs(sub_td.get("state"), task.achieved_goal(ts)))
+                sub_td.set("subgoal_observation", self.normalizer.inputs(sub_td.get("state"), sub_td.get("subgoal_goal")))
             td.set(name, sub_td)
         return td
 

@@ -41,6 +41,13 @@ representation, which the low level then tracks to within its error rather than 
 goal's tolerances. Only ``act`` switches; ``policy_net`` (the EMA, exports) stays the two
 levels alone.
 
+**Subgoal at the episode's end** (``hiql_subgoal_end``): OGBench's subgoal is the state
+``min(t + k, episode end)``, so the last k steps of an episode aim at its last state. With
+``desired`` those steps aim at the episode's desired goal instead (the low level's subgoal,
+and the high level's target where its goal is that desired goal): on expert data the clean
+expert aimed at the desired goal, and the last state lies anywhere within the goal test's
+tolerances of it. Data whose desired goal is its last state (explore) is unchanged.
+
 **Subgoals for a planner**: :meth:`HIQL.subgoals` returns ``z = pi_h(s, g)``, normalised,
 (B, rep_dim): the representation ``phi(s, w)`` of the state w the high level proposes to
 be at k steps from now on the way to g. It is a representation, not a state: to use it
@@ -150,6 +157,7 @@ class HIQL(Algorithm):
         return {
             "goal_mixes": {"value": goal_mix(cfg, "value"), "actor": goal_mix(cfg, "actor")},
             "subgoal_steps": cfg.hiql.hiql_subgoal_steps,
+            "subgoal_end": cfg.hiql.hiql_subgoal_end,
         }
 
     def __init__(self, cfg, normalizer):

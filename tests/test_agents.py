@@ -234,6 +234,35 @@ def test_subgoal_and_target_indices(small):
     assert torch.allclose(b["actor", "subgoal_observation"], norm.inputs(b["state"], task.achieved_goal(ts)))
 
 
+def test_subgoal_end_desired():
+    """hiql_subgoal_end desired: a subgoal cut off by the episode's end is the episode's desired
+    goal, for the low level and for the high level's kept desired goals; elsewhere unchanged."""
+    cols = straight_columns(n_eps=4, length=30)
+    cols["observation.desired_goal"][:, :3] += 0.1  # the flights end 10 cm short of their goals per axis
+    small = load_dataset(cols)
+    norm = fit_normalizer(small, 0.0)
+    opts = {}
+    for end in ("achieved", "desired"):
+        cfg = make_config("cpu", algo="hiql", hiql_subgoal_steps=5, hiql_actor_p_trajgoal=0.0, hiql_subgoal_end=end)
+        opts[end] = GoalBatchSampler(
+            small, norm, 512, 0.0, torch.Generator().manual_seed(0), **algorithm_class("hiql").sampler_options(cfg)
+        ).sample()
+    a, d = opts["achieved"], opts["desired"]
+    assert torch.equal(a["index"], d["index"])
+    idx, ep_end = d["index"], small.episode_end[d["index"]]
+    at_end = idx + 4 >= ep_end
+    assert 0 < at_end.sum() < len(idx)
+    assert torch.equal(d["subgoal", "goal"][at_end], d["goal"][at_end])  # the desired goal
+    assert torch.equal(d["subgoal", "goal"][~at_end], a["subgoal", "goal"][~at_end])
+    assert not torch.equal(a["subgoal", "goal"][at_end], a["goal"][at_end])  # the last state is not the goal here
+    # the high level's actor goals are the desired goals (p_trajgoal 0): its target at the end is the goal too
+    want = norm.inputs(d["state"][at_end], d["goal"][at_end])
+    assert torch.allclose(d["actor", "subgoal_observation"][at_end], want)
+    assert torch.allclose(d["actor", "subgoal_observation"][~at_end], a["actor", "subgoal_observation"][~at_end])
+    with pytest.raises(ConfigError, match="hiql_subgoal_end"):
+        make_config("cpu", algo="hiql", hiql_subgoal_end="goal")
+
+
 def test_goal_mix_shares_and_current_goal_rewards(small):
     norm = fit_normalizer(small, 0.0)
     mixes = {"cur": GoalMix(p_cur=1.0, p_traj=0.0), "mix": GoalMix(p_cur=0.2, p_traj=0.5, p_rand=0.3), "keep": GoalMix(0, 0, 0)}
