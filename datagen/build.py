@@ -1241,7 +1241,9 @@ def _family_intro(meta: dict) -> str:
         body = (
             "explore: not goal-directed. A stabilising velocity controller (the geometric controller with no position "
             f"term{' but the altitude' if maze else ''}) follows random piecewise-constant velocity commands (speed up to {s['explore_speed']} m/s, "
-            f"each held {s['explore_hold'][0]}-{s['explore_hold'][1]} s) for up to {s['explore_duration']} s"
+            f"each held {s['explore_hold'][0]}-{s['explore_hold'][1]} s"
+            + (f", a hover with probability {s['explore_stop']}" if s.get("explore_stop") else "")
+            + f") for up to {s['explore_duration']} s"
             + (
                 ", at the maze's flight altitude; an episode ends at its first colliding step (kept as its last frame)"
                 if maze

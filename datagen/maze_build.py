@@ -145,7 +145,9 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
     if explore:
         rng = np.random.default_rng([spec.seed, EXPLORE_STREAM, block])
         climb = spec.explore_climb if maze is None else 0.0
-        cmds = mx.explore_commands(rng, n, kmax, dt, speed=spec.explore_speed, climb=climb, hold=spec.explore_hold)
+        cmds = mx.explore_commands(
+            rng, n, kmax, dt, speed=spec.explore_speed, climb=climb, hold=spec.explore_hold, stop=spec.explore_stop
+        )
         v_ref: np.ndarray = np.zeros((n, 3))
     else:
         assert p.ref is not None

@@ -198,17 +198,30 @@ def hover_goals(p: np.ndarray) -> np.ndarray:
 
 
 def explore_commands(
-    rng: np.random.Generator, n: int, steps: int, dt: float, *, speed: float, climb: float, hold: tuple[float, float]
+    rng: np.random.Generator,
+    n: int,
+    steps: int,
+    dt: float,
+    *,
+    speed: float,
+    climb: float,
+    hold: tuple[float, float],
+    stop: float = 0.0,
 ) -> np.ndarray:
     """(steps, n, 3) piecewise-constant velocity commands (m/s) (module docstring,
     "Exploration"). Enough segments are drawn for the longest flight; a segment's hold
-    time is uniform in ``hold`` (s), rounded to whole control steps (at least one)."""
+    time is uniform in ``hold`` (s), rounded to whole control steps (at least one). With
+    probability ``stop`` a segment is a hover (zero command): the data then shows the
+    vehicle coming to rest at places no expert chose (drawn after the other draws, so
+    ``stop = 0`` keeps the commands' bytes)."""
     k = int(np.ceil(steps * dt / hold[0])) + 1  # segments: more than enough at the shortest hold
     hold_steps = np.maximum(np.round(rng.uniform(hold[0], hold[1], size=(n, k)) / dt), 1).astype(np.int64)
     heading = rng.uniform(0.0, 2.0 * np.pi, size=(n, k))
     v = speed * rng.random((n, k))
     vz = climb * rng.uniform(-1.0, 1.0, size=(n, k))
     seg = np.stack([v * np.cos(heading), v * np.sin(heading), vz], axis=-1)  # (n, k, 3)
+    if stop > 0:
+        seg[rng.random((n, k)) < stop] = 0.0
     ends = np.cumsum(hold_steps, axis=1)  # (n, k) step at which each segment ends
     which = (np.arange(steps)[None, :, None] >= ends[:, None, :]).sum(axis=2)  # (n, steps) segment at each step
     return np.ascontiguousarray(np.take_along_axis(seg, which[..., None], axis=1).transpose(1, 0, 2))

@@ -58,6 +58,7 @@ RECIPE_DEFAULTS = {
     "explore_climb": 1.0,
     "explore_hold": (0.5, 1.0),
     "explore_duration": 10.0,
+    "explore_stop": 0.0,
     "stats": "auto",
 }
 
@@ -148,6 +149,9 @@ class DatasetSpec:
     explore_climb: float = param(1.0, "free-space explore: vertical speed bound of the velocity commands", unit="m/s", ge=0, le=5)
     explore_hold: tuple[float, float] = param((0.5, 1.0), "explore: range of each command's hold time", unit="s", gt=0)
     explore_duration: float = param(10.0, "explore: flight length (a maze flight ends earlier at a collision)", unit="s", gt=0)
+    explore_stop: float = param(
+        0.0, "explore: probability that a command is a hover (zero velocity): pauses of a random pilot", ge=0, le=1
+    )
     # How meta/stats.json is computed (datagen/README.md "Statistics"): "exact" order
     # statistics and sorted-column means of every frame (a read-back pass and scratch disk at
     # the end), or "sketch": streamed while writing, exact min/max/mean/std/count, quantiles
@@ -279,6 +283,7 @@ class DatasetSpec:
             "explore_climb": self.family == "explore" and self.maze is None,
             "explore_hold": self.family == "explore",
             "explore_duration": self.family == "explore",
+            "explore_stop": self.family == "explore",
         }
         # the statistics as resolved: "auto" and "exact" give today's bytes, "sketch" others
         d["stats"] = "sketch" if self.stats_mode == "sketch" else "auto"

@@ -110,6 +110,23 @@ def test_free_space_explore_flies_fast_and_stays_upright(built):
     assert np.degrees(np.arccos(s[:, 14].min())) < 60.0
 
 
+def test_explore_stop_pauses_the_commands_and_keeps_earlier_bytes():
+    args = dict(speed=1.5, climb=0.0, hold=(0.5, 1.0))
+    plain = mx.explore_commands(np.random.default_rng(3), 64, 800, 0.01, **args)
+    same = mx.explore_commands(np.random.default_rng(3), 64, 800, 0.01, stop=0.0, **args)
+    np.testing.assert_array_equal(plain, same)  # stop 0: the commands of specs without the field
+    paused = mx.explore_commands(np.random.default_rng(3), 64, 800, 0.01, stop=0.4, **args)
+    zero = ~paused.any(axis=-1)
+    assert 0.3 < zero.mean() < 0.5  # about 40 % of the time at a hover command
+    moving = ~zero
+    np.testing.assert_array_equal(paused[moving], plain[moving])  # the other segments are unchanged
+    # the field enters a spec's identity only when it is set, and only for explore
+    base = DatasetSpec(world="maze-large", family="explore")
+    assert version_name(DatasetSpec(world="maze-large", family="explore", explore_stop=0.0)) == version_name(base)
+    assert version_name(DatasetSpec(world="maze-large", family="explore", explore_stop=0.3)) != version_name(base)
+    assert version_name(DatasetSpec(world="maze-large", explore_stop=0.3)) == version_name(DatasetSpec(world="maze-large"))
+
+
 def test_same_spec_same_bytes(built, tmp_path):
     res = build(TINY["stitch"], tmp_path, progress=False, log=lambda _: None)
     assert read_manifest(res.path)["checksums"] == read_manifest(built["stitch"].path)["checksums"]
