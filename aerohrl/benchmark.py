@@ -56,6 +56,20 @@ FREE_PLANNER_ARGS = ("--planner", "multi", "--decline-margin", "0")
 # position with jumps at the walls, which the raw coordinates fit slowly; with the features
 # the skills learn the turns in the suite's budget, and the corridor legs above need them.
 MAZE_TRAIN_SETTINGS = {"pos_octaves": 5}
+# Train settings of every run on an explore dataset, under the suite's --set: its desired
+# goals are the flights' last states (mostly a collision), never a goal to learn to reach,
+# so every goal is a later state of the flight (GCSL and the thesis's agents: relabelling
+# probability 1, uniform over the rest of the flight, as OGBench's GCBC) and the reference
+# agents' actors take trajectory goals (OGBench's own setting, which the presets change
+# for expert data).
+EXPLORE_TRAIN_SETTINGS = {
+    "relabel_prob": 1.0,
+    "relabel_offset": "uniform",
+    "gciql_actor_p_trajgoal": 1.0,
+    "crl_actor_p_trajgoal": 1.0,
+    "qrl_actor_p_trajgoal": 1.0,
+    "hiql_actor_p_trajgoal": 1.0,
+}
 # ALGO+subgoals: the high level's subgoal snapped to the nearest candidate (a maze's free cells,
 # never the cell the vehicle sits in; in free space the dataset's achieved goals), asked again
 # from the flown state every second
@@ -188,6 +202,7 @@ class SuiteRun:
     path: str  # the built dataset's folder
     world: str
     seed: int
+    family: str = "navigate"  # the dataset's family (navigate | stitch | explore)
 
     def name(self) -> str:
         """The run folder's name: ``ALGO-DATASET-sSEED``."""
@@ -198,7 +213,7 @@ def build_datasets(
     sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print, specs: Path = Path("datasets")
 ) -> dict[str, tuple[str, str]]:
     """Every dataset of the suite (spec files in ``specs``) built (or verified) under ``root``:
-    name -> (folder, world)."""
+    name -> (folder, world, family)."""
     from aerohrl.datagen.build import build
     from aerohrl.datagen.spec import load_spec
 
@@ -211,19 +226,20 @@ def build_datasets(
             spec = dataclasses.replace(spec, goals=episodes or min(spec.goals, size.episodes))
         res = build(spec, root, progress=False, log=log)
         log(f"suite: dataset {name}: {res.path} ({res.episodes} episodes, {res.frames:,} frames)")
-        out[name] = (str(Path(res.path).resolve()), dataset_world(spec))
+        out[name] = (str(Path(res.path).resolve()), dataset_world(spec), spec.family)
     return out
 
 
 def suite_runs(sp: SuiteSpec, datasets: dict[str, tuple[str, str]]) -> list[SuiteRun]:
     """The training runs: one per algorithm (an ALGO+planner agent shares ALGO's runs) x dataset x seed."""
     algos = list(dict.fromkeys(split_agent(a)[0] for a in sp.agents))
-    return [SuiteRun(a, d, datasets[d][0], datasets[d][1], s) for d in sp.datasets for a in algos for s in sp.seeds]
+    return [SuiteRun(a, d, *datasets[d][:2], s, *datasets[d][2:]) for d in sp.datasets for a in algos for s in sp.seeds]
 
 
 def run_config(sp: SuiteSpec, r: SuiteRun) -> dict:
     """The train config (flat dict) of one run: the preset, the size's steps, no in-training
-    evaluation, a maze's settings (``MAZE_TRAIN_SETTINGS``), then ``--set``."""
+    evaluation, a maze's settings (``MAZE_TRAIN_SETTINGS``), an explore dataset's
+    (``EXPLORE_TRAIN_SETTINGS``), then ``--set``."""
     from aerohrl.algorithms import config as C
 
     steps = sp.steps or SIZES[sp.size].steps
@@ -238,6 +254,7 @@ def run_config(sp: SuiteSpec, r: SuiteRun) -> dict:
             "checkpoint_every": max(1, steps // 10),
             "keep_checkpoints": 2,
             **(MAZE_TRAIN_SETTINGS if r.world != "free" else {}),
+            **(EXPLORE_TRAIN_SETTINGS if r.family == "explore" else {}),
             **sp.set,
             "algo": r.algo,
             "dataset": r.path,

@@ -53,6 +53,21 @@ def test_maze_runs_get_position_features_unless_set():
     assert B.run_config(sp0, maze)["pos_octaves"] == 0
 
 
+def test_explore_runs_learn_from_later_states_only():
+    """An explore dataset's desired goals are its flights' last states: every goal is relabelled."""
+    sp = B.with_size_defaults(B.SuiteSpec(agents=("gcsl",), datasets=("a",), seeds=(0,), steps=100))
+    runs = B.suite_runs(sp, {"a": ("/d/a", "maze-large", "explore")})
+    assert runs[0].family == "explore"
+    cfg = B.run_config(sp, runs[0])
+    assert cfg["relabel_prob"] == 1.0 and cfg["relabel_offset"] == "uniform" and cfg["pos_octaves"] > 0
+    gciql = B.run_config(sp, B.SuiteRun("gciql", "a", "/d/a", "maze-large", 0, "explore"))
+    assert gciql["gciql_actor_p_trajgoal"] == 1.0  # the cpu preset's 0 is for expert data
+    stitch = B.run_config(sp, B.SuiteRun("gciql", "a", "/d/a", "maze-large", 0, "stitch"))
+    assert stitch["gciql_actor_p_trajgoal"] == 0.0 and stitch["relabel_prob"] == 0.05
+    mine = B.SuiteSpec(agents=("gcsl",), datasets=("a",), seeds=(0,), steps=100, set={"relabel_prob": 0.5})
+    assert B.run_config(mine, runs[0])["relabel_prob"] == 0.5  # --set still has the last word
+
+
 def _summary(run: Path, task: str, planner: str, success: float, folder: str = "", **options) -> None:
     d = run / "eval" / (folder or (task if planner == "none" else f"{task}-{planner}"))
     d.mkdir(parents=True)
