@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aerohrl.benchmark import MAZE_PLANNER_ARGS
+from aerohrl.benchmark import MAZE_PLANNER_ARGS, MAZE_SUBGOALS_ARGS
 from aerohrl.errors import UserError, run_cli
 
 ABLATION = {
@@ -44,6 +44,11 @@ ABLATION = {
     "graph, adjacent cells, no leg to its own cell": ["--planner", "graph", "--max-edge", "2.5", "--min-leg", "1"],
     "graph, corridor legs up to 8.5 m, no leg to its own cell (suite)": list(MAZE_PLANNER_ARGS),
 }
+
+
+# the high levels an agent's flat flights are paired with: the suite's ALGO+planner and
+# ALGO+subgoals evaluations
+HIGH_LEVELS = {"graph planner": MAZE_PLANNER_ARGS, "own subgoals": MAZE_SUBGOALS_ARGS}
 
 
 def _episodes(run: Path, name: str) -> np.ndarray | None:
@@ -127,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--algo", default="gcsl", help="the skills of the ablation and the leg values [gcsl]")
     ap.add_argument("--episodes", type=int, default=250, help="evaluation episodes of the ablation [250]")
     ap.add_argument("--results-dir", type=Path, default=Path("docs/results"), help="where the page goes [docs/results]")
+    ap.add_argument("--page", default="maze-benchmark", help="the page's name after its date [maze-benchmark]")
     a = ap.parse_args(argv)
 
     def go() -> int:
@@ -141,41 +147,44 @@ def main(argv: list[str] | None = None) -> int:
             "",
             f"Written by `python experiments/maze_study.py --suite {a.suite}"
             + (f" --sizes-suite {a.sizes_suite}" if a.sizes_suite else "")
+            + (f" --page {a.page}" if a.page != "maze-benchmark" else "")
             + f"` from the suite in `{a.suite}` (its grid: `{a.suite}/suite.json`).",
             "",
             "## Leaderboard",
             "",
             board.read_text().split("\n", 2)[2].strip(),
             "",
-            f"![leaderboard](figures/{date.today().isoformat()}-maze-leaderboard.png)",
+            f"![leaderboard](figures/{date.today().isoformat()}-{a.page}-leaderboard.png)",
             "",
             "## Flat against planned, paired (same checkpoints, same episodes)",
             "",
-            "| runs | flat % | planned % | only planned | only flat | sign test p | episodes |",
-            "|---|---|---|---|---|---|---|",
+            "| runs | high level | flat % | planned % | only planned | only flat | sign test p | episodes |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         groups: dict[str, list[Path]] = {}
         for r in runs:
             groups.setdefault(r.name.rsplit("-s", 1)[0], []).append(r)
         for g, rs in sorted(groups.items()):
-            flat, planned = [], []
-            for r in rs:
-                fn, pn = _eval_name(r, "maze", False), _eval_name(r, "maze", True)
-                if fn and pn:
-                    f, p = _episodes(r, fn), _episodes(r, pn)
-                    if f is not None and p is not None and len(f) == len(p):
-                        flat.append(f)
-                        planned.append(p)
-            if flat:
-                st = paired(flat, planned)
-                lines.append(
-                    f"| {g} ({len(flat)} seeds) | {st['flat']:.1f} | {st['planned']:.1f} | {st['only_planned']} | "
-                    f"{st['only_flat']} | {st['p']:.2g} | {st['n']} |"
-                )
-        lines += ["", f"## The graph planner's ablation ({a.algo} on {a.stitch}, {a.episodes} episodes per seed)", ""]
-        lines += ["| planner | success % per seed | mean ± std | collision % (mean) |", "|---|---|---|---|"]
+            for high, args in HIGH_LEVELS.items():
+                flat, planned = [], []
+                for r in rs:
+                    fn, pn = _eval_name(r, "maze", False), _eval_name(r, "maze", True, list(args))
+                    if fn and pn:
+                        f, p = _episodes(r, fn), _episodes(r, pn)
+                        if f is not None and p is not None and len(f) == len(p):
+                            flat.append(f)
+                            planned.append(p)
+                if flat:
+                    st = paired(flat, planned)
+                    lines.append(
+                        f"| {g} ({len(flat)} seeds) | {high} | {st['flat']:.1f} | {st['planned']:.1f} | "
+                        f"{st['only_planned']} | {st['only_flat']} | {st['p']:.2g} | {st['n']} |"
+                    )
         abl_runs = [r for r in runs if r.name.startswith(f"{a.algo}-{a.stitch}-s")]
-        for label, args in ABLATION.items():
+        if abl_runs:
+            lines += ["", f"## The graph planner's ablation ({a.algo} on {a.stitch}, {a.episodes} episodes per seed)", ""]
+            lines += ["| planner | success % per seed | mean ± std | collision % (mean) |", "|---|---|---|---|"]
+        for label, args in ABLATION.items() if abl_runs else ():
             vals, coll = [], []
             for r in abl_runs:
                 opts: dict = {"checkpoints": 1, "episodes": a.episodes}
@@ -190,8 +199,8 @@ def main(argv: list[str] | None = None) -> int:
                     f"| {label} | {' / '.join(f'{v:.1f}' for v in vals)} | {np.mean(vals):.1f} ± "
                     f"{np.std(vals, ddof=1) if len(vals) > 1 else 0:.1f} | {np.mean(coll):.1f} |"
                 )
-        lines += ["", f"## Leg values of the critics ({a.algo} on {a.stitch}, mean over free-cell pairs)", ""]
         if abl_runs:
+            lines += ["", f"## Leg values of the critics ({a.algo} on {a.stitch}, mean over free-cell pairs)", ""]
             per = [leg_values(r) for r in abl_runs]
             keys = list(per[0])
             lines += ["| pair | " + " | ".join(r.name.rsplit("-", 1)[1] for r in abl_runs) + " |"]
@@ -207,9 +216,9 @@ def main(argv: list[str] | None = None) -> int:
         import shutil
 
         shutil.copyfile(
-            a.suite / "leaderboard.png", a.results_dir / "figures" / f"{date.today().isoformat()}-maze-leaderboard.png"
+            a.suite / "leaderboard.png", a.results_dir / "figures" / f"{date.today().isoformat()}-{a.page}-leaderboard.png"
         )
-        page = a.results_dir / f"{date.today().isoformat()}-maze-benchmark.md"
+        page = a.results_dir / f"{date.today().isoformat()}-{a.page}.md"
         from aerohrl import atomic
 
         atomic.write_text(page, "\n".join(lines) + "\n")
