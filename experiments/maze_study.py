@@ -80,6 +80,29 @@ def _eval_name(run: Path, task: str, planned: bool, args: list[str] | None = Non
     return None
 
 
+def _per_task(run: Path, args: tuple[str, ...] | None) -> dict[int, np.ndarray] | None:
+    """Per-episode success by frozen task (1..5) of the run's flat (``args`` None) or planned
+    maze evaluation at its newest checkpoint, or None when it has none."""
+    name = _eval_name(run, "maze", args is not None, None if args is None else list(args))
+    if name is None:
+        return None
+    files = sorted((run / "eval" / name).glob("episodes-step-*.csv"))
+    if not files:
+        return None
+    with open(files[-1], newline="") as f:
+        rows = list(csv.DictReader(f))
+    out: dict[int, list[bool]] = {}
+    for r in rows:
+        out.setdefault(int(r["maze_task"]), []).append(r["success"] in ("1", "True", "true"))
+    return {t: np.array(v, bool) for t, v in out.items()}
+
+
+def pool_tasks(per_run: list[dict[int, np.ndarray]]) -> dict[int, np.ndarray]:
+    """The runs' per-task outcomes pooled: task -> all their episodes."""
+    tasks = sorted({t for d in per_run for t in d})
+    return {t: np.concatenate([d[t] for d in per_run if t in d]) for t in tasks}
+
+
 def paired(flat: list[np.ndarray], planned: list[np.ndarray]) -> dict:
     """Pooled over seeds: success of each (%), their difference and the exact sign test on
     the discordant episodes (McNemar)."""
@@ -180,6 +203,18 @@ def main(argv: list[str] | None = None) -> int:
                         f"| {g} ({len(flat)} seeds) | {high} | {st['flat']:.1f} | {st['planned']:.1f} | "
                         f"{st['only_planned']} | {st['only_flat']} | {st['p']:.2g} | {st['n']} |"
                     )
+        lines += ["", "## Per task (pooled over seeds, final checkpoint)", ""]
+        lines += [
+            "| runs | high level | task 1 | task 2 | task 3 | task 4 | task 5 | seeds |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for g, rs in sorted(groups.items()):
+            for high, args in {"none (flat)": None, **HIGH_LEVELS}.items():
+                pooled = [t for r in rs if (t := _per_task(r, args)) is not None]
+                if pooled:
+                    both = pool_tasks(pooled)
+                    cells = [f"{100 * both[t].mean():.1f}" if t in both else "-" for t in range(1, 6)]
+                    lines.append(f"| {g} | {high} | " + " | ".join(cells) + f" | {len(pooled)} |")
         abl_runs = [r for r in runs if r.name.startswith(f"{a.algo}-{a.stitch}-s")]
         if abl_runs:
             lines += ["", f"## The graph planner's ablation ({a.algo} on {a.stitch}, {a.episodes} episodes per seed)", ""]
