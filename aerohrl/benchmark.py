@@ -211,7 +211,7 @@ class SuiteRun:
 
 def build_datasets(
     sp: SuiteSpec, root: Path, log: Callable[[str], Any] = print, specs: Path = Path("datasets")
-) -> dict[str, tuple[str, str]]:
+) -> dict[str, tuple[str, str, str]]:
     """Every dataset of the suite (spec files in ``specs``) built (or verified) under ``root``:
     name -> (folder, world, family)."""
     from aerohrl.datagen.build import build
@@ -230,10 +230,13 @@ def build_datasets(
     return out
 
 
-def suite_runs(sp: SuiteSpec, datasets: dict[str, tuple[str, str]]) -> list[SuiteRun]:
-    """The training runs: one per algorithm (an ALGO+planner agent shares ALGO's runs) x dataset x seed."""
+def suite_runs(sp: SuiteSpec, datasets: dict[str, tuple[str, str, str]]) -> list[SuiteRun]:
+    """The training runs: one per algorithm (an ALGO+planner agent shares ALGO's runs) x dataset x
+    seed; ``datasets``: name -> (folder, world, family), as :func:`build_datasets` returns."""
     algos = list(dict.fromkeys(split_agent(a)[0] for a in sp.agents))
-    return [SuiteRun(a, d, *datasets[d][:2], s, *datasets[d][2:]) for d in sp.datasets for a in algos for s in sp.seeds]
+    return [
+        SuiteRun(a, d, datasets[d][0], datasets[d][1], s, datasets[d][2]) for d in sp.datasets for a in algos for s in sp.seeds
+    ]
 
 
 def run_config(sp: SuiteSpec, r: SuiteRun) -> dict:

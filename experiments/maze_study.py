@@ -61,6 +61,14 @@ def _episodes(run: Path, name: str) -> np.ndarray | None:
     return np.array([r["success"] in ("1", "True", "true") for r in rows], bool)
 
 
+def _same_option(have: object, want: str) -> bool:
+    """An evaluation's recorded option ``have`` equals the flag value ``want`` (numbers as numbers)."""
+    try:
+        return have is not None and float(have) == float(want)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return str(have) == want
+
+
 def _eval_name(run: Path, task: str, planned: bool, args: list[str] | None = None) -> str | None:
     """The folder of the run's evaluation of ``task`` (planned or not; with ``args``, those planner flags)."""
     for f in sorted((run / "eval").glob("*/summary.json")):
@@ -70,7 +78,7 @@ def _eval_name(run: Path, task: str, planned: bool, args: list[str] | None = Non
         if args is not None:
             want = {args[i].lstrip("-").replace("-", "_"): args[i + 1] for i in range(0, len(args), 2)}
             opts = s.get("options") or {}
-            if any(str(opts.get(k)) not in (v, str(float(v))) for k, v in want.items() if k != "planner"):
+            if any(not _same_option(opts.get(k), v) for k, v in want.items() if k != "planner"):
                 continue
             if float(opts.get("max_edge", 0.0)) and "max_edge" not in want:
                 continue
@@ -188,10 +196,10 @@ def main(argv: list[str] | None = None) -> int:
         for r in runs:
             groups.setdefault(r.name.rsplit("-s", 1)[0], []).append(r)
         for g, rs in sorted(groups.items()):
-            for high, args in HIGH_LEVELS.items():
+            for high, high_args in HIGH_LEVELS.items():
                 flat, planned = [], []
                 for r in rs:
-                    fn, pn = _eval_name(r, "maze", False), _eval_name(r, "maze", True, list(args))
+                    fn, pn = _eval_name(r, "maze", False), _eval_name(r, "maze", True, list(high_args))
                     if fn and pn:
                         f, p = _episodes(r, fn), _episodes(r, pn)
                         if f is not None and p is not None and len(f) == len(p):
@@ -209,8 +217,9 @@ def main(argv: list[str] | None = None) -> int:
             "|---|---|---|---|---|---|---|---|",
         ]
         for g, rs in sorted(groups.items()):
-            for high, args in {"none (flat)": None, **HIGH_LEVELS}.items():
-                pooled = [t for r in rs if (t := _per_task(r, args)) is not None]
+            levels: dict[str, tuple[str, ...] | None] = {"none (flat)": None, **HIGH_LEVELS}
+            for high, level_args in levels.items():
+                pooled = [t for r in rs if (t := _per_task(r, level_args)) is not None]
                 if pooled:
                     both = pool_tasks(pooled)
                     cells = [f"{100 * both[t].mean():.1f}" if t in both else "-" for t in range(1, 6)]

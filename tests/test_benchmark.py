@@ -37,7 +37,7 @@ def test_agents_and_their_evaluations():
 
 def test_runs_are_shared_by_an_agent_and_its_planner():
     sp = B.with_size_defaults(B.SuiteSpec(agents=("gcsl", "gcsl+planner", "td3bc"), datasets=("a", "b"), seeds=(0, 1)))
-    runs = B.suite_runs(sp, {"a": ("/d/a", "free"), "b": ("/d/b", "maze-large")})
+    runs = B.suite_runs(sp, {"a": ("/d/a", "free", "navigate"), "b": ("/d/b", "maze-large", "stitch")})
     assert len(runs) == 2 * 2 * 2  # algorithms x datasets x seeds
     assert {r.name() for r in runs} >= {"gcsl-a-s0", "td3bc-b-s1"}
     assert B.SuiteRun("gcsl", "a@100", "/d", "free", 3).name() == "gcsl-a-n100-s3"
@@ -77,7 +77,7 @@ def _summary(run: Path, task: str, planner: str, success: float, folder: str = "
 
 def test_leaderboard_aggregates_seeds_at_the_final_checkpoint(tmp_path):
     sp = B.SuiteSpec(agents=("gcsl", "gcsl+planner"), datasets=("m",), seeds=(0, 1, 2))
-    runs = B.suite_runs(sp, {"m": ("/d/m", "maze-large")})
+    runs = B.suite_runs(sp, {"m": ("/d/m", "maze-large", "stitch")})
     suite_planner = {"legs": "corridor", "max_edge": 8.5, "min_leg": 1.0}
     for r, (flat, planned) in zip(runs, [(0.1, 0.7), (0.2, 0.8), (0.3, 0.9)]):
         _summary(tmp_path / "runs" / r.name(), "maze", "none", flat)
