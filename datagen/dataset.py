@@ -105,12 +105,6 @@ class DatasetHandle:
         return self.spec.get("world", "free")
 
     @property
-    def family(self) -> str:
-        """The dataset family: ``navigate`` (the free-space reach data and maze navigate),
-        ``stitch`` or ``explore`` (``spec["family"]``; left out at its default)."""
-        return self.spec.get("family", "navigate")
-
-    @property
     def maze(self) -> dict | None:
         """A maze dataset's layout and frozen tasks (:meth:`aerohrl.worlds.maze.Maze.to_dict`), else None."""
         return self.manifest.get("maze")
