@@ -51,14 +51,23 @@ ABLATION = {
 HIGH_LEVELS = {"graph planner": MAZE_PLANNER_ARGS, "own subgoals": MAZE_SUBGOALS_ARGS}
 
 
-def _episodes(run: Path, name: str) -> np.ndarray | None:
-    """Per-episode success at the newest evaluated checkpoint of ``RUN/eval/NAME``, or None."""
+def _rows(run: Path, name: str) -> list[dict] | None:
+    """The per-episode rows at the newest evaluated checkpoint of ``RUN/eval/NAME``, or None."""
     files = sorted((run / "eval" / name).glob("episodes-step-*.csv"))
     if not files:
         return None
     with open(files[-1], newline="") as f:
-        rows = list(csv.DictReader(f))
-    return np.array([r["success"] in ("1", "True", "true") for r in rows], bool)
+        return list(csv.DictReader(f))
+
+
+def _success(row: dict) -> bool:
+    return row["success"] in ("1", "True", "true")
+
+
+def _episodes(run: Path, name: str) -> np.ndarray | None:
+    """Per-episode success at the newest evaluated checkpoint of ``RUN/eval/NAME``, or None."""
+    rows = _rows(run, name)
+    return None if rows is None else np.array([_success(r) for r in rows], bool)
 
 
 def _same_option(have: object, want: str) -> bool:
@@ -92,16 +101,12 @@ def _per_task(run: Path, args: tuple[str, ...] | None) -> dict[int, np.ndarray] 
     """Per-episode success by frozen task (1..5) of the run's flat (``args`` None) or planned
     maze evaluation at its newest checkpoint, or None when it has none."""
     name = _eval_name(run, "maze", args is not None, None if args is None else list(args))
-    if name is None:
+    rows = None if name is None else _rows(run, name)
+    if rows is None:
         return None
-    files = sorted((run / "eval" / name).glob("episodes-step-*.csv"))
-    if not files:
-        return None
-    with open(files[-1], newline="") as f:
-        rows = list(csv.DictReader(f))
     out: dict[int, list[bool]] = {}
     for r in rows:
-        out.setdefault(int(r["maze_task"]), []).append(r["success"] in ("1", "True", "true"))
+        out.setdefault(int(r["maze_task"]), []).append(_success(r))
     return {t: np.array(v, bool) for t, v in out.items()}
 
 
