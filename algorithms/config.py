@@ -188,6 +188,12 @@ class HIQLConfig:
     hiql_subgoal_steps: int = param(25, "HIQL: subgoal horizon k (the state k steps ahead)", unit="steps", ge=1)
     hiql_rep_dim: int = param(10, "HIQL: width of the goal representation phi([s, g]) (OGBench 10)", ge=1)
     hiql_low_actor_rep_grad: bool = param(False, "HIQL: the low-level actor's loss also trains the goal representation")
+    hiql_subgoal_space: str = param(
+        "rep",
+        "HIQL: what the high level proposes and the low level reads: rep (phi(s, w), OGBench) | goal (the subgoal's "
+        "own goal columns of the input, the HIQL paper's variant without representation)",
+        choices=("rep", "goal"),
+    )
     hiql_subgoal_end: str = param(
         "achieved",
         "HIQL: the subgoal where the state k steps ahead is past the episode's end: achieved (its last state, "

@@ -48,6 +48,16 @@ and the high level's target where its goal is that desired goal): on expert data
 expert aimed at the desired goal, and the last state lies anywhere within the goal test's
 tolerances of it. Data whose desired goal is its last state (explore) is unchanged.
 
+**Subgoal space** (``hiql_subgoal_space``): ``rep`` is OGBench's, above. ``goal`` is the
+HIQL paper's variant without a representation (Park et al. 2023, where raw-state subgoals
+did about as well on state inputs): the high level regresses the goal-only columns of the
+normalised input ``x(s, w)`` (the subgoal's position, velocity and attitude relative to
+the state, and its position features) with the same AWR weights, and the low level is a
+flat goal-conditioned policy ``pi_l(x(s, w))``, the same input as GCSL's actor. The value
+and phi are unchanged (the advantages still come from ``V(s, w)``); only what the two
+policies exchange changes, so the low level no longer sees its subgoal through the
+10 numbers of phi.
+
 **Subgoals for a planner**: :meth:`HIQL.subgoals` returns ``z = pi_h(s, g)``, normalised,
 (B, rep_dim): the representation ``phi(s, w)`` of the state w the high level proposes to
 be at k steps from now on the way to g. It is a representation, not a state: to use it
@@ -125,21 +135,38 @@ class HIQLValue(nn.Module):
 
 class HIQLPolicy(nn.Module):
     """The two levels as one deterministic policy (what ``act``, the EMA and the trainer use):
-    normalised input -> ``pi_l(s, normalise(pi_h(s, g)))`` in [-1, 1]."""
+    normalised input -> ``pi_l(s, normalise(pi_h(s, g)))`` in [-1, 1].
 
-    def __init__(self, in_dim: int, state_index: list[int], hidden, rep_dim: int):
+    With ``subgoal_index`` (``hiql_subgoal_space = "goal"``) the subgoal is no
+    representation but the goal-only columns of the normalised input ``x(s, w)`` (the
+    subgoal relative to the state and its position features): the high level regresses
+    them, and the low level is a flat goal-conditioned policy ``pi_l(x(s, w))`` that reads
+    ``x`` with those columns replaced by the subgoal."""
+
+    sub_index: torch.Tensor | None
+
+    def __init__(self, in_dim: int, state_index: list[int], hidden, rep_dim: int, subgoal_index: list[int] | None = None):
         super().__init__()
         self.state_index = state_index
-        self.high = mlp(in_dim, rep_dim, hidden)  # pi_h(s, g): the subgoal representation's mean
-        self.low = nn.Sequential(mlp(len(state_index) + rep_dim, ACT_DIM, hidden), nn.Tanh())  # pi_l(s, z)
+        if subgoal_index is None:
+            self.register_buffer("sub_index", None)
+            self.high = mlp(in_dim, rep_dim, hidden)  # pi_h(s, g): the subgoal representation's mean
+            self.low = nn.Sequential(mlp(len(state_index) + rep_dim, ACT_DIM, hidden), nn.Tanh())  # pi_l(s, z)
+        else:  # not persistent: the index follows the device and the state dict keeps the weights alone
+            self.register_buffer("sub_index", torch.tensor(subgoal_index, dtype=torch.long), persistent=False)
+            self.high = mlp(in_dim, len(subgoal_index), hidden)  # pi_h(s, g): the subgoal's goal columns
+            self.low = nn.Sequential(mlp(in_dim, ACT_DIM, hidden), nn.Tanh())  # pi_l(x(s, w))
 
     def subgoal(self, x: torch.Tensor) -> torch.Tensor:
-        """The high level's subgoal representation, normalised like phi: (B, rep_dim)."""
-        return length_normalize(self.high(x))
+        """The high level's subgoal: a representation normalised like phi (B, rep_dim), or
+        the subgoal's goal columns (B, len(subgoal_index))."""
+        return length_normalize(self.high(x)) if self.sub_index is None else self.high(x)
 
     def low_action(self, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """The low level's action in [-1, 1] for inputs x (B, in_dim) and a subgoal representation z."""
-        return self.low(torch.cat([x[..., self.state_index], z], -1))
+        """The low level's action in [-1, 1] for inputs x (B, in_dim) and a subgoal z (:meth:`subgoal`'s space)."""
+        if self.sub_index is None:
+            return self.low(torch.cat([x[..., self.state_index], z], -1))
+        return self.low(x.index_copy(-1, self.sub_index, z.to(x.dtype)))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """The action in [-1, 1]: the low level towards the high level's subgoal."""
@@ -166,7 +193,11 @@ class HIQL(Algorithm):
         n_in, rep = normalizer.in_dim, c.hiql_rep_dim
         self.value = HIQLValue(n_in, normalizer.state_index, critic_sizes(cfg), rep)
         self.target_value = make_target(self.value, cfg.tau)
-        self.policy = HIQLPolicy(n_in, normalizer.state_index, cfg.hidden, rep)
+        # the goal-only columns of the input (the subgoal space of hiql_subgoal_space "goal")
+        state_cols = set(normalizer.state_index)
+        self.subgoal_index = [i for i in normalizer.goal_index if i not in state_cols]
+        goal_space = c.hiql_subgoal_space == "goal"
+        self.policy = HIQLPolicy(n_in, normalizer.state_index, cfg.hidden, rep, self.subgoal_index if goal_space else None)
         self.value_opt = torch.optim.Adam(self.value.parameters(), lr=cfg.lr_critic)
         self.high_opt = torch.optim.Adam(self.policy.high.parameters(), lr=cfg.lr_actor)
         self.low_opt = torch.optim.Adam(self.policy.low.parameters(), lr=cfg.lr_actor)
@@ -206,7 +237,7 @@ class HIQL(Algorithm):
         with torch.no_grad():
             adv_low = self.value(lb.get(("next", "observation"))).mean(0) - self.value(xl).mean(0)
             w_low = awr_weights(adv_low, c.hiql_low_alpha)
-        z_low = self.value.phi(xl)
+        z_low = self.subgoal_target(xl)
         if not c.hiql_low_actor_rep_grad:
             z_low = z_low.detach()
         loss_low = -(w_low * gaussian_log_prob(self.policy.low_action(xl, z_low), lb.get("action"))).mean()
@@ -216,7 +247,7 @@ class HIQL(Algorithm):
         with torch.no_grad():
             adv_high = self.value(hb.get("target_observation")).mean(0) - self.value(xh).mean(0)
             w_high = awr_weights(adv_high, c.hiql_high_alpha)
-            z_target = self.value.phi(hb.get("subgoal_observation"))
+            z_target = self.subgoal_target(hb.get("subgoal_observation"))
         loss_high = -(w_high * gaussian_log_prob(self.policy.high(xh), z_target)).mean()
         return {
             "loss_value": loss_value,
@@ -243,6 +274,11 @@ class HIQL(Algorithm):
         self.num_updates += 1
         return {k: v.detach() for k, v in out.items()}
 
+    def subgoal_target(self, x: torch.Tensor) -> torch.Tensor:
+        """The subgoal ``w`` of normalised inputs ``x(s, w)`` in the high level's space:
+        ``phi(s, w)``, or (``hiql_subgoal_space`` "goal") the goal-only columns of x."""
+        return self.value.phi(x) if self.policy.sub_index is None else x[..., self.subgoal_index]
+
     @torch.no_grad()
     def act(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """The action (B, 4), in physical units, for states (B, 18) and goals (B, 15): the low
@@ -253,7 +289,7 @@ class HIQL(Algorithm):
         z = net.subgoal(x)
         if self.cfg.hiql.hiql_goal_switch:
             near = self.steps_to_goal(state, goal) <= self.cfg.hiql.hiql_subgoal_steps
-            z = torch.where(near[:, None], self.value.phi(x), z)
+            z = torch.where(near[:, None], self.subgoal_target(x), z)
         return self.normalizer.action_from_unit(net.low_action(x, z))
 
     @torch.no_grad()
@@ -272,9 +308,10 @@ class HIQL(Algorithm):
 
     @torch.no_grad()
     def goal_representation(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        """``phi(s, g)`` (B, rep_dim) of goals (B, 15) seen from states (B, 18): the space
-        :meth:`subgoals` proposes in (a candidate goal's representation to compare)."""
-        return self.value.phi(self.normalizer.inputs(state, goal))
+        """Goals (B, 15) seen from states (B, 18) in the space :meth:`subgoals` proposes in
+        (a candidate goal's representation to compare): ``phi(s, g)`` (B, rep_dim), or the
+        goal columns of the input (``hiql_subgoal_space`` "goal")."""
+        return self.subgoal_target(self.normalizer.inputs(state, goal))
 
     @torch.no_grad()
     def critics(self, state: torch.Tensor, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:

@@ -8,11 +8,13 @@ against a candidate set (a maze's free cells' hover states, or the dataset's ach
 goals, :class:`~aerohrl.planning.planner.Candidates`): the subgoal is the candidate whose
 own representation seen from ``s`` is closest to the proposal,
 
-    g_1 = argmax_c  phi(s, c) . z,      z = pi_h(s, G),
+    g_1 = argmin_c  ||phi(s, c) - z||^2,      z = pi_h(s, G);
 
-both of norm ``sqrt(rep_dim)`` (so the dot product ranks as the cosine, OGBench's
-length-normalised space). A plan of ``n`` goals chains the choice from each chosen
-candidate's state: ``g_{k+1} = argmax_c phi(s_{g_k}, c) . pi_h(s_{g_k}, G)``. The run's own
+with OGBench's length-normalised representations (both of norm ``sqrt(rep_dim)``) this
+ranks as the dot product and the cosine, and with ``hiql_subgoal_space = "goal"`` (phi the
+goal columns of the input) it is the nearest candidate to the proposed subgoal. A plan of
+``n`` goals chains the choice from each chosen candidate's state:
+``g_{k+1} = argmin_c ||phi(s_{g_k}, c) - pi_h(s_{g_k}, G)||^2``. The run's own
 skill (``algo.act``) flies each leg; with ``--replan-every K`` the rollout asks again
 from the flown state every K steps, which is HIQL's own execution with its subgoal
 replaced by the nearest real state.
@@ -61,7 +63,7 @@ class SubgoalPlanner:
             ie = torch.arange(len(se) * C, device=self.device) // C
             ic = torch.arange(len(se) * C, device=self.device) % C
             phi = self.algo.goal_representation(se[ie], self.cg[ic]).reshape(len(se), C, -1)
-            sim[e0 : e0 + rows] = (phi * z[e0 : e0 + rows, None]).sum(-1)
+            sim[e0 : e0 + rows] = -(phi - z[e0 : e0 + rows, None]).pow(2).sum(-1)
         if first and self.min_leg > 0:
             near = torch.linalg.norm(self.cg[None, :, task.POS] - s[:, None, task.POS], dim=-1) < self.min_leg
             sim = sim.masked_fill(near & ~near.all(1, keepdim=True), -torch.inf)

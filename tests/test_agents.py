@@ -208,6 +208,40 @@ def test_hiql_awr_weights_and_advantages(small):
     assert torch.isclose(out["adv_low"], adv.mean(), rtol=1e-4, atol=1e-7)
 
 
+def test_hiql_goal_subgoal_space(small):
+    """hiql_subgoal_space goal: the high level regresses the subgoal's goal-only input
+    columns, the low level reads the input with those columns, and acts on the high
+    level's proposal in their place (the goal's own columns under the goal switch)."""
+    a, s = _build("hiql", small, hiql_subgoal_steps=5, hiql_subgoal_space="goal")
+    idx, norm = a.subgoal_index, a.normalizer
+    assert not set(idx) & set(norm.state_index) and len(idx) == norm.in_dim - len(norm.state_index)
+    for _ in range(3):
+        a.update(s.sample())
+    b = s.sample()
+    out = a.losses(b)
+    lb, hb = a.actor_batch(b["subgoal"]), b["actor"]
+    with torch.no_grad():
+        xl = lb["observation"]
+        w = torch.exp(3.0 * (a.value(lb["next", "observation"]).mean(0) - a.value(xl).mean(0))).clamp_max(100)
+        low = -(w * gaussian_log_prob(a.policy.low(xl), lb["action"])).mean()
+        xh = hb["observation"]
+        wh = torch.exp(3.0 * (a.value(hb["target_observation"]).mean(0) - a.value(xh).mean(0))).clamp_max(100)
+        high = -(wh * gaussian_log_prob(a.policy.high(xh), hb["subgoal_observation"][:, idx])).mean()
+    assert torch.isclose(out["loss_actor_low"], low, rtol=1e-5)
+    assert torch.isclose(out["loss_actor_high"], high, rtol=1e-5)
+    state, goal = b["state"][:8], b["goal"][:8]
+    x = norm.inputs(state, goal)
+    net = a._net()
+    with torch.no_grad():
+        proposed = x.clone()
+        proposed[:, idx] = net.high(x)
+        assert torch.allclose(a.act(state, goal), norm.action_from_unit(net.low(proposed)), atol=1e-6)
+        a.cfg.hiql.hiql_subgoal_steps = 10**9  # every goal within the horizon: the goal itself
+        a.cfg.hiql.hiql_goal_switch = True
+        assert torch.allclose(a.act(state, goal), norm.action_from_unit(net.low(x)), atol=1e-6)
+    assert a.goal_representation(state, goal).shape == (8, len(idx))
+
+
 # --- goal sampling ---------------------------------------------------------------------
 
 

@@ -35,6 +35,23 @@ def test_subgoals_snap_to_the_closest_candidate_and_chain():
     assert p.score[0] == pytest.approx(0.9**6, rel=1e-5) and p.direct_score[0] == pytest.approx(0.9**6, rel=1e-5)
 
 
+class StepAheadRaw(LineCritics):
+    """The same high level in an unnormalised space (``hiql_subgoal_space = "goal"``): the
+    proposal is the x one metre on, a candidate's representation its own x."""
+
+    def subgoals(self, s, g):
+        return s[:, :1] + 1.0
+
+    def goal_representation(self, s, g):
+        return g[:, :1]
+
+
+def test_unnormalised_subgoals_snap_to_the_nearest_candidate_not_the_largest():
+    planner = SubgoalPlanner(StepAheadRaw(reach=10.0), _candidates([3.0, 1.0, 5.0, 2.0, 4.0]), n=2)
+    p = planner.plan(_state([0.0, 2.0]), _state([6.0, 6.0])[:, :15])
+    assert p.goals[..., 0].tolist() == [[1.0, 2.0], [3.0, 4.0]]
+
+
 def test_min_leg_skips_candidates_at_the_start_for_the_first_choice_only():
     planner = SubgoalPlanner(StepAhead(reach=10.0), _candidates([1.0, 2.0, 3.0]), n=2, min_leg=1.5)
     p = planner.plan(_state([0.0]), _state([6.0])[:, :15])

@@ -91,6 +91,7 @@ CPU_GCSL = {
     "hiql_subgoal_steps": 25,
     "hiql_rep_dim": 10,
     "hiql_low_actor_rep_grad": False,
+    "hiql_subgoal_space": "rep",
     "hiql_subgoal_end": "achieved",
     "hiql_goal_switch": False,
     "hiql_value_p_curgoal": 0.2,
