@@ -185,14 +185,19 @@ def test_qrl_objective_by_hand():
     assert d.grad is None or float(d.grad.abs().sum()) == 0.0
 
 
-def test_hiql_awr_weights_and_advantages(small):
-    assert torch.allclose(awr_weights(torch.tensor([0.0, 1.0, 100.0]), 3.0), torch.tensor([1.0, math.exp(3.0), 100.0]))
-    a, s = _build("hiql", small, hiql_subgoal_steps=5)
+def _hiql_losses(data, **kw):
+    """A HIQL agent (5-step subgoals) after 3 updates, a fresh batch, its losses, and the
+    batch's low-level (subgoal) and high-level (actor) parts."""
+    a, s = _build("hiql", data, hiql_subgoal_steps=5, **kw)
     for _ in range(3):
         a.update(s.sample())
     b = s.sample()
-    out = a.losses(b)
-    lb, hb = a.actor_batch(b["subgoal"]), b["actor"]
+    return a, b, a.losses(b), a.actor_batch(b["subgoal"]), b["actor"]
+
+
+def test_hiql_awr_weights_and_advantages(small):
+    assert torch.allclose(awr_weights(torch.tensor([0.0, 1.0, 100.0]), 3.0), torch.tensor([1.0, math.exp(3.0), 100.0]))
+    a, b, out, lb, hb = _hiql_losses(small)
     with torch.no_grad():
         xl = lb["observation"]
         adv = a.value(lb["next", "observation"]).mean(0) - a.value(xl).mean(0)  # V(s', w) - V(s, w)
@@ -212,14 +217,9 @@ def test_hiql_goal_subgoal_space(small):
     """hiql_subgoal_space goal: the high level regresses the subgoal's goal-only input
     columns, the low level reads the input with those columns, and acts on the high
     level's proposal in their place (the goal's own columns under the goal switch)."""
-    a, s = _build("hiql", small, hiql_subgoal_steps=5, hiql_subgoal_space="goal")
+    a, b, out, lb, hb = _hiql_losses(small, hiql_subgoal_space="goal")
     idx, norm = a.subgoal_index, a.normalizer
     assert not set(idx) & set(norm.state_index) and len(idx) == norm.in_dim - len(norm.state_index)
-    for _ in range(3):
-        a.update(s.sample())
-    b = s.sample()
-    out = a.losses(b)
-    lb, hb = a.actor_batch(b["subgoal"]), b["actor"]
     with torch.no_grad():
         xl = lb["observation"]
         w = torch.exp(3.0 * (a.value(lb["next", "observation"]).mean(0) - a.value(xl).mean(0))).clamp_max(100)
