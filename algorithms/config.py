@@ -200,6 +200,12 @@ class HIQLConfig:
         "OGBench) | desired (the episode's desired goal, which the expert flew to)",
         choices=("achieved", "desired"),
     )
+    hiql_low_subgoal_offset: str = param(
+        "fixed",
+        "HIQL: the low level's training subgoal: fixed (the state k steps ahead, OGBench) | uniform (a uniform "
+        "1..k steps ahead, so it also learns to arrive at subgoals closer than k)",
+        choices=("fixed", "uniform"),
+    )
     hiql_goal_switch: bool = param(
         False,
         "HIQL: act with the goal itself as the low level's subgoal once the value puts it within hiql_subgoal_steps "

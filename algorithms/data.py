@@ -230,6 +230,7 @@ class GoalBatchSampler:
         goal_mixes: dict[str, GoalMix] | None = None,
         subgoal_steps: int = 0,
         subgoal_end: str = "achieved",
+        low_subgoal_offset: str = "fixed",
     ):
         from aerohrl.algorithms.relabel import first_hit_index, relabel_goals, reward_done
 
@@ -278,8 +279,15 @@ class GoalBatchSampler:
         # the goal test's tolerances of it
         if subgoal_end not in ("achieved", "desired"):
             raise ValueError(f"subgoal_end {subgoal_end!r}: achieved | desired")
+        # low_subgoal_offset "uniform": td["subgoal"]'s goal is the state a uniform 1..k steps
+        # ahead instead of exactly k (the high level's target stays k ahead), so the low
+        # level also learns to arrive at a subgoal closer than k, as on an episode's last
+        # steps; "fixed" is OGBench's
+        if low_subgoal_offset not in ("fixed", "uniform"):
+            raise ValueError(f"low_subgoal_offset {low_subgoal_offset!r}: fixed | uniform")
         self.subgoal_steps = int(subgoal_steps)
         self.subgoal_end = subgoal_end
+        self.low_subgoal_offset = low_subgoal_offset
         self.next_states = data.next_state
 
     def sample(self) -> TensorDict:
@@ -338,9 +346,15 @@ class GoalBatchSampler:
                         sgoal = torch.where(at_end & (src == GOAL_KEEP).unsqueeze(-1), desired, sgoal)
                 mixed[name] = [mgoal, *self._reward_done(next_state, mgoal), target, sgoal]
             if sub is not None:
-                lgoal = self.achieved_goals[sub]
-                if at_end is not None:
-                    lgoal = torch.where(at_end, desired, lgoal)
+                lsub, lat_end = sub, at_end
+                if self.low_subgoal_offset == "uniform":
+                    off = torch.randint(1, self.subgoal_steps + 1, index.shape, generator=self.generator)
+                    lsub = subgoal_index(index, ep_end, off)
+                    if at_end is not None:
+                        lat_end = (index + off - 1 >= ep_end).unsqueeze(-1)
+                lgoal = self.achieved_goals[lsub]
+                if lat_end is not None:
+                    lgoal = torch.where(lat_end, desired, lgoal)
                 mixed["subgoal"] = [lgoal, *self._reward_done(next_state, lgoal), None, None]
         action = b.get("action")
         bc_action = b.get("action_expert") if self.bc_expert else None

@@ -185,6 +185,7 @@ class HIQL(Algorithm):
             "goal_mixes": {"value": goal_mix(cfg, "value"), "actor": goal_mix(cfg, "actor")},
             "subgoal_steps": cfg.hiql.hiql_subgoal_steps,
             "subgoal_end": cfg.hiql.hiql_subgoal_end,
+            "low_subgoal_offset": cfg.hiql.hiql_low_subgoal_offset,
         }
 
     def __init__(self, cfg, normalizer):

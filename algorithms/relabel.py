@@ -146,10 +146,13 @@ def sample_goal_index(
     return k, source
 
 
-def subgoal_index(index: torch.Tensor, episode_end: torch.Tensor, steps: int) -> torch.Tensor:
+def subgoal_index(index: torch.Tensor, episode_end: torch.Tensor, steps: int | torch.Tensor) -> torch.Tensor:
     """The frame whose next state is the state ``steps`` steps after step ``j``'s state:
     ``min(j + steps - 1, end)`` (HIQL's ``min(idx + subgoal_steps, final_state_idx)`` in
-    this toolkit's convention, where frame ``k`` holds the state after it as ``next_state``)."""
+    this toolkit's convention, where frame ``k`` holds the state after it as ``next_state``).
+    ``steps`` is one int or one per transition (>= 1)."""
+    if isinstance(steps, torch.Tensor):
+        return torch.minimum(index + steps.clamp_min(1) - 1, episode_end)
     return torch.minimum(index + max(int(steps), 1) - 1, episode_end)
 
 

@@ -297,6 +297,35 @@ def test_subgoal_end_desired():
         make_config("cpu", algo="hiql", hiql_subgoal_end="goal")
 
 
+def test_low_subgoal_offset_uniform(small):
+    """hiql_low_subgoal_offset uniform: the low level's subgoal is the state 1..k steps ahead
+    (every offset drawn, clipped at the episode's end); the high level's target is unchanged."""
+    norm = fit_normalizer(small, 0.05)
+    batches = {}
+    for off in ("fixed", "uniform"):
+        cfg = make_config("cpu", algo="hiql", hiql_subgoal_steps=5, hiql_low_subgoal_offset=off)
+        opts = algorithm_class("hiql").sampler_options(cfg)
+        batches[off] = GoalBatchSampler(small, norm, 2048, 0.05, torch.Generator().manual_seed(0), **opts).sample()
+    f, u = batches["fixed"], batches["uniform"]
+    assert torch.equal(f["index"], u["index"])
+    assert torch.equal(f["actor", "target_state"], u["actor", "target_state"])
+    idx, ep_end = u["index"], small.episode_end[u["index"]]
+    # the frame of each low-level subgoal: its achieved goal matches a frame idx .. min(idx + 4, end)
+    ag = small.achieved_goal
+    offsets = []
+    for g, lo, hi in zip(u["subgoal", "goal"], idx.tolist(), torch.minimum(idx + 4, ep_end).tolist()):
+        hit = torch.nonzero((ag[lo : hi + 1] == g).all(-1))
+        assert len(hit) > 0
+        offsets.append(hit[0].item())
+    seen = set(offsets)
+    assert seen == {0, 1, 2, 3, 4}  # 1..5 steps ahead, every one drawn
+    far = idx + 4 <= ep_end  # not clipped: the uniform draw puts the fixed subgoal's offset at 1/5
+    share = sum(o == 4 for o, ok in zip(offsets, far.tolist()) if ok) / max(int(far.sum()), 1)
+    assert 0.12 < share < 0.28
+    with pytest.raises(ConfigError, match="hiql_low_subgoal_offset"):
+        make_config("cpu", algo="hiql", hiql_low_subgoal_offset="geometric")
+
+
 def test_goal_mix_shares_and_current_goal_rewards(small):
     norm = fit_normalizer(small, 0.0)
     mixes = {"cur": GoalMix(p_cur=1.0, p_traj=0.0), "mix": GoalMix(p_cur=0.2, p_traj=0.5, p_rand=0.3), "keep": GoalMix(0, 0, 0)}

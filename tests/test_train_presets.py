@@ -93,6 +93,7 @@ CPU_GCSL = {
     "hiql_low_actor_rep_grad": False,
     "hiql_subgoal_space": "rep",
     "hiql_subgoal_end": "achieved",
+    "hiql_low_subgoal_offset": "fixed",
     "hiql_goal_switch": False,
     "hiql_value_p_curgoal": 0.2,
     "hiql_value_p_trajgoal": 0.5,
