@@ -553,8 +553,8 @@ def _load_belief(a, names, probe):
         return None
     if a.all or any(n not in BELIEF_READERS for n in names):
         raise UserError(f"--belief plans one planner over the learned belief: --planner {'|'.join(BELIEF_READERS)}")
-    if a.budgets or a.execution != ("ideal",):
-        raise UserError("--belief runs ideal execution at one budget (drop --budgets / --execution)")
+    if a.execution != ("ideal",):
+        raise UserError("--belief runs ideal execution (drop --execution)")
     from .belief import check_temperature, load_belief
 
     if a.belief_temperature is not None:
@@ -604,7 +604,7 @@ def _bench(a) -> int:
     if a.budgets:
         if a.execution != ("ideal",):
             raise UserError("--budgets sweeps ideal execution only (drop --execution)")
-        return _bench_budgets(a, cfg, lat, rows, models, pc)
+        return _bench_budgets(a, cfg, lat, rows, models, pc, belief)
     skill = skill_label = None
     if "skill" in a.execution:
         from .flown import load_skill
@@ -711,19 +711,24 @@ def _labels(names, models, pc) -> dict:
     return labels
 
 
-def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
-    """``ipp bench --budgets B1,B2,...``: every row at every budget (same worlds)."""
+def _bench_budgets(a, cfg, lat, rows, models, pc, belief=None) -> int:
+    """``ipp bench --budgets B1,B2,...``: every row at every budget (same worlds), with
+    ``belief`` (``--belief``) over the learned belief. Writes the per-world metrics too
+    (``ipp_budgets_envs.csv``), so sweeps of separate benches pair world by world."""
     from dataclasses import replace as dc_replace
 
     from tqdm import tqdm
 
     from .bench import run_episodes
     from .factory import create_env
-    from .metrics import budget_csv, budget_markdown, plot_budgets, summarise, write_atomic
+    from .metrics import budget_csv, budget_envs_csv, budget_markdown, plot_budgets, summarise, write_atomic
 
     for b in a.budgets:  # every budget must pay for a primitive: fail before running
         create_env(dc_replace(cfg.env, budget=b), lat)
     labels = _labels([n for n, _ in rows], models, pc)
+    if belief is not None:
+        for n, _ in rows:
+            labels[n] = f"{labels[n]} over the learned belief ({belief.label}, T = {belief.temperature:.3g})"
     sweep = {}  # (row, budget) -> result
     for b in a.budgets:
         bc = dc_replace(cfg, env=dc_replace(cfg.env, budget=b))
@@ -731,7 +736,7 @@ def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
             bar = tqdm(
                 total=a.envs, desc=f"{name} @ {b:g}", file=sys.stderr, disable=a.quiet or not sys.stderr.isatty(), leave=False
             )
-            r = run_episodes(name, lat, bc, progress=bar, model=model)
+            r = run_episodes(name, lat, bc, progress=bar, model=model, belief=belief)
             bar.close()
             r["summary"] = summarise(r["per_env"])
             sweep[(name, b)] = r
@@ -740,8 +745,9 @@ def _bench_budgets(a, cfg, lat, rows, models, pc) -> int:
     out = Path(a.out)
     write_atomic(out / "ipp_budgets.md", md)
     write_atomic(out / "ipp_budgets.csv", budget_csv(sweep))
+    write_atomic(out / "ipp_budgets_envs.csv", budget_envs_csv(sweep, labels))
     plot_budgets(sweep, labels, out / "ipp_budgets.png", cfg.env.kind)
-    print(f"wrote {out}/ipp_budgets.md, ipp_budgets.csv, ipp_budgets.png")
+    print(f"wrote {out}/ipp_budgets.md, ipp_budgets.csv, ipp_budgets_envs.csv, ipp_budgets.png")
     return 0
 
 

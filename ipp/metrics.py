@@ -292,6 +292,25 @@ def budget_csv(sweep: dict) -> str:
     return buf.getvalue()
 
 
+def budget_envs_csv(sweep: dict, names: dict[str, str]) -> str:
+    """Per planner, budget and world of a budget sweep: the row's label, KL(truth || prior)
+    (it identifies the world), every metric and the steps, as CSV (what pairs the worlds of
+    separate sweeps)."""
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    keys = [k for k in ALL_METRICS if all(k in r["per_env"] for r in sweep.values())]
+    w.writerow(["planner", "label", "budget", "env", "kl"] + keys + ["steps"])
+    for (p, b), r in sweep.items():
+        e = r["per_env"]
+        for i in range(len(e["kl"])):
+            w.writerow(
+                [p, names.get(p, p), f"{b:g}", int(r["env_ids"][i]), f"{e['kl'][i]:.5f}"]
+                + [f"{e[k][i]:.3f}" for k in keys]
+                + [int(e["steps"][i])]
+            )
+    return buf.getvalue()
+
+
 def plot_budgets(sweep: dict, names: dict[str, str], path: str | Path, kind: str = "targets") -> Path:
     """Each metric against the budget (mean ± standard error over the worlds), one line per
     planner; the thesis's Table 2.1 value as a dotted line of the same colour on the

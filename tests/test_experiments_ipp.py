@@ -72,3 +72,32 @@ def test_train_resume_and_bench_over_seeds(study, tmp_path):
     assert m.main(argv) == 0 and calls[0] == ["train", "--resume", runs[1], "--quiet"]
     # --bench-only refuses a run that is not there
     assert m.main([*argv, "--seeds", "9", "--bench-only"]) == 2
+
+
+def _sweep(folder, rows):
+    """An ipp_budgets_envs.csv of (planner, label, budget, {env: search efficiency})."""
+    folder.mkdir(parents=True)
+    lines = ["planner,label,budget,env,kl,search_efficiency,steps"]
+    for planner, label, budget, vals in rows:
+        lines += [f"{planner},{label},{budget},{e},0.{e}0000,{v:.3f},10" for e, v in vals.items()]
+    (folder / "ipp_budgets_envs.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_budget_curve_pairs_the_seed_mean_with_dp(tmp_path):
+    m = load_experiment("ipp_budget_curve")
+    dp = {0: 50.0, 1: 60.0, 2: 70.0}
+    pc = {0: 55.0, 1: 65.0, 2: 90.0}  # the best baseline (mean 70)
+    _sweep(tmp_path / "all", [("dp", "DP", b, dp) for b in (1000, 2000)] + [("prio_coverage", "PC", b, pc) for b in (1000, 2000)])
+    # two seeds: per world +2 / +4 / +6 and +4 / +6 / +8 over DP -> seed mean +3 / +5 / +7
+    _sweep(tmp_path / "s1", [("detect", "x", b, {e: v + 2 + 2 * e for e, v in dp.items()}) for b in (1000, 2000)])
+    _sweep(tmp_path / "s2", [("detect", "x", b, {e: v + 4 + 2 * e for e, v in dp.items()}) for b in (1000, 2000)])
+    md, curves = m.build([str(tmp_path / "all")], [["belief", f"{tmp_path}/s1:detect", f"{tmp_path}/s2:detect"]])
+    # differences 3, 5, 7: mean 5, s.e. 2 / sqrt(3) = 1.15; every world better
+    assert "| belief | 2 | 64.0 / 66.0 | 65.0 ± 1.4 | +5.00 ± 1.15 (3/0," in md
+    assert curves["belief"][1000.0] == pytest.approx((65.0, 2**0.5))
+    # seed mean 53 / 65 / 77 against 55 / 65 / 90: -2, 0, -13 (s.e. 7 / sqrt(3))
+    assert "best baseline (Prioritised Coverage)" in md and "| -5.00 ± 4.04 (0/2," in md
+    _sweep(tmp_path / "s3", [("detect", "x", 1000, {0: 1.0, 1: 2.0})])
+    with pytest.raises(m.UserError, match="other worlds"):
+        m.build([str(tmp_path / "all")], [["belief", f"{tmp_path}/s3:detect"]])
+    assert m.main(["--baselines", str(tmp_path / "nowhere")]) == 2

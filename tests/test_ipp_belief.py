@@ -163,6 +163,23 @@ def test_bench_with_belief_runs_end_to_end(belief_run, tmp_path, capsys):
     assert rc == 2
 
 
+def test_budget_sweep_over_the_belief_matches_the_single_budget_bench(belief_run, tmp_path, capsys):
+    """``--budgets`` with ``--belief``: each budget's per-world results equal the
+    single-budget bench's over the same belief (ipp_budgets_envs.csv pairs the worlds)."""
+    import csv
+
+    sweep, one = tmp_path / "sweep", tmp_path / "one"
+    common = ["bench", "--planner", "detect", "--envs", "2", "--belief", str(belief_run), "--quiet"]
+    assert main([*common, "--budgets", "600,800", "-o", str(sweep)]) == 0
+    assert main([*common, "--budget", "800", "-o", str(one)]) == 0
+    capsys.readouterr()
+    rows = list(csv.DictReader((sweep / "ipp_budgets_envs.csv").open()))
+    assert {r["budget"] for r in rows} == {"600", "800"} and all("learned belief" in r["label"] for r in rows)
+    single = {r["env"]: r["search_efficiency"] for r in csv.DictReader((one / "ipp_bench_envs.csv").open())}
+    at800 = {r["env"]: r["search_efficiency"] for r in rows if r["budget"] == "800"}
+    assert at800 == single and len(single) == 2
+
+
 def test_collect_records_live_states_only():
     cfg = preset("test")
     d = collect_states(cfg.env, default_lattice(), ("coverage",), cfg.seed, [[0, 1]], 1)
