@@ -284,6 +284,37 @@ class BeliefModel:
         return cast(SearchEnv, BeliefView(env, self))
 
 
+def belief_state(model: BeliefModel) -> dict:
+    """The belief as plain data (weights, network config, map size, temperature, label), to
+    embed in another checkpoint (a policy that observes it: :func:`belief_from_state`)."""
+    return {
+        "format": BELIEF_FORMAT,
+        "version": BELIEF_VERSION,
+        "state_dict": model.net.state_dict(),
+        "net": asdict(model.cfg),
+        "map_size": model.map_size,
+        "temperature": model.temperature,
+        "label": model.label,
+    }
+
+
+def belief_from_state(state: dict, where: str) -> BeliefModel:
+    """The :class:`BeliefModel` of :func:`belief_state`'s ``state``; a one-line UserError
+    naming ``where`` when it is not one."""
+    if not isinstance(state, dict) or state.get("format") != BELIEF_FORMAT or state.get("version") != BELIEF_VERSION:
+        raise UserError(f"{where}: the embedded learned belief is not one this version reads")
+    try:
+        net_cfg = K.from_nested(BeliefNetConfig, state["net"], where=where)
+        model = BeliefModel(net_cfg, int(state["map_size"]), float(state["temperature"]), label=str(state["label"]))
+        model.net.load_state_dict(state["state_dict"])
+    except UserError:
+        raise
+    except Exception as e:
+        raise UserError(f"{where}: the embedded learned belief is damaged ({type(e).__name__})") from None
+    model.net.eval()
+    return model
+
+
 def save_belief(model: BeliefModel, path: str | Path, extra: dict | None = None) -> None:
     """The weights, network config and map size, atomically with a SHA-256 sidecar."""
     atomic.torch_save(

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -155,6 +156,10 @@ class SearchEnv:
 
     # (state key, features) of the last fast_features call, set there
     _fast_cache: tuple
+    # a learned belief (aerohrl.ipp.belief.BeliefModel) whose prediction replaces the
+    # hand-written posterior plane of observe(); None: the posterior (set by a policy that
+    # was trained to observe it, and by `ipp train --belief-input`)
+    obs_belief: Any = None
 
     def __init__(self, cfg: EnvConfig, lattice: Lattice):
         cfg.validate(lattice)
@@ -502,21 +507,27 @@ class SearchEnv:
 
         ``maps`` (N, C*len(scales), 2R, 2R) float32: for each scale s the 2Rs x 2Rs
         window of the C planes (belief, coverage, boundary; semantic: one belief plane
-        per class, coverage, boundary) around the agent, max-pooled by s.
+        per class, coverage, boundary) around the agent, max-pooled by s; the belief plane
+        is the learned belief's prediction with :attr:`obs_belief` set.
         ``vec`` (N, 2 + (A+1) + V + 1): position / map size, one-hot last action
         (slot A = none yet), one-hot lattice vertex, remaining budget fraction.
         """
         cfg, R = self.cfg, self.cfg.obs_radius
         smax = max(cfg.obs_scales)
         half = R * smax
-        C = self.planes.shape[1]
+        planes = self.planes
+        if self.obs_belief is not None:  # the learned belief on the inner map, 0 off it as before
+            p, S = self.pad, self.S
+            planes = planes.copy()
+            planes[:, 0, p : p + S, p : p + S] = self.obs_belief.predict(self)
+        C = planes.shape[1]
         # the 2h x 2h window of every env: one rectangular slice each (a copy of whole
         # rows, much cheaper than a fancy-index gather on the 192-cell semantic windows)
         y0 = self.pos[:, 1] + self.pad - half
         x0 = self.pos[:, 0] + self.pad - half
         win = np.empty((self.n, C, 2 * half, 2 * half), np.float32)
         for n in range(self.n):
-            win[n] = self.planes[n, :, y0[n] : y0[n] + 2 * half, x0[n] : x0[n] + 2 * half]
+            win[n] = planes[n, :, y0[n] : y0[n] + 2 * half, x0[n] : x0[n] + 2 * half]
         outs = []
         for s in cfg.obs_scales:
             w = R * s

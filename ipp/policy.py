@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -40,6 +41,9 @@ class ActorCritic(nn.Module):
     train_info: dict
     run_label: str
     checkpoint_name: str
+    # the learned belief the policy observes in place of the posterior plane (train's
+    # belief_input; saved with the policy), None: the hand-written posterior
+    obs_belief: Any = None
 
     def __init__(
         self, map_ch: int, map_hw: int, vec_dim: int, n_actions: int, cfg: PolicyConfig = PolicyConfig(), n_feat: int = 0
@@ -103,8 +107,14 @@ def valid_loss(phi_logits: torch.Tensor, valid: torch.Tensor, beta1: float = 1.0
 
 
 def save_policy(model: ActorCritic, dims: dict, path: str | Path, env_kind: str = "targets") -> None:
-    """Atomically, with a SHA-256 sidecar (``model.pt.sha256``) checked by :func:`load_policy`."""
-    atomic.torch_save(path, {"state_dict": model.state_dict(), "dims": dims, "config": asdict(model.cfg), "env_kind": env_kind})
+    """Atomically, with a SHA-256 sidecar (``model.pt.sha256``) checked by :func:`load_policy`;
+    the learned belief it observes (``model.obs_belief``) goes with it, so the file alone acts."""
+    ck = {"state_dict": model.state_dict(), "dims": dims, "config": asdict(model.cfg), "env_kind": env_kind}
+    if model.obs_belief is not None:
+        from .belief import belief_state
+
+        ck["obs_belief"] = belief_state(model.obs_belief)
+    atomic.torch_save(path, ck)
 
 
 def load_policy(path: str | Path) -> ActorCritic:
@@ -126,6 +136,10 @@ def load_policy(path: str | Path) -> ActorCritic:
 
     if model.n_feat not in (0, N_FEAT):
         raise UserError(f"{path}: policy reads {model.n_feat} primitive features, this version computes {N_FEAT} (retrain it)")
+    if "obs_belief" in ck:
+        from .belief import belief_from_state
+
+        model.obs_belief = belief_from_state(ck["obs_belief"], str(path))
     model.train_info = _train_info(path.parent)
     model.eval()
     return model
@@ -150,12 +164,14 @@ def describe_policy(model: ActorCritic) -> str:
 
     * DAgger from a teacher, no PPO: ``Imitation of detect (DAgger; its features, GRU)``;
     * DAgger then PPO: ``Imitation of detect + PPO (...)``;
-    * no warm start: ``Actor-critic RL (map-only, GRU)`` (the thesis's setting).
+    * no warm start: ``Actor-critic RL (map-only, GRU)`` (the thesis's setting);
+      ``(map-only, the learned belief's map, GRU)`` when it observes the learned belief.
     ``features`` = the per-primitive look-ahead features (:mod:`.features`), whose
     feature 14 is the ``detect`` planner's own score."""
     info = getattr(model, "train_info", {}) or {}
     core = "GRU" if model.cfg.recurrent else "MLP core"
     obs = "its features" if model.cfg.features else "map-only"
+    belief = ", the learned belief's map" if model.obs_belief is not None else ""
     bc, it = int(info.get("bc_iterations", 0) or 0), int(info.get("iterations", 0) or 0)
     if bc > 0:
         t = info.get("teacher", "detect")
@@ -163,10 +179,10 @@ def describe_policy(model: ActorCritic) -> str:
         t = f"{t}{'' if depth in (None, 2) else f' depth {depth}'}"
         ppo = f" + PPO {it} it." if it > 0 else ""
         feats = "its features" if model.cfg.features and t.startswith("detect") else obs
-        return f"Imitation of {t} planner{ppo} (DAgger; {feats}, {core})"
+        return f"Imitation of {t} planner{ppo} (DAgger; {feats}{belief}, {core})"
     if info:
-        return f"Actor-critic RL ({obs}, {core})"
-    return f"Learned policy ({obs}, {core}; training unknown)"
+        return f"Actor-critic RL ({obs}{belief}, {core})"
+    return f"Learned policy ({obs}{belief}, {core}; training unknown)"
 
 
 class RLPlanner(Planner):
@@ -178,6 +194,9 @@ class RLPlanner(Planner):
         super().__init__(env)
         self.model, self.greedy = model, greedy
         self.h: torch.Tensor | None = None
+        if model.obs_belief is not None:  # observe what it was trained on
+            model.obs_belief.check_env(env)
+            env.obs_belief = model.obs_belief
 
     def reset(self) -> None:
         """Forget the recurrent state (a new episode starts)."""

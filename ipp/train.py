@@ -281,16 +281,29 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
     torch.set_num_threads(cfg.threads)
     run_dir = run.path
     env = create_env(cfg.env, lattice)
+    belief = None
+    if cfg.belief_input is not None:  # the observation's belief plane is the learned belief's
+        from .belief import load_belief
+
+        belief = load_belief(cfg.belief_input)
+        belief.check_env(env)
+        env.obs_belief = belief
     obs = env.reset(sample_for(cfg.env, cfg.seed, range(cfg.n_envs)))
     dims = _dims(env, obs, cfg)
     use_feat = bool(dims["n_feat"])
     model = ActorCritic(**dims, cfg=cfg.policy)
+    model.obs_belief = belief  # saved with the policy; evaluate's RLPlanner observes it
     if cfg.init is not None and not resume:
         from .policy import load_policy
 
         src = load_policy(cfg.init)
         if src.n_feat != dims["n_feat"] or src.cfg != cfg.policy or src.pi.out_features != dims["n_actions"]:
             raise UserError(f"{cfg.init}: policy does not match this configuration")
+        if (src.obs_belief is None) != (belief is None):
+            raise UserError(
+                f"{cfg.init}: the policy observes {'no' if src.obs_belief is None else 'a'} learned belief, this run "
+                f"{'does not' if belief is None else 'does'} (--belief-input)"
+            )
         try:
             model.load_state_dict(src.state_dict())
         except RuntimeError:

@@ -67,6 +67,11 @@ class TrainConfig:
     threads: int = param(1, "torch threads", ge=1)
     log_every: int = param(10, "checkpoint (and model.pt) every N iterations", ge=1)
     init: str | None = param(None, "warm start from a trained run or model.pt (fine-tuning)")
+    belief_input: str | None = param(
+        None,
+        "observe the learned belief of this `ipp belief train` run (or belief.pt) in place of the hand-written "
+        "posterior plane; saved into the policy (target search only)",
+    )
     # behaviour-cloning warm start (DAgger), see aerohrl.ipp.train
     bc_iterations: int = param(0, "DAgger warm-start iterations before PPO (0: none)", ge=0)
     teacher: str = param("detect", "DAgger teacher planner", choices=TEACHER_PLANNERS)

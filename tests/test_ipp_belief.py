@@ -180,6 +180,48 @@ def test_budget_sweep_over_the_belief_matches_the_single_budget_bench(belief_run
     assert at800 == single and len(single) == 2
 
 
+def test_observation_belief_plane_is_the_learned_beliefs():
+    """``env.obs_belief``: the belief plane of observe() is the learned belief's prediction;
+    an untrained belief (the posterior exactly) observes as without it."""
+    env, _ = make_env(preset("test").env, default_lattice(), 3, range(2))
+    env.step(np.zeros(env.n, np.int64))
+    plain = env.observe()["maps"]
+    model = BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), env.S)
+    env.obs_belief = model
+    np.testing.assert_allclose(env.observe()["maps"], plain, rtol=0, atol=1e-6)
+    env.obs_belief = BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), env.S, temperature=3.0)
+    hot = env.observe()["maps"]
+    C = env.planes.shape[1]
+    belief_ch = np.arange(hot.shape[1]) % C == 0
+    assert not np.allclose(hot[:, belief_ch], plain[:, belief_ch], atol=1e-3)  # the belief planes moved
+    np.testing.assert_array_equal(hot[:, ~belief_ch], plain[:, ~belief_ch])  # coverage and boundary did not
+
+
+def test_actor_critic_with_the_belief_as_input(belief_run, tmp_path, capsys):
+    """``ipp train --belief-input``: the policy carries its belief, observes it in training,
+    in bench and after loading; a warm start across the two is a one-line error."""
+    from aerohrl.ipp.policy import describe_policy, load_policy
+
+    run = tmp_path / "ac"
+    argv = ["train", "--preset", "test", "--quiet", "--out", str(tmp_path), "--name", "ac"]
+    assert main([*argv, "--belief-input", str(belief_run)]) == 0
+    m = load_policy(run)
+    assert m.obs_belief is not None and m.obs_belief.label == belief_run.name
+    assert "the learned belief's map" in describe_policy(m)
+    out = tmp_path / "b"
+    assert (
+        main(["bench", "--planner", "rl", "--run", str(run), "--envs", "2", "--budget", "1500", "-o", str(out), "--quiet"]) == 0
+    )
+    assert "the learned belief's map" in capsys.readouterr().out
+    rc = main(["train", "--preset", "test", "--quiet", "--out", str(tmp_path), "--name", "ft", "--init", str(run)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "learned belief" in err and "\n" not in err
+    rc = main(
+        ["train", "--preset", "test", "--quiet", "--out", str(tmp_path), "--name", "x", "--belief-input", str(tmp_path / "none")]
+    )
+    assert rc == 2 and "no learned belief" in capsys.readouterr().err
+
+
 def test_collect_records_live_states_only():
     cfg = preset("test")
     d = collect_states(cfg.env, default_lattice(), ("coverage",), cfg.seed, [[0, 1]], 1)
