@@ -38,7 +38,7 @@ from aerohrl import task
 from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
 from aerohrl.datagen import recipes, reference
-from aerohrl.datagen.expert import GeometricController
+from aerohrl.datagen.expert import DisturbanceObserver, GeometricController
 from aerohrl.datagen.dataset import FORMAT
 from aerohrl.datagen.lerobot_reader import read_info
 from aerohrl.datagen.lerobot_writer import DatasetWriter
@@ -221,7 +221,8 @@ def rollout_expert(
     else:
         t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
-    drop_ended = drop_ended and not (replanning or perturbation is not None or extra_steps or record_rotors)
+    dob = DisturbanceObserver(n, spec.disturbance_observer, dt) if spec.disturbance_observer > 0 else None
+    drop_ended = drop_ended and not (replanning or perturbation is not None or extra_steps or record_rotors or dob)
     if drop_ended:
         return _rollout_dropping_ended(out, sim, ctrl, coeffs, T, dt, noise, kmax, progress)
     for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
@@ -234,11 +235,13 @@ def rollout_expert(
             # t0 holds each episode's plan start (an array) when replanning
             recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, seen, xf, T)
         ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
-        a = ctrl(seen, *ref, yaw=0.0)
+        a = ctrl(seen, *ref, yaw=0.0, disturbance=None if dob is None else dob.d_hat)
         if noise is not None:
             assert out.expert_actions is not None  # allocated with the noise
             out.expert_actions[k] = a
             a = np.clip(a + noise(), lo, hi)
+        if dob is not None:  # with the collective flown, for the next command
+            dob.update(seen, a[:, 0])
         actions[k] = a
         states[k + 1] = sim.step(a)
     if record_rotors:

@@ -37,6 +37,11 @@ Equations (Lee, Leok & McClamroch, CDC 2010; Mellinger & Kumar, ICRA 2011):
 * rate command ``w_cmd = R^T R_d w_ff - k_R e_R``, clipped to ``rate_max`` (roll,
   pitch) and ``yaw_rate_max``; ``c`` clipped to ``[c_min, c_max]``.
 
+**Disturbance observer** (``disturbance=`` of ``__call__``, :class:`DisturbanceObserver`):
+an unmodelled acceleration ``d`` (a mass or thrust-coefficient error, drag, wind) is
+estimated from the observed velocity and cancelled, ``a_des = ... + g e3 - d_hat``; the
+geometric controller alone has no integral action and holds a steady offset under it.
+
 The inner rate loop of the simulator (k_w = 40 1/s for the Hummingbird, a ~25 ms rate
 response) makes ``k_R`` the attitude bandwidth; the gains below keep a factor of ~4
 between the loops (position ~3 rad/s, attitude 10 1/s, rate 40 1/s).
@@ -123,7 +128,9 @@ class GeometricController:
         a_des[:, 2] += GRAVITY
         return a_des, e_v
 
-    def __call__(self, state, ref_pos, ref_vel, ref_acc, ref_jerk, yaw=0.0, yaw_rate=0.0) -> np.ndarray:
+    def __call__(self, state, ref_pos, ref_vel, ref_acc, ref_jerk, yaw=0.0, yaw_rate=0.0, disturbance=None) -> np.ndarray:
+        """The CTBR command (N, 4); ``disturbance`` (N, 3): an estimate of the unmodelled
+        acceleration (:class:`DisturbanceObserver`), cancelled in the desired acceleration."""
         s = np.asarray(state, dtype=np.float64)
         if s.ndim != 2 or s.shape[1] != 18:
             raise ValueError(f"state must have shape (N, 18), got {s.shape}")
@@ -135,6 +142,8 @@ class GeometricController:
         b3 = R[:, :, 2]
 
         a_des, e_v = self.desired(s, ref_pos, ref_vel, ref_acc)
+        if disturbance is not None:
+            a_des = a_des - disturbance
         c = _dot(a_des, b3)
 
         # desired attitude: Lee construction with heading x_c (same as goals.flat_attitude)
@@ -171,4 +180,58 @@ class GeometricController:
         out = np.empty((N, 4))
         out[:, 0] = np.clip(c, g.c_min, self._c_max)
         out[:, 1:] = np.clip(w_cmd, -self._rate_lim, self._rate_lim)
+        return out
+
+
+def observer_gains(tau: float) -> tuple[float, float]:
+    """``(l_1, l_2)`` of :class:`DisturbanceObserver` with both poles of its error dynamics at
+    ``-1/tau`` (critically damped, bandwidth ``1/tau``): ``l_1 = 2/tau``, ``l_2 = 1/tau^2``."""
+    return 2.0 / tau, 1.0 / tau**2
+
+
+class DisturbanceObserver:
+    r"""A Luenberger observer of an unmodelled acceleration ``d`` (N, 3), batched.
+
+    Model: ``dv/dt = c b3 - g e3 + d`` with ``d`` slowly varying (``dd/dt = 0``), where ``c``
+    is the commanded mass-normalised collective and ``b3 = R e3`` the observed body z-axis.
+    One step of length ``dt`` with the observed velocity ``v`` (forward Euler)::
+
+        e      = v - v_hat
+        v_hat += dt (c b3 - g e3 + d_hat + l_1 e)
+        d_hat += dt l_2 e
+
+    The error dynamics have both poles at ``-1/tau`` (:func:`observer_gains`). The velocity
+    enters through integration, not differentiation, so observation noise is low-passed
+    rather than amplified. A steady ``d`` (a mass scale ``s`` at hover gives
+    ``d = g (1/s - 1) e3``) is estimated exactly; ``d_hat`` starts at 0.
+    """
+
+    def __init__(self, n: int, tau: float, dt: float):
+        if not tau > 0 or not dt > 0:
+            raise ValueError(f"observer time constant and step must be > 0, got tau={tau}, dt={dt}")
+        self.l1, self.l2 = observer_gains(tau)
+        self.dt = dt
+        self.v_hat: np.ndarray | None = None
+        self.d_hat: np.ndarray = np.zeros((n, 3))
+
+    def update(self, state: np.ndarray, c: np.ndarray) -> np.ndarray:
+        """Advance with the observed ``state`` (N, 18) and the collective ``c`` (N,) just
+        commanded from it; returns ``d_hat`` (N, 3), the estimate for the next command."""
+        s = np.asarray(state, dtype=np.float64)
+        v, b3 = s[:, 3:6], s[:, 6:15].reshape(-1, 3, 3)[:, :, 2]
+        if self.v_hat is None:
+            self.v_hat = v.copy()
+        e = v - self.v_hat
+        acc = c[:, None] * b3
+        acc[:, 2] -= GRAVITY
+        self.v_hat = self.v_hat + self.dt * (acc + self.d_hat + self.l1 * e)
+        self.d_hat = self.d_hat + self.dt * self.l2 * e
+        return self.d_hat
+
+    def select(self, keep: np.ndarray) -> DisturbanceObserver:
+        """The observer of the vehicles ``keep`` only (the simulator's ``select``)."""
+        out = DisturbanceObserver(len(keep), 1.0, self.dt)
+        out.l1, out.l2 = self.l1, self.l2
+        out.v_hat = None if self.v_hat is None else self.v_hat[keep]
+        out.d_hat = self.d_hat[keep]
         return out

@@ -42,6 +42,7 @@ RECIPE_DEFAULTS = {
     "expert": "open-loop",
     "replan_every": 5,
     "replan_endgame": 0.5,
+    "disturbance_observer": 0.0,
     "action_noise": (0.0, 0.0, 0.0, 0.0),
     "noise_tau": 0.2,
     "start_states": "rest",
@@ -101,6 +102,13 @@ class DatasetSpec:
     )
     replan_every: int = param(5, "replan: control steps between re-plans", unit="steps", ge=1)
     replan_endgame: float = param(0.5, "replan: no re-planning in the flight's last seconds", unit="s", ge=0)
+    disturbance_observer: float = param(
+        0.0,
+        "time constant of the expert's disturbance observer, which estimates an unmodelled acceleration (mass, thrust, "
+        "drag, wind) from the observed velocity and cancels it (0: off, the thesis's expert)",
+        unit="s",
+        ge=0,
+    )
     # DART (Laskey et al. 2017): Ornstein-Uhlenbeck noise with stationary std
     # ``action_noise`` per CTBR dimension [c (m/s^2), wx, wy, wz (rad/s)] and correlation
     # time ``noise_tau`` (s) is added to the expert's command while flying; ``action``
@@ -231,6 +239,7 @@ class DatasetSpec:
                 ("start_states", self.start_states != "rest"),
                 ("rollouts_per_goal", self.rollouts_per_goal > 1),
                 ("randomize", bool(self.randomize)),
+                ("disturbance_observer", self.disturbance_observer > 0),
                 ("action_noise", self.family == "explore" and self.noisy),
             ):
                 if bad:

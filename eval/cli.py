@@ -295,6 +295,14 @@ def _robustness_parser() -> ArgumentParser:
         "--values", action="append", default=None, metavar="AXIS=V1:V2:...", help="magnitudes of an axis (repeatable)"
     )
     ap.add_argument("--no-expert", dest="expert", action="store_false", help="skip the expert's curve")
+    ap.add_argument(
+        "--expert-observer",
+        type=T.nonneg_float,
+        default=None,
+        metavar="TAU",
+        help="time constant (s) of the expert's disturbance observer (datagen spec disturbance_observer; 0: off) "
+        "[the runs' dataset's]",
+    )
     ap.add_argument("--full", action="store_true", help="fly every magnitude (default: stop once every curve is broken)")
     add_common(
         ap,
@@ -327,6 +335,7 @@ def cmd_robustness(a: argparse.Namespace) -> int:
         seed=a.seed,
         values=values,
         expert=a.expert,
+        expert_observer=a.expert_observer,
         device=a.device,
         full=a.full,
         log=log,

@@ -190,12 +190,14 @@ def run_study(
     seed: int = 0,
     values: dict[str, tuple[float, ...]] | None = None,
     expert: bool = True,
+    expert_observer: float | None = None,
     device: str = "cpu",
     full: bool = False,
     log: Callable[[str], None] = print,
 ) -> list[Point]:
     """The curves of ``axes`` (module doc): one per group of runs (label -> runs), each
-    point's success the mean over the group's runs, and the expert's."""
+    point's success the mean over the group's runs, and the expert's (``expert_observer``:
+    its disturbance observer's time constant, else the runs' dataset's)."""
     from aerohrl.eval.harness import EvalOptions, build_episodes, evaluate_run, load_run_dataset
 
     unknown = [a for a in axes if a not in AXES]
@@ -212,6 +214,8 @@ def run_study(
     loaded = {run: load_run_dataset(run) for run in runs}
     info_spec = next(iter(loaded.values()))[0].info.get("spec") if loaded else None
     spec = expert_spec(info_spec)
+    if expert_observer is not None:  # the expert with (or without) a disturbance observer
+        spec = replace(spec, disturbance_observer=float(expert_observer))
     horizon = 500  # Reach-Desired's and Reach-Novel's
     if loaded:  # the task's own horizon
         eps = build_episodes(next(iter(loaded.values()))[0], EvalOptions(task=task_name, episodes=1, seed=seed))

@@ -72,16 +72,17 @@ def build(baselines: list[str], recipes: list[list[str]]) -> tuple[str, dict]:
     budgets = sorted({b for _, b in base})
     rec: dict[str, list[tuple[str, str]]] = {}
     for spec in recipes:
-        name, members = spec[0], spec[1:]
-        if len(members) < 1:
+        name, given = spec[0], spec[1:]
+        if len(given) < 1:
             raise UserError(f"--recipe {name!r}: give its rows as SWEEP:PLANNER")
-        rec[name] = []
-        for m in members:
+        rows_of: list[tuple[str, str]] = []
+        rec[name] = rows_of
+        for m in given:
             folder, sep, planner = m.rpartition(":")
             if not sep or not folder:
                 raise UserError(f"--recipe {name!r}: {m!r} is not SWEEP:PLANNER")
             sweeps.setdefault(folder, read_sweep(folder))
-            rec[name].append((folder, planner))
+            rows_of.append((folder, planner))
     curves: dict[str, dict[float, tuple[float, float]]] = defaultdict(dict)
     md = []
     for b in budgets:
