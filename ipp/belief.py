@@ -284,18 +284,36 @@ class BeliefModel:
         return cast(SearchEnv, BeliefView(env, self))
 
 
-def belief_state(model: BeliefModel) -> dict:
-    """The belief as plain data (weights, network config, map size, temperature, label), to
-    embed in another checkpoint (a policy that observes it: :func:`belief_from_state`)."""
+def _weights(model: BeliefModel) -> dict:
+    """What a saved belief holds in every form: format, version, weights, network config, map size."""
     return {
         "format": BELIEF_FORMAT,
         "version": BELIEF_VERSION,
         "state_dict": model.net.state_dict(),
         "net": asdict(model.cfg),
         "map_size": model.map_size,
-        "temperature": model.temperature,
-        "label": model.label,
     }
+
+
+def _from_weights(ck: dict, temperature: float, label: str, where: str, damaged: str) -> BeliefModel:
+    """The :class:`BeliefModel` of :func:`_weights`' dict ``ck`` (its version already checked),
+    in eval mode; a one-line UserError ``f"{where}: {damaged} (ErrorType)"`` when it does not load."""
+    try:
+        net_cfg = K.from_nested(BeliefNetConfig, ck["net"], where=where)
+        model = BeliefModel(net_cfg, int(ck["map_size"]), temperature, label=label)
+        model.net.load_state_dict(ck["state_dict"])
+    except UserError:
+        raise
+    except Exception as e:
+        raise UserError(f"{where}: {damaged} ({type(e).__name__})") from None
+    model.net.eval()
+    return model
+
+
+def belief_state(model: BeliefModel) -> dict:
+    """The belief as plain data (weights, network config, map size, temperature, label), to
+    embed in another checkpoint (a policy that observes it: :func:`belief_from_state`)."""
+    return {**_weights(model), "temperature": model.temperature, "label": model.label}
 
 
 def belief_from_state(state: dict, where: str) -> BeliefModel:
@@ -304,31 +322,15 @@ def belief_from_state(state: dict, where: str) -> BeliefModel:
     if not isinstance(state, dict) or state.get("format") != BELIEF_FORMAT or state.get("version") != BELIEF_VERSION:
         raise UserError(f"{where}: the embedded learned belief is not one this version reads")
     try:
-        net_cfg = K.from_nested(BeliefNetConfig, state["net"], where=where)
-        model = BeliefModel(net_cfg, int(state["map_size"]), float(state["temperature"]), label=str(state["label"]))
-        model.net.load_state_dict(state["state_dict"])
-    except UserError:
-        raise
-    except Exception as e:
+        T, label = float(state["temperature"]), str(state["label"])
+    except (KeyError, TypeError, ValueError) as e:
         raise UserError(f"{where}: the embedded learned belief is damaged ({type(e).__name__})") from None
-    model.net.eval()
-    return model
+    return _from_weights(state, T, label, where, "the embedded learned belief is damaged")
 
 
 def save_belief(model: BeliefModel, path: str | Path, extra: dict | None = None) -> None:
     """The weights, network config and map size, atomically with a SHA-256 sidecar."""
-    atomic.torch_save(
-        path,
-        {
-            "format": BELIEF_FORMAT,
-            "version": BELIEF_VERSION,
-            "state_dict": model.net.state_dict(),
-            "net": asdict(model.cfg),
-            "map_size": model.map_size,
-            "env_kind": "targets",
-            **(extra or {}),
-        },
-    )
+    atomic.torch_save(path, {**_weights(model), "env_kind": "targets", **(extra or {})})
 
 
 def load_belief(path: str | Path, temperature: float | None = None) -> BeliefModel:
@@ -348,17 +350,9 @@ def load_belief(path: str | Path, temperature: float | None = None) -> BeliefMod
         raise UserError(f"{path}: not a learned-belief checkpoint")
     if ck.get("version") != BELIEF_VERSION:
         raise UserError(f"{path}: belief version {ck.get('version')} is not supported")
-    try:
-        net_cfg = K.from_nested(BeliefNetConfig, ck["net"], where=str(path))
-        T = temperature if temperature is not None else _calibrated_temperature(run)
-        model = BeliefModel(net_cfg, int(ck["map_size"]), T, label=run.name if path.name == "belief.pt" else str(path))
-        model.net.load_state_dict(ck["state_dict"])
-    except UserError:
-        raise
-    except Exception as e:
-        raise UserError(f"{path}: not a learned-belief checkpoint ({type(e).__name__})") from None
-    model.net.eval()
-    return model
+    T = temperature if temperature is not None else _calibrated_temperature(run)
+    label = run.name if path.name == "belief.pt" else str(path)
+    return _from_weights(ck, T, label, str(path), "not a learned-belief checkpoint")
 
 
 def _calibrated_temperature(run: Path) -> float:
