@@ -303,7 +303,9 @@ class Policy:
         self.device = device
 
     def act(self, state: "np.ndarray | torch.Tensor", goal: "np.ndarray | torch.Tensor") -> "np.ndarray | torch.Tensor":
-        """The action for ``state`` (..., 18) towards ``goal`` (..., 15): (..., 4)."""
+        """The action for ``state`` (..., 18) towards ``goal`` (..., 15): (..., 4). A policy
+        trained with ``observe_disturbance`` also takes ``state`` (..., 21) ``= [s, d_hat]``,
+        ``d_hat`` its disturbance observer's estimate (18 wide: ``d_hat = 0``)."""
         import numpy as np
         import torch
 
@@ -312,12 +314,14 @@ class Policy:
         g = torch.as_tensor(
             np.asarray(goal, np.float32) if not isinstance(goal, torch.Tensor) else goal, dtype=torch.float32, device=self.device
         )
-        if s.shape[-1] != 18 or g.shape[-1] != 15:
+        widths = sorted({18, self.algo.normalizer.state_width})
+        if s.shape[-1] not in widths or g.shape[-1] != 15:
             raise UserError(
-                f"act(state, goal) takes states (..., 18) and goals (..., 15), got {tuple(s.shape)} and {tuple(g.shape)}"
+                f"act(state, goal) takes states (..., {' or '.join(map(str, widths))}) and goals (..., 15), "
+                f"got {tuple(s.shape)} and {tuple(g.shape)}"
             )
         one = s.ndim == 1
-        a = self.algo.act(s.reshape(-1, 18), g.reshape(-1, 15))
+        a = self.algo.act(s.reshape(-1, s.shape[-1]), g.reshape(-1, 15))
         a = a[0] if one else a.reshape(*s.shape[:-1], 4)
         return a if is_torch else a.double().cpu().numpy()
 

@@ -208,7 +208,8 @@ def export_main(argv: list[str] | None = None) -> int:
         print(f"{meta['algorithm']} at step {meta['checkpoint_step']} -> {path} ({a.format})")
         if a.latency:
             predict, _ = load_exported(path)
-            print(f"single-sample inference, one thread: {1e6 * single_sample_latency(predict):.1f} us (median)")
+            us = 1e6 * single_sample_latency(predict, state_width=meta["inputs"]["state"]["shape"][1])
+            print(f"single-sample inference, one thread: {us:.1f} us (median)")
         return 0
 
     return run_cli("aerohrl export-policy", go)

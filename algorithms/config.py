@@ -264,6 +264,13 @@ class TrainConfig:
         ge=0,
         le=12,
     )
+    # A vehicle off its nominal model (mass, thrust, wind) needs a correction that the state
+    # alone does not show; the expert's disturbance observer estimates it (datagen/expert.py)
+    observe_disturbance: bool = param(
+        False,
+        "the networks observe the expert's disturbance estimate d_hat (a dataset built with "
+        "--disturbance-observer); evaluation runs the same observer beside the policy",
+    )
     # goal-conditioned RL (thesis Alg. 2)
     relabel_prob: float = param(0.05, "delta: probability of relabelling a goal with a later achieved goal", ge=0, le=1)
     relabel_offset: str = param(
@@ -393,6 +400,8 @@ def check(cfg: TrainConfig) -> None:
             keys = [f"{name}_{use}_p_{src}" for src in ("curgoal", "trajgoal", "randomgoal")]
             if sum(getattr(sec, k) for k in keys) > 1 + 1e-9:
                 raise ConfigError(f"{' + '.join(keys)} must be at most 1 (the rest keeps the transition's own goal)")
+    if cfg.observe_disturbance and cfg.augment != "none":
+        raise ConfigError("--augment mirrors the state, not the disturbance estimate: not with --observe-disturbance")
     if cfg.qrl.qrl_quasimetric == "iqe" and cfg.qrl.qrl_latent_dim % cfg.qrl.qrl_components:
         raise ConfigError(
             f"qrl_latent_dim ({cfg.qrl.qrl_latent_dim}) must be a multiple of qrl_components ({cfg.qrl.qrl_components})"

@@ -14,6 +14,7 @@ dedicated, checkpointed ``torch.Generator``).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +54,9 @@ class Dataset:
     # (F, 4) the clean expert command at each flown state (a dataset flown with action
     # noise, column "action.expert"); None when ``action`` is the expert's command itself
     action_expert: torch.Tensor | None = None
+    # (F, 3) the expert's disturbance estimate at each state (a dataset flown with
+    # ``--disturbance-observer``, column "observation.disturbance"); None without it
+    disturbance: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.state.shape[0]
@@ -92,6 +96,22 @@ class Dataset:
         m = int(spec.get("continuations", 0))
         k = int(spec.get("rollouts_per_goal", 1))
         return torch.arange(0, self.num_episodes - m, k)
+
+    def with_disturbance(self) -> "Dataset":
+        """The same frames with the disturbance estimate as state columns 18..20: ``state``
+        (F, 21) ``= [s, d_hat]`` and ``next_state`` (F, 21) ``= [s', d_hat']``, ``d_hat'`` the
+        estimate at the episode's next frame (at its last frame, its own: the estimate moves
+        with the observer's time constant, not in one step). UserError without the column."""
+        if self.disturbance is None:
+            raise UserError(
+                "the dataset has no 'observation.disturbance' column: build it with datagen build --disturbance-observer TAU"
+            )
+        d = self.disturbance
+        nxt = torch.arange(len(self)) + 1
+        nxt = torch.where(nxt <= self.episode_end, nxt, self.episode_end)
+        return dataclasses.replace(
+            self, state=torch.cat([self.state, d], -1), next_state=torch.cat([self.next_state, d[nxt]], -1)
+        )
 
     def as_tensordict(self) -> TensorDict:
         """The per-frame tensors as one TensorDict of batch size ``(frames,)`` (no copy)."""
@@ -146,13 +166,21 @@ def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
     if any(len(cols[k]) != F for k in REQUIRED):
         raise UserError("dataset columns have different lengths")
     expert = "action.expert" in cols
+    dist = "observation.disturbance" in cols
+    if dist and np.asarray(cols["observation.disturbance"]).shape != (F, 3):
+        raise UserError(
+            f"dataset column 'observation.disturbance' has shape {np.asarray(cols['observation.disturbance']).shape}, "
+            f"expected ({F}, 3)"
+        )
     if expert and np.asarray(cols["action.expert"]).shape != np.asarray(cols["action"]).shape:
         raise UserError(
             f"dataset column 'action.expert' has shape {np.asarray(cols['action.expert']).shape}, "
             f"expected that of 'action' {np.asarray(cols['action']).shape}"
         )
-    for k in ("observation.state", "action", "observation.desired_goal", "next.observation.state") + (
-        ("action.expert",) if expert else ()
+    for k in (
+        ("observation.state", "action", "observation.desired_goal", "next.observation.state")
+        + (("action.expert",) if expert else ())
+        + (("observation.disturbance",) if dist else ())
     ):
         if not np.isfinite(cols[k]).all():
             raise UserError(f"dataset column {k!r} holds NaN or inf")
@@ -182,6 +210,7 @@ def load_dataset(source: str | Path | dict[str, np.ndarray]) -> Dataset:
         episode_index=ep,
         info=info,
         action_expert=f32("action.expert") if expert else None,
+        disturbance=f32("observation.disturbance") if dist else None,
     )
 
 
@@ -450,7 +479,9 @@ def fit_normalizer(
     if len(data) > NORMALIZER_FRAMES:  # large datasets: the statistics of a seeded subset (bounded memory)
         idx = torch.randperm(len(data), generator=g)[:NORMALIZER_FRAMES].sort().values
     later, _ = relabel_goals(data.goal[idx], idx, data.episode_end[idx], data.achieved_goal, 1.0, g, **(future or {}))
-    norm = Normalizer.for_dataset_spec(data.info.get("spec"), pos_octaves)  # 33-d input in a world with obstacles
+    # 33-d input in a world with obstacles; + d_hat when the states carry it (Dataset.with_disturbance)
+    tau = float((data.info.get("spec") or {}).get("disturbance_observer", 0.0)) if data.state.shape[-1] > task.STATE_DIM else 0.0
+    norm = Normalizer.for_dataset_spec(data.info.get("spec"), pos_octaves, disturbance_tau=tau)
     state = data.state[idx]
     x = torch.cat([norm.raw_inputs(state, data.goal[idx]), norm.raw_inputs(state, later)])
     return norm.fit(x, data.bc_actions(bc_target))  # action bounds: every frame (min/max, no copy)

@@ -7,7 +7,8 @@ plus the evaluation's clip (:class:`aerohrl.envs.rollout.PolicyFn`)::
     u = policy(x)                         in [-1, 1]^4 (the EMA weights when the run kept them)
     a = clip(act_center + act_half u, act_center - act_half, act_center + act_half)
 
-Inputs ``state`` (B, 18) ``[p (m), v (m/s), R (row-major body-to-world), w (rad/s)]`` and
+Inputs ``state`` (B, 18) ``[p (m), v (m/s), R (row-major body-to-world), w (rad/s)]``
+(B, 21 ``+ [d_hat (m/s^2)]`` for a policy that observes its disturbance observer's estimate) and
 ``goal`` (B, 15) ``[p, v, R]``, float32, world frame z up; output ``action`` (B, 4) CTBR
 ``[c (m/s^2, mass-normalised collective thrust), wx, wy, wz (rad/s)]``. The same layout,
 the normalisation constants and the run's identity are written into the file
@@ -46,6 +47,7 @@ class ExportedPolicy(nn.Module):
         n = algo.normalizer
         self.net = algo.policy_ema.module if getattr(algo, "policy_ema", None) is not None else algo.policy_net()
         self.absolute_position = bool(n.absolute_position)
+        self.state_width = int(n.state_width)
         self.register_buffer("in_mean", n.in_mean.detach().clone().float())
         self.register_buffer("in_std", n.in_std.detach().clone().float())
         self.register_buffer("act_center", n.act_center.detach().clone().float())
@@ -58,6 +60,8 @@ class ExportedPolicy(nn.Module):
         parts = [state[:, 3:18], goal[:, 0:3] - state[:, 0:3], goal[:, 3:15]]
         if self.absolute_position:
             parts.append(state[:, 0:3])
+        if self.state_width > task.STATE_DIM:  # the disturbance estimate
+            parts.append(state[:, task.STATE_DIM : self.state_width])
         raw = torch.cat(parts, 1)
         x = (raw - self.in_mean) / self.in_std
         if self.pos_octaves:
@@ -72,14 +76,31 @@ def metadata(algo: Any, ck: dict, run_path: Path) -> dict:
     return {
         "format": "aerohrl-policy/1",
         "inputs": {
-            "state": {"shape": ["B", task.STATE_DIM], "names": list(task.STATE_NAMES)},
+            "state": {
+                "shape": ["B", n.state_width],
+                "names": list(task.STATE_NAMES) + (["d_x", "d_y", "d_z"] if n.dist_dim else []),
+            },
             "goal": {"shape": ["B", task.GOAL_DIM], "names": list(task.GOAL_NAMES)},
         },
         "output": {"action": {"shape": ["B", task.ACTION_DIM], "names": ["c", "wx", "wy", "wz"]}},
         "units": "p m, v m/s, R body-to-world row-major, w rad/s (body); c m/s^2 (mass-normalised collective thrust)",
         "frame": "world frame, z up, gravity -9.81 m/s^2 along z",
+        **(
+            {
+                "disturbance_observer": {
+                    "tau_s": n.disturbance_tau,
+                    "gains": "l1 = 2 / tau, l2 = 1 / tau^2 (both error poles at -1 / tau)",
+                    "update": "each control step, after the command (c, w) from the observed state with velocity v and "
+                    "body z-axis b3: e = v - v_hat; v_hat += dt (c b3 - 9.81 e3 + d_hat + l1 e); d_hat += dt l2 e; "
+                    "d_hat and v_hat start at 0 and at the first observed v",
+                }
+            }
+            if n.dist_dim
+            else {}
+        ),
         "network_input": "([v, R, w, p_g - p, v_g, R_g]"
         + (" + [p]" if n.absolute_position else "")
+        + (" + [d_hat]" if n.dist_dim else "")
         + " - in_mean) / in_std"
         + (
             ", then [sin(f p_n), cos(f p_n)] for p_n the standardised p and p_g (by in_mean/in_std of p), f = pos_freq"
@@ -116,7 +137,7 @@ def export_policy(run: str | Path, fmt: str, out: str | Path) -> tuple[Path, dic
     algo.eval()
     model = ExportedPolicy(algo).eval()
     meta = metadata(algo, ck, r.path)
-    example = (torch.zeros(1, task.STATE_DIM), torch.zeros(1, task.GOAL_DIM))
+    example = (torch.zeros(1, algo.normalizer.state_width), torch.zeros(1, task.GOAL_DIM))
     out = Path(out)
     with torch.no_grad():
         if fmt == "torchscript":
@@ -183,9 +204,10 @@ def load_exported(path: str | Path) -> tuple[Any, dict]:
     return predict_ts, json.loads(files[META_KEY])
 
 
-def single_sample_latency(predict: Any, repeats: int = 2000) -> float:
-    """Median seconds of one ``predict`` call on a single state and goal (the onboard case)."""
-    s, g = np.zeros((1, task.STATE_DIM), np.float32), np.zeros((1, task.GOAL_DIM), np.float32)
+def single_sample_latency(predict: Any, repeats: int = 2000, state_width: int = task.STATE_DIM) -> float:
+    """Median seconds of one ``predict`` call on a single state (``state_width`` wide: the
+    exported file's metadata ``inputs.state.shape``) and goal (the onboard case)."""
+    s, g = np.zeros((1, state_width), np.float32), np.zeros((1, task.GOAL_DIM), np.float32)
     s[0, 6] = s[0, 10] = s[0, 14] = 1.0
     g[0, 6] = g[0, 10] = g[0, 14] = 1.0
     for _ in range(50):

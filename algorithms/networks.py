@@ -33,6 +33,7 @@ quiet_torchrl()  # every algorithm imports this module, right after torchrl
 
 IN_DIM = task.OBS_DIM + task.GOAL_DIM  # 30: the free-space input
 POS_DIM = 3  # the absolute position appended in a world with obstacles
+DIST_DIM = 3  # the disturbance estimate appended to the state (observe_disturbance)
 ACT_DIM = task.ACTION_DIM  # 4
 ACTION_MARGIN = 0.1  # action bounds = data range widened by 10% on each side
 STD_FLOOR = 1e-2
@@ -55,6 +56,14 @@ class Normalizer(nn.Module):
     positions, ``x = [o, rel, p, F(p), F(p_g)]`` (33 + 12 K, :func:`position_features`);
     the frequencies are the ``pos_freq`` buffer, whose presence and length record K.
 
+    Disturbance estimate (``disturbance_tau`` > 0): the state carries the expert's
+    estimate ``d_hat`` (3, m/s^2) of an unmodelled acceleration as columns 18..20, from a
+    :class:`~aerohrl.datagen.expert.DisturbanceObserver` with time constant ``tau``; it is
+    appended last, ``x = [o, rel, (p), d_hat]``, and belongs to the state's columns. The
+    ``dob_tau`` buffer records it (present only then), so evaluation runs the same observer.
+    A state without the columns (18 wide: a planner's imagined state) is read as
+    undisturbed, ``d_hat = 0``.
+
     Actions: an affine map of the data range (widened by :data:`ACTION_MARGIN`) onto
     ``[-1, 1]``, so thrust (~10 m/s^2) and rates (~1 rad/s) weigh alike and TD3's/CQL's
     ``[-1, 1]`` bounds, noise and random actions are meaningful.
@@ -66,13 +75,15 @@ class Normalizer(nn.Module):
     act_center: torch.Tensor
     act_half: torch.Tensor
 
-    def __init__(self, absolute_position: bool = False, pos_octaves: int = 0):
+    def __init__(self, absolute_position: bool = False, pos_octaves: int = 0, disturbance_tau: float = 0.0):
         super().__init__()
         if pos_octaves and not absolute_position:
             raise UserError("position features (--pos-octaves) need a dataset flown in a world with obstacles")
         self.absolute_position = bool(absolute_position)
         self.pos_octaves = int(pos_octaves)
-        raw = IN_DIM + (POS_DIM if absolute_position else 0)
+        self.disturbance_tau = float(disturbance_tau)
+        self.dist_dim = DIST_DIM if self.disturbance_tau > 0 else 0
+        raw = IN_DIM + (POS_DIM if absolute_position else 0) + self.dist_dim
         self.in_dim = raw + 4 * POS_DIM * self.pos_octaves
         self.register_buffer("in_mean", torch.zeros(raw))
         self.register_buffer("in_std", torch.ones(raw))
@@ -80,35 +91,50 @@ class Normalizer(nn.Module):
         self.register_buffer("act_half", torch.ones(ACT_DIM))
         if self.pos_octaves:  # registered only when used: other state dicts keep their keys
             self.register_buffer("pos_freq", position_frequencies(self.pos_octaves))
+        if self.dist_dim:  # likewise
+            self.register_buffer("dob_tau", torch.tensor(self.disturbance_tau, dtype=torch.float64))
         # column indices of the normalised input: what describes the state alone ([o] and,
         # with absolute position, [p] and its features) and what describes the goal relative
         # to it ([rel], [p] and its features, the goal position's features)
-        pos = list(range(IN_DIM, raw))
+        pos = list(range(IN_DIM, raw - self.dist_dim))
+        dist = list(range(raw - self.dist_dim, raw))
         f = 2 * POS_DIM * self.pos_octaves
         p_feat, g_feat = list(range(raw, raw + f)), list(range(raw + f, raw + 2 * f))
-        self.state_index = [*range(task.OBS_DIM), *pos, *p_feat]
+        self.state_index = [*range(task.OBS_DIM), *pos, *dist, *p_feat]
         self.goal_index = [*range(task.OBS_DIM, IN_DIM), *pos, *p_feat, *g_feat]
 
     @staticmethod
-    def for_dataset_spec(spec: dict | None, pos_octaves: int = 0) -> "Normalizer":
+    def for_dataset_spec(spec: dict | None, pos_octaves: int = 0, disturbance_tau: float = 0.0) -> "Normalizer":
         """An unfitted normaliser with the input layout of a dataset with this spec: the
         absolute position appended when ``spec["world"]`` names a world other than ``"free"``
-        (and its Fourier features at ``pos_octaves`` octaves)."""
-        return Normalizer(absolute_position=(spec or {}).get("world", "free") != "free", pos_octaves=pos_octaves)
+        (and its Fourier features at ``pos_octaves`` octaves); the disturbance estimate of an
+        observer with time constant ``disturbance_tau`` appended when it is > 0."""
+        return Normalizer(
+            absolute_position=(spec or {}).get("world", "free") != "free",
+            pos_octaves=pos_octaves,
+            disturbance_tau=disturbance_tau,
+        )
 
     @staticmethod
     def for_state_dict(state: dict, prefix: str = "normalizer.") -> "Normalizer":
         """An unfitted normaliser with the input layout of a saved model state dict (the
         length of its ``in_mean``), to load that state into."""
-        mean, freq = state.get(prefix + "in_mean"), state.get(prefix + "pos_freq")
+        mean, freq, tau = state.get(prefix + "in_mean"), state.get(prefix + "pos_freq"), state.get(prefix + "dob_tau")
+        dist = 0 if tau is None else DIST_DIM
         return Normalizer(
-            absolute_position=mean is not None and mean.shape[-1] == IN_DIM + POS_DIM,
+            absolute_position=mean is not None and mean.shape[-1] - dist == IN_DIM + POS_DIM,
             pos_octaves=0 if freq is None else freq.shape[-1],
+            disturbance_tau=0.0 if tau is None else float(tau),
         )
 
     @property
+    def state_width(self) -> int:
+        """Columns of the state this normaliser reads: 18, or 21 with the disturbance estimate."""
+        return task.STATE_DIM + self.dist_dim
+
+    @property
     def state_dim(self) -> int:
-        """Width of :meth:`state_part` (15, or 18 with the absolute position)."""
+        """Width of :meth:`state_part` (15, or 18 with the absolute position; + 3 with the disturbance estimate)."""
         return len(self.state_index)
 
     @property
@@ -139,9 +165,13 @@ class Normalizer(nn.Module):
 
     def raw_inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """Unnormalised inputs ``[v, R, w, p_g - p, v_g, R_g]`` (B, 30), ``+ [p]`` (B, 33)
-        with the absolute position, from states (B, 18) and goals (B, 15)."""
+        with the absolute position, from states (B, 18) and goals (B, 15); ``+ [d_hat]``
+        with the disturbance estimate, from states (B, 21) (18 wide: ``d_hat = 0``)."""
         o, rel = task.policy_inputs(state, goal)
         parts = [o, rel, state[..., task.POS]] if self.absolute_position else [o, rel]
+        if self.dist_dim:
+            d = state[..., task.STATE_DIM : task.STATE_DIM + DIST_DIM]
+            parts.append(d if d.shape[-1] == DIST_DIM else torch.zeros_like(o[..., :DIST_DIM]))
         return torch.cat(parts, -1)
 
     def inputs(self, state: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:

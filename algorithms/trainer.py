@@ -81,7 +81,8 @@ class Trainer:
         self.run = run_dir if isinstance(run_dir, Run) else Run(run_dir)
         self.run_dir = self.run.path
         self.cfg = cfg
-        self.data = data
+        # with observe_disturbance the states carry the expert's estimate d_hat (columns 18..20)
+        self.data = data = data.with_disturbance() if cfg.observe_disturbance else data
         self.progress = progress
         self.logger = logger
         # without the bar: a progress line every progress_every_s seconds / progress_every_steps steps (0: never)

@@ -75,6 +75,7 @@ class ExpertData:
     goal_index: np.ndarray | None = None  # (N,) the desired goal each episode flies (rollouts_per_goal > 1)
     timings: dict = field(default_factory=dict)
     perturbation: dict | None = None  # {axis: (N,)} each episode's vehicle under domain randomisation
+    disturbance: np.ndarray | None = None  # (F,3) the expert's disturbance estimate (spec disturbance_observer)
 
     @property
     def episode_success(self) -> np.ndarray:
@@ -150,6 +151,7 @@ class Rollout:
     length: np.ndarray  # (N,) recorded steps per episode
     rotors: np.ndarray | None = None  # (kmax + 1, N, 4) with record_rotors
     expert_actions: np.ndarray | None = None  # (kmax, N, 4): the clean command, with action noise
+    disturbance: np.ndarray | None = None  # (kmax, N, 3): the observer's estimate each command used
 
 
 def rollout_expert(
@@ -222,6 +224,8 @@ def rollout_expert(
         t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
     dob = DisturbanceObserver(n, spec.disturbance_observer, dt) if spec.disturbance_observer > 0 else None
+    if dob is not None:
+        out.disturbance = np.empty((kmax, n, 3))
     drop_ended = drop_ended and not (replanning or perturbation is not None or extra_steps or record_rotors or dob)
     if drop_ended:
         return _rollout_dropping_ended(out, sim, ctrl, coeffs, T, dt, noise, kmax, progress)
@@ -235,6 +239,9 @@ def rollout_expert(
             # t0 holds each episode's plan start (an array) when replanning
             recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, seen, xf, T)
         ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
+        if dob is not None:
+            assert out.disturbance is not None  # allocated with the observer
+            out.disturbance[k] = dob.d_hat
         a = ctrl(seen, *ref, yaw=0.0, disturbance=None if dob is None else dob.d_hat)
         if noise is not None:
             assert out.expert_actions is not None  # allocated with the noise
@@ -321,6 +328,7 @@ class _Frames:
     expert_action: np.ndarray | None
     rotors: np.ndarray | None  # rotor speeds at each recorded state (record_rotors)
     success: np.ndarray  # (F,) the goal-reached test at the next state
+    disturbance: np.ndarray | None = None  # (F, 3) the expert's disturbance estimate (observer)
 
 
 def _frame_index(T: np.ndarray, fps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -355,6 +363,8 @@ def _fly_block(
     out = {"state": r.states[kk, e], "action": r.actions[kk, e], "next_state": r.states[kk + 1, e]}
     if r.expert_actions is not None:
         out["expert_action"] = r.expert_actions[kk, e]
+    if r.disturbance is not None:
+        out["disturbance"] = r.disturbance[kk, e]
     if record_rotors:
         assert r.rotors is not None  # recorded with record_rotors
         out["rotors"] = r.rotors[kk, e]
@@ -428,6 +438,7 @@ def _fly_block_columns(*args: Any) -> dict[str, Any]:
     }
     success_f = np.empty(F, bool)
     expert = np.empty((F, task.ACTION_DIM), np.float32) if r.expert_actions is not None else None
+    dist = np.empty((F, 3), np.float32) if r.disturbance is not None else None
     gv = goals_mod.goal_vectors(goals)
     cuts = np.linspace(0, F, -(-F // _GATHER_FRAMES) + 1).round().astype(np.int64)
     for c0, c1 in zip(cuts[:-1], cuts[1:]):
@@ -440,6 +451,9 @@ def _fly_block_columns(*args: Any) -> dict[str, Any]:
         if expert is not None:
             assert r.expert_actions is not None
             expert[c0:c1] = r.expert_actions[k, ee]
+        if dist is not None:
+            assert r.disturbance is not None
+            dist[c0:c1] = r.disturbance[k, ee]
     final = r.states[length, np.arange(n)]  # the state after each episode's last action
     del r
     last = np.zeros(F, bool)
@@ -447,6 +461,8 @@ def _fly_block_columns(*args: Any) -> dict[str, Any]:
     cols.update({"next.reward": success_f.astype(np.float32), "next.done": last, "next.success": success_f})
     if expert is not None:
         cols["action.expert"] = expert
+    if dist is not None:
+        cols["observation.disturbance"] = dist
     hit = np.flatnonzero(success_f)
     eps, at = np.unique(e[hit], return_index=True)  # frames ascend: the first hit of each episode
     first = np.full(n, -1, np.int64)
@@ -556,6 +572,7 @@ def fly(
         np.empty((F, task.ACTION_DIM)) if spec.noisy else None,
         np.empty((F, 4)) if record_rotors else None,
         np.empty(F, bool),
+        np.empty((F, 3)) if spec.disturbance_observer > 0 else None,
     )
     for lo, hi, r in fly_blocks(
         spec,
@@ -579,6 +596,8 @@ def fly(
             fr.expert_action[f0:f1] = r["expert_action"]
         if fr.rotors is not None:
             fr.rotors[f0:f1] = r["rotors"]
+        if fr.disturbance is not None:
+            fr.disturbance[f0:f1] = r["disturbance"]
         del r
     return fr
 
@@ -714,7 +733,7 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
     pert = episode_perturbations(spec, len(T))
     fr = fly(spec, goals, T, coeffs, progress, part=0, start_state=start, record_rotors=cont, runner=runner, perturb=pert)
     ep, k, state, action, next_state, expert_action = fr.ep, fr.k, fr.state, fr.action, fr.next_state, fr.expert_action
-    success = fr.success
+    success, disturbance = fr.success, fr.disturbance
     length = np.bincount(ep, minlength=len(T))
     source_episode = np.full(len(T), -1, np.int64)
     source_frame = np.full(len(T), -1, np.int64)
@@ -740,6 +759,8 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
         )
         if expert_action is not None:
             expert_action = np.concatenate([expert_action, fr2.expert_action])
+        if disturbance is not None:
+            disturbance = np.concatenate([disturbance, fr2.disturbance])
     del fr
     t2 = time.perf_counter()
 
@@ -767,6 +788,7 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
         action_expert=expert_action,
         goal_index=goal_index if spec.rollouts_per_goal > 1 else None,
         perturbation=pert,
+        disturbance=disturbance,
     )
     data.timings = {"references_s": t1 - t0, "rollout_s": t2 - t1, "frames_s": time.perf_counter() - t2}
     return data
@@ -847,7 +869,14 @@ def frame_columns(data: ExpertData) -> dict[str, np.ndarray]:
     """The LeRobot per-frame features (float32 / bool), docs/spec.md "Expert data"."""
     last = np.r_[data.episode_index[1:] != data.episode_index[:-1], True]
     return _columns(
-        data.state, data.action, data.goal_vec[data.episode_index], data.next_state, data.success, last, data.action_expert
+        data.state,
+        data.action,
+        data.goal_vec[data.episode_index],
+        data.next_state,
+        data.success,
+        last,
+        data.action_expert,
+        data.disturbance,
     )
 
 
@@ -867,7 +896,7 @@ def _pop_columns(r: dict, goal_rows: np.ndarray, last: np.ndarray) -> dict[str, 
     return out
 
 
-def _columns(state, action, goal_rows, next_state, success, last, action_expert) -> dict[str, np.ndarray]:
+def _columns(state, action, goal_rows, next_state, success, last, action_expert, disturbance=None) -> dict[str, np.ndarray]:
     return {
         "observation.state": state.astype(np.float32),
         "action": action.astype(np.float32),
@@ -878,6 +907,8 @@ def _columns(state, action, goal_rows, next_state, success, last, action_expert)
         "next.success": success.copy(),
         # action noise only: ``action`` is what was flown, this the clean expert command
         **({"action.expert": action_expert.astype(np.float32)} if action_expert is not None else {}),
+        # the disturbance observer's estimate d_hat that the command at this state used
+        **({"observation.disturbance": disturbance.astype(np.float32)} if disturbance is not None else {}),
     }
 
 
@@ -887,6 +918,7 @@ FEATURE_NAMES = {
     "action.expert": task.ACTION_NAMES,
     "observation.desired_goal": task.GOAL_NAMES,
     "next.observation.state": task.STATE_NAMES,
+    "observation.disturbance": ["d_x", "d_y", "d_z"],
 }
 
 
@@ -1057,6 +1089,14 @@ def metadata(spec: DatasetSpec, data: "EpisodeSummary | ExpertData", version: st
                     "action.expert": "the clean expert CTBR command at the flown state (what to imitate; DART)",
                 }
                 if spec.noisy
+                else {}
+            ),
+            **(
+                {
+                    "observation.disturbance": "d_hat (m/s^2, world frame): the expert's disturbance observer's estimate "
+                    "of the unmodelled acceleration, which the command at this state compensated"
+                }
+                if spec.disturbance_observer > 0
                 else {}
             ),
             **(_family_layouts(spec) if not spec.reach else {}),

@@ -104,6 +104,9 @@ def rollout(
     returned too, free space's ``collision`` all False). ``perturbation`` flies the vehicles
     on a perturbed plant (:mod:`aerohrl.sim.perturb`, seeded by ``perturb_seed``): the policy
     and the planner see the observed state, the outcomes are judged on the true one.
+    A policy that observes the disturbance estimate (``algo.normalizer.disturbance_tau`` > 0)
+    flies with the expert's :class:`~aerohrl.datagen.expert.DisturbanceObserver` beside it,
+    fed with the observed state and the collective flown, as the data's expert was.
     """
     from tqdm import tqdm
 
@@ -113,6 +116,12 @@ def rollout(
     algo.eval()
     policy = PolicyFn(algo)
     E = len(episodes)
+    tau = float(getattr(algo.normalizer, "disturbance_tau", 0.0))
+    dob = None
+    if tau > 0:
+        from aerohrl.datagen.expert import DisturbanceObserver
+
+        dob = DisturbanceObserver(E, tau, 1.0 / fps)
     G = episodes.goals.astype(np.float64)
     total = episodes.horizons.astype(np.int64)
     T = int(total.max())
@@ -187,8 +196,12 @@ def rollout(
             active = ~finished
             a = np.zeros((E, 4))
             idx = np.flatnonzero(active)
-            a[idx] = policy(obs["observation"][idx], obs["desired_goal"][idx])
+            seen = obs["observation"][:, : task.STATE_DIM]
+            x = seen if dob is None else np.concatenate([seen, dob.d_hat], 1)
+            a[idx] = policy(x[idx], obs["desired_goal"][idx])
             a[~active] = [9.81, 0.0, 0.0, 0.0]  # finished vehicles hover (their results are fixed)
+            if dob is not None:  # with the collective flown, for the next command
+                dob.update(seen, a[:, 0])
             obs, _, term, trunc, info = env.step(a)
             if record_states:
                 flown["actions"][:, t] = a

@@ -28,6 +28,7 @@ CPU_GCSL = {
     "amp": "auto",
     "ema_decay": 0.999,
     "pos_octaves": 0,
+    "observe_disturbance": False,
     "relabel_prob": 0.01,
     "relabel_offset": "geometric",
     "relabel_window": 0,
