@@ -284,7 +284,7 @@ def _belief_flags(bt) -> None:
     cpu = preset("cpu")
     bt.add_argument("--preset", default="cpu", choices=preset_names(), help="preset (ipp/presets/belief/NAME.toml) [cpu]")
     bt.add_argument(
-        "--resume", metavar="RUN", help="continue RUN from its checkpoint.pt (only --epochs, --lattice, --quiet may be given)"
+        "--resume", metavar="RUN", help="continue RUN from its checkpoint.pt (only --epochs, --lattice, --threads, --quiet may be given)"
     )
     add_common(
         bt,
@@ -338,7 +338,7 @@ def _train_flags(tr) -> None:
     tr.add_argument(
         "--resume",
         metavar="RUN",
-        help="continue RUN from its checkpoint.pt with its config.json (only --iterations, --lattice, --quiet may be given)",
+        help="continue RUN from its checkpoint.pt with its config.json (only --iterations, --lattice, --threads, --quiet may be given)",
     )
     tr.add_argument("--envs", type=_setting("n_envs", int), default=None, dest="n_envs", metavar="N", help=helps("n_envs"))
     tr.add_argument(
@@ -758,12 +758,12 @@ def _train(a) -> int:
     from .train import load_run_config, preset, train
 
     if a.resume:
-        allowed = {"resume", "iterations", "lattice", "quiet", "cmd", "_defaults"}
+        allowed = {"resume", "iterations", "lattice", "threads", "quiet", "cmd", "_defaults"}
         given = sorted(k for k, v in a._defaults.items() if k not in allowed and hasattr(a, k) and getattr(a, k) != v)
         if given:
             raise UserError(
                 "--resume continues a run with its own config.json; only "
-                "--iterations, --lattice and --quiet may be given (got "
+                "--iterations, --lattice, --threads and --quiet may be given (got "
                 + ", ".join("--" + k.replace("_", "-") for k in given)
                 + ")"
             )
@@ -774,6 +774,8 @@ def _train(a) -> int:
         cfg = load_run_config(opened)
         if a.iterations is not None:
             cfg = replace(cfg, iterations=a.iterations)
+        if a.threads is not None:  # where it runs, not what it learns
+            cfg = replace(cfg, threads=a.threads)
         lat = get_lattice(a.lattice, cfg.env.kind)
         import json
         from dataclasses import asdict
@@ -836,11 +838,11 @@ def _belief(a) -> int:
     from .lattice import get_lattice
 
     if a.resume:
-        allowed = {"resume", "epochs", "lattice", "quiet", "cmd", "bcmd", "_defaults"}
+        allowed = {"resume", "epochs", "lattice", "threads", "quiet", "cmd", "bcmd", "_defaults"}
         given = sorted(k for k, v in a._defaults.items() if k not in allowed and hasattr(a, k) and getattr(a, k) != v)
         if given:
             raise UserError(
-                "--resume continues a run with its own config.json; only --epochs, --lattice and --quiet may be given (got "
+                "--resume continues a run with its own config.json; only --epochs, --lattice, --threads and --quiet may be given (got "
                 + ", ".join("--" + k.replace("_", "-") for k in given)
                 + ")"
             )
@@ -848,6 +850,8 @@ def _belief(a) -> int:
         cfg = read_belief_config(run)
         if a.epochs is not None:
             cfg = replace(cfg, epochs=a.epochs)
+        if a.threads is not None:  # where it runs, not what it learns
+            cfg = replace(cfg, threads=a.threads)
     else:
         from aerohrl.config import given_flags
 
