@@ -1286,6 +1286,12 @@ def _family_intro(meta: dict) -> str:
             f"term{' but the altitude' if maze else ''}) follows random piecewise-constant velocity commands (speed up to {s['explore_speed']} m/s, "
             f"each held {s['explore_hold'][0]}-{s['explore_hold'][1]} s"
             + (f", a hover with probability {s['explore_stop']}" if s.get("explore_stop") else "")
+            + (
+                f", each axis of a command reversed when it would bring the vehicle within its stopping distance "
+                f"+ {s['explore_wall_margin']} m of a wall"
+                if s.get("explore_wall_margin")
+                else ""
+            )
             + f") for up to {s['explore_duration']} s"
             + (
                 ", at the maze's flight altitude; an episode ends at its first colliding step (kept as its last frame)"

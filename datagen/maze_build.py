@@ -149,6 +149,8 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
             rng, n, kmax, dt, speed=spec.explore_speed, climb=climb, hold=spec.explore_hold, stop=spec.explore_stop
         )
         v_ref: np.ndarray = np.zeros((n, 3))
+        bounce = maze is not None and spec.explore_wall_margin > 0
+        flip = np.ones((n, 2))  # per-axis sign of the horizontal command (bounces off walls)
     else:
         assert p.ref is not None
         ref = _sub(p.ref, np.arange(lo, hi))
@@ -164,13 +166,21 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
             keep = np.flatnonzero(~ended)
             sim, act, s = sim.select(keep), act[keep], s[keep]
             if explore:
-                v_ref = v_ref[keep]
+                v_ref, flip = v_ref[keep], flip[keep]
             else:
                 ref = _sub(p.ref, lo + act)
                 if spec.noisy:
                     noise.eta = noise.eta[keep]
         if explore:
-            v_ref, acc = mx.velocity_reference_step(v_ref, cmds[k, act], spec.a_max, dt)
+            cmd = cmds[k, act]
+            if bounce:
+                assert maze is not None
+                if k > 0:  # a new segment starts with its own command's signs
+                    flip[np.any(cmd != cmds[k - 1, act], axis=1)] = 1.0
+                flip = mx.reflect_off_walls(maze, s[:, task.POS], v_ref, cmd, flip, spec.a_max, spec.explore_wall_margin)
+                cmd = cmd.copy()
+                cmd[:, :2] *= flip
+            v_ref, acc = mx.velocity_reference_step(v_ref, cmd, spec.a_max, dt)
             pos_ref = s[:, task.POS].copy()  # no horizontal position term: a velocity controller
             if maze is not None:
                 pos_ref[:, 2] = maze.altitude

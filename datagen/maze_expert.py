@@ -227,6 +227,28 @@ def explore_commands(
     return np.ascontiguousarray(np.take_along_axis(seg, which[..., None], axis=1).transpose(1, 0, 2))
 
 
+def reflect_off_walls(
+    maze: Maze, p: np.ndarray, v_ref: np.ndarray, cmd: np.ndarray, flip: np.ndarray, a_max: float, margin: float
+) -> np.ndarray:
+    """The per-axis signs ``flip`` (N, 2) of the horizontal command after this step's wall
+    check: an axis whose commanded direction (``cmd[:, :2] * flip``) would bring the vehicle at
+    ``p`` (N, 3) within ``d = v_j^2 / (2 a_max) + margin`` of a wall (its sphere touching it,
+    :meth:`Maze.collides`), ``v_j`` the reference velocity along that axis, is reversed: the
+    command bounces off the wall (the sign holds until the caller resets it at the next
+    segment). Only a command moving toward the wall is reversed, so a reversed one is not
+    reversed back while it pulls away."""
+    flip = flip.copy()
+    for j in (0, 1):
+        c = cmd[:, j] * flip[:, j]
+        toward = np.sign(c)
+        d = v_ref[:, j] ** 2 / (2.0 * a_max) * (np.sign(v_ref[:, j]) == toward) + margin
+        probe = p.copy()
+        probe[:, j] += toward * d
+        hit = (toward != 0) & maze.collides(probe)
+        flip[hit, j] *= -1.0
+    return flip
+
+
 def velocity_reference_step(v_ref: np.ndarray, cmd: np.ndarray, a_max: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """One step of the reference velocity toward the command with its acceleration's norm
     bounded: ``acc = (cmd - v_ref) / dt`` scaled down to norm ``a_max`` if longer,

@@ -60,6 +60,7 @@ RECIPE_DEFAULTS = {
     "explore_hold": (0.5, 1.0),
     "explore_duration": 10.0,
     "explore_stop": 0.0,
+    "explore_wall_margin": 0.0,
     "stats": "auto",
 }
 
@@ -159,6 +160,16 @@ class DatasetSpec:
     explore_duration: float = param(10.0, "explore: flight length (a maze flight ends earlier at a collision)", unit="s", gt=0)
     explore_stop: float = param(
         0.0, "explore: probability that a command is a hover (zero velocity): pauses of a random pilot", ge=0, le=1
+    )
+    # Without it most maze flights end at their first collision within a few seconds and
+    # less than a cell from their start; with it they last their duration and wander
+    explore_wall_margin: float = param(
+        0.0,
+        "maze explore: reflect a velocity command off a wall the vehicle would reach within its stopping distance "
+        "plus this margin (0: off, a flight ends at its first collision)",
+        unit="m",
+        ge=0,
+        le=2,
     )
     # How meta/stats.json is computed (datagen/README.md "Statistics"): "exact" order
     # statistics and sorted-column means of every frame (a read-back pass and scratch disk at
@@ -293,6 +304,7 @@ class DatasetSpec:
             "explore_hold": self.family == "explore",
             "explore_duration": self.family == "explore",
             "explore_stop": self.family == "explore",
+            "explore_wall_margin": self.family == "explore" and self.maze is not None,
         }
         # the statistics as resolved: "auto" and "exact" give today's bytes, "sketch" others
         d["stats"] = "sketch" if self.stats_mode == "sketch" else "auto"

@@ -284,7 +284,9 @@ def _belief_flags(bt) -> None:
     cpu = preset("cpu")
     bt.add_argument("--preset", default="cpu", choices=preset_names(), help="preset (ipp/presets/belief/NAME.toml) [cpu]")
     bt.add_argument(
-        "--resume", metavar="RUN", help="continue RUN from its checkpoint.pt (only --epochs, --lattice, --threads, --quiet may be given)"
+        "--resume",
+        metavar="RUN",
+        help="continue RUN from its checkpoint.pt (only --epochs, --lattice, --threads, --quiet may be given)",
     )
     add_common(
         bt,

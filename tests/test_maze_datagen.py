@@ -127,6 +127,51 @@ def test_explore_stop_pauses_the_commands_and_keeps_earlier_bytes():
     assert version_name(DatasetSpec(world="maze-large", explore_stop=0.3)) == version_name(DatasetSpec(world="maze-large"))
 
 
+def test_reflect_off_walls_reverses_only_a_command_into_a_wall():
+    """Next to a wall, a command toward it is reversed on that axis, one away from it or
+    along the wall is not, and a reversed sign is not flipped back while it pulls away."""
+    maze = load_maze("large")
+    r, c = (int(x) for x in maze.free_cells[0])
+    centre = maze.cell_center(np.array([[r, c]]))[0]
+    p = np.repeat(centre[None], 4, 0)
+    # a neighbour across a wall (the first free cell lies on the maze's border)
+    dc = next(d for d in (1, -1) if maze.cell_index(np.array([r, c + d])) < 0)
+    side = maze.cell_center(np.array([[r, c + dc]]))[0] - centre
+    j = int(np.argmax(np.abs(side[:2])))
+    toward = np.sign(side[j])
+    p[:, j] += toward * 0.5  # half a metre from the centre, 0.5 m from the wall face
+    v = np.zeros((4, 3))
+    v[:, j] = toward * 1.5  # moving toward the wall: stopping distance 0.225 m at 5 m/s^2
+    cmd = np.zeros((4, 3))
+    cmd[0, j] = toward * 2.0  # into the wall
+    cmd[1, j] = -toward * 2.0  # away from it
+    cmd[2, 1 - j] = 1.0  # along it
+    cmd[3, j] = toward * 2.0
+    flip = np.ones((4, 2))
+    flip[3, j] = -1.0  # already reversed: pulls away
+    out = mx.reflect_off_walls(maze, p, v, cmd, flip, a_max=5.0, margin=0.3)
+    assert out[0, j] == -1.0 and out[1, j] == 1.0 and (out[2] == 1.0).all() and out[3, j] == -1.0
+
+
+def test_explore_wall_margin_keeps_flights_going_and_earlier_bytes(tmp_path):
+    """With the margin most maze explore flights last their duration (the default ends a
+    flight at its first collision); the field enters the version only when set, in a maze."""
+    base = DatasetSpec(name="m-explore", goals=16, world="maze-medium", family="explore", explore_duration=6.0)
+    bounce = DatasetSpec(
+        name="m-explore", goals=16, world="maze-medium", family="explore", explore_duration=6.0, explore_wall_margin=0.3
+    )
+    assert version_name(DatasetSpec(world="maze-large", family="explore", explore_wall_margin=0.0)) == version_name(
+        DatasetSpec(world="maze-large", family="explore")
+    )
+    assert version_name(bounce) != version_name(base)
+    assert version_name(DatasetSpec(family="explore", explore_wall_margin=0.3)) == version_name(DatasetSpec(family="explore"))
+    hits = []
+    for spec in (base, bounce):
+        res = build(spec, tmp_path, progress=False, log=lambda _: None)
+        hits.append(read_manifest(res.path)["collisions"])
+    assert hits[1] <= 2 and hits[1] < hits[0]
+
+
 def test_same_spec_same_bytes(built, tmp_path):
     res = build(TINY["stitch"], tmp_path, progress=False, log=lambda _: None)
     assert read_manifest(res.path)["checksums"] == read_manifest(built["stitch"].path)["checksums"]
