@@ -150,7 +150,7 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
         )
         v_ref: np.ndarray = np.zeros((n, 3))
         bounce = maze is not None and spec.explore_wall_margin > 0
-        flip = np.ones((n, 2))  # per-axis sign of the horizontal command (bounces off walls)
+        flip: np.ndarray = np.ones((n, 2))  # per-axis sign of the horizontal command (bounces off walls)
     else:
         assert p.ref is not None
         ref = _sub(p.ref, np.arange(lo, hi))

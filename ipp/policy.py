@@ -155,14 +155,15 @@ def _train_info(run: Path) -> dict:
     except UserError:
         return {}
     tc = cfg.get("train", cfg)
-    keys = ("bc_iterations", "teacher", "teacher_depth", "iterations", "seed")
+    keys = ("bc_iterations", "teacher", "teacher_depth", "teacher_belief", "iterations", "seed")
     return {k: tc[k] for k in keys if isinstance(tc, dict) and k in tc}
 
 
 def describe_policy(model: ActorCritic) -> str:
     """The truthful row name of a trained policy: what it learned from and what it reads.
 
-    * DAgger from a teacher, no PPO: ``Imitation of detect (DAgger; its features, GRU)``;
+    * DAgger from a teacher, no PPO: ``Imitation of detect (DAgger; its features, GRU)``
+      (``detect over the learned belief`` when the teacher planned over it);
     * DAgger then PPO: ``Imitation of detect + PPO (...)``;
     * no warm start: ``Actor-critic RL (map-only, GRU)`` (the thesis's setting);
       ``(map-only, the learned belief's map, GRU)`` when it observes the learned belief.
@@ -177,6 +178,7 @@ def describe_policy(model: ActorCritic) -> str:
         t = info.get("teacher", "detect")
         depth = info.get("teacher_depth")
         t = f"{t}{'' if depth in (None, 2) else f' depth {depth}'}"
+        t += " over the learned belief" if info.get("teacher_belief") else ""
         ppo = f" + PPO {it} it." if it > 0 else ""
         feats = "its features" if model.cfg.features and t.startswith("detect") else obs
         return f"Imitation of {t} planner{ppo} (DAgger; {feats}{belief}, {core})"

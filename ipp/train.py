@@ -288,6 +288,12 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
         belief = load_belief(cfg.belief_input)
         belief.check_env(env)
         env.obs_belief = belief
+    teacher_belief = None
+    if cfg.teacher_belief is not None:  # checked before the run is written
+        from .belief import load_belief
+
+        teacher_belief = load_belief(cfg.teacher_belief)
+        teacher_belief.check_env(env)
     obs = env.reset(sample_for(cfg.env, cfg.seed, range(cfg.n_envs)))
     dims = _dims(env, obs, cfg)
     use_feat = bool(dims["n_feat"])
@@ -336,7 +342,9 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
     with run.metrics_log(keep_until=start if resume else None, logger="none", key="iteration") as log:
         teacher = None
         if cfg.bc_iterations > start or cfg.bc_anchor > 0:
-            teacher = make_planner(cfg.teacher, env, PlannerConfig(depth=cfg.teacher_depth))
+            # what the teacher plans over: the posterior, or the learned belief
+            seen = env if teacher_belief is None else teacher_belief.view(env)
+            teacher = make_planner(cfg.teacher, seen, PlannerConfig(depth=cfg.teacher_depth))
         N, T_all = cfg.n_envs, cfg.total_iterations
         t0 = time.time()
         for it in range(start, T_all):

@@ -76,6 +76,11 @@ class TrainConfig:
     bc_iterations: int = param(0, "DAgger warm-start iterations before PPO (0: none)", ge=0)
     teacher: str = param("detect", "DAgger teacher planner", choices=TEACHER_PLANNERS)
     teacher_depth: int | None = param(None, "teacher tree depth in primitives", ge=1, le=4)
+    teacher_belief: str | None = param(
+        None,
+        "the DAgger teacher plans over the learned belief of this `ipp belief train` run (or belief.pt) in place of "
+        "the hand-written posterior (target search only)",
+    )
     bc_beta0: float = param(1.0, "DAgger: probability that the teacher acts, first iteration", ge=0, le=1)
     bc_beta_decay: float = param(0.7, "DAgger: that probability's factor per iteration", ge=0, le=1)
     bc_epochs: int = param(2, "DAgger epochs over the buffer per iteration", ge=1)
@@ -105,6 +110,8 @@ class TrainConfig:
             raise K.ConfigError("iterations + bc_iterations must be >= 1")
         if len(self.adv_weights) != len(TERMS):
             raise K.ConfigError(f"adv_weights needs {len(TERMS)} numbers ({', '.join(TERMS)}), got {list(self.adv_weights)}")
+        if self.teacher_belief is not None and self.bc_iterations == 0 and self.bc_anchor == 0:
+            raise K.ConfigError("teacher_belief is the DAgger teacher's belief: it needs bc_iterations > 0 or bc_anchor > 0")
         if TEST_SEED in (self.seed, self.eval_seed):
             raise K.ConfigError(f"seed {TEST_SEED} is the test suite's: train and validate on other seeds")
 

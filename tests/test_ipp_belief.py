@@ -222,6 +222,34 @@ def test_actor_critic_with_the_belief_as_input(belief_run, tmp_path, capsys):
     assert rc == 2 and "no learned belief" in capsys.readouterr().err
 
 
+def test_student_of_the_teacher_over_the_learned_belief(belief_run, tmp_path, capsys, monkeypatch):
+    """``ipp train --teacher-belief``: the DAgger teacher plans over the learned belief (its
+    planner reads the belief's view), the row name says so; without a DAgger teacher, or
+    with a missing belief, one-line errors before any run is written."""
+    from aerohrl.ipp import baselines
+    from aerohrl.ipp.belief import BeliefView
+    from aerohrl.ipp.policy import describe_policy, load_policy
+
+    seen = []
+    make = baselines.make_planner
+
+    def spy(name, env, cfg=None):
+        seen.append(env)
+        return make(name, env, cfg)
+
+    monkeypatch.setattr(baselines, "make_planner", spy)  # ipp.train imports it when it trains
+    argv = ["train", "--preset", "test", "--quiet", "--out", str(tmp_path), "--bc-iterations", "1"]
+    assert main([*argv, "--name", "st", "--teacher-belief", str(belief_run)]) == 0
+    assert seen and isinstance(seen[-1], BeliefView)
+    assert "detect over the learned belief" in describe_policy(load_policy(tmp_path / "st"))
+    capsys.readouterr()
+    rc = main([*argv[:-1], "0", "--name", "nob", "--teacher-belief", str(belief_run)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "bc_iterations" in err and "\n" not in err and not (tmp_path / "nob").exists()
+    rc = main([*argv, "--name", "bad", "--teacher-belief", str(tmp_path / "none")])
+    assert rc == 2 and "no learned belief" in capsys.readouterr().err and not (tmp_path / "bad").exists()
+
+
 def test_collect_records_live_states_only():
     cfg = preset("test")
     d = collect_states(cfg.env, default_lattice(), ("coverage",), cfg.seed, [[0, 1]], 1)

@@ -81,6 +81,7 @@ OLD_DEFAULTS = dict(
     bc_iterations=0,
     teacher="detect",
     teacher_depth=None,
+    teacher_belief=None,
     bc_beta0=1.0,
     bc_beta_decay=0.7,
     bc_epochs=2,
