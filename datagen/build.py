@@ -768,7 +768,7 @@ def generate(spec: DatasetSpec, progress: bool = True, runner: "BlockRunner | No
     if rate < MIN_EXPERT_SUCCESS:
         raise UserError(
             f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
-            f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges"
+            f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise, the --start-* ranges or the --randomize ranges"
         )
     goal_vec = goals_mod.goal_vectors(goals)
     data = ExpertData(
@@ -847,7 +847,7 @@ def _stream_flights(spec: DatasetSpec, writer: DatasetWriter, progress: bool, ru
     if rate < MIN_EXPERT_SUCCESS:
         raise UserError(
             f"the expert reaches only {100 * rate:.1f}% of its goals under this recipe (floor "
-            f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise or the --start-* ranges"
+            f"{100 * MIN_EXPERT_SUCCESS:.0f}%): lower --action-noise, the --start-* ranges or the --randomize ranges"
         )
     return EpisodeSummary(
         goals,
