@@ -227,11 +227,3 @@ class DisturbanceObserver:
         self.v_hat = self.v_hat + self.dt * (acc + self.d_hat + self.l1 * e)
         self.d_hat = self.d_hat + self.dt * self.l2 * e
         return self.d_hat
-
-    def select(self, keep: np.ndarray) -> DisturbanceObserver:
-        """The observer of the vehicles ``keep`` only (the simulator's ``select``)."""
-        out = DisturbanceObserver(len(keep), 1.0, self.dt)
-        out.l1, out.l2 = self.l1, self.l2
-        out.v_hat = None if self.v_hat is None else self.v_hat[keep]
-        out.d_hat = self.d_hat[keep]
-        return out

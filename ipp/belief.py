@@ -231,6 +231,9 @@ class BeliefModel:
         self.net = _net(net_cfg)
         self.temperature = check_temperature(temperature)
         self.label = label
+        # the last prediction, keyed on the environment and its state version: the policy's
+        # observation and a planner's view of the same state share one forward pass
+        self._last: tuple[Any, int, float, np.ndarray] | None = None
 
     def logits(
         self,
@@ -248,9 +251,14 @@ class BeliefModel:
     def predict(self, env: SearchEnv) -> np.ndarray:
         """q (N, S, S) float64 for the environments' current state, as
         ``sigmoid((clip(L) + c) / T)`` with ``L`` in float64 (an untrained model returns the
-        posterior exactly)."""
+        posterior exactly). Read-only: the same array is returned until the state changes."""
+        import weakref
+
         import torch
 
+        last = self._last
+        if last is not None and last[0]() is env and last[1:3] == (env.version, self.temperature):
+            return last[3]
         self.check_env(env)
         p, S = env.pad, env.S
         L = env.L[:, p : p + S, p : p + S]
@@ -264,7 +272,10 @@ class BeliefModel:
                     torch.from_numpy(np.maximum(env.remaining, 0) / env.cfg.budget),
                 )
             ).numpy()
-        return sigmoid((np.clip(L, -L_MAX, L_MAX) + c.astype(np.float64)) / self.temperature)
+        q = sigmoid((np.clip(L, -L_MAX, L_MAX) + c.astype(np.float64)) / self.temperature)
+        q.flags.writeable = False
+        self._last = (weakref.ref(env), env.version, self.temperature, q)
+        return q
 
     def check_env(self, env: SearchEnv) -> None:
         """UserError (one line) unless ``env`` is target search on this model's map size."""

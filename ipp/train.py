@@ -292,7 +292,9 @@ def _train(cfg: TrainConfig, lattice: Lattice, run: Run, progress: Any, resume: 
     if cfg.teacher_belief is not None:  # checked before the run is written
         from .belief import load_belief
 
-        teacher_belief = load_belief(cfg.teacher_belief)
+        # the observed belief itself when they are the same: one forward pass per state
+        teacher_belief = belief if cfg.teacher_belief == cfg.belief_input else load_belief(cfg.teacher_belief)
+        assert teacher_belief is not None
         teacher_belief.check_env(env)
     obs = env.reset(sample_for(cfg.env, cfg.seed, range(cfg.n_envs)))
     dims = _dims(env, obs, cfg)
