@@ -40,6 +40,7 @@ import fcntl
 import json
 import os
 import random
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
@@ -291,6 +292,19 @@ def check_logger(name: str) -> None:
         raise UserError("--logger wandb needs the wandb package: pip install wandb (runs log offline; `wandb sync` uploads)")
 
 
+def _after_newest_event_file(tb_dir: Path) -> None:
+    """Wait until the clock's second is past the newest event file's in ``tb_dir``.
+
+    TensorBoard reads a log directory's files in name order, and a file's name is
+    ``events.out.tfevents.<second>.<host>.<pid>.<counter>``: two files opened in the same
+    second by one process sort by the counter as text ("10" before "9"), which can put a
+    resumed run's file, and its purge, before the file it purges."""
+    stamps = [int(f.name.split(".")[3]) for f in tb_dir.glob("events.out.tfevents.*") if f.name.split(".")[3].isdigit()]
+    if stamps:
+        while int(time.time()) <= max(stamps):
+            time.sleep(0.05)
+
+
 class MetricsLog:
     """metrics.jsonl (append-only, flushed per line), plus TensorBoard events in ``RUN/tb``
     (``logger="tensorboard"``) or a wandb run in offline mode in ``RUN/wandb``
@@ -322,6 +336,8 @@ class MetricsLog:
             from torch.utils.tensorboard import SummaryWriter  # tensorboard is a dependency
 
             purge = None if keep_until is None else keep_until + 1
+            if purge is not None:
+                _after_newest_event_file(run_dir / "tb")
             self.tb = SummaryWriter(str(run_dir / "tb"), purge_step=purge)
         elif logger == "wandb":
             from torchrl.record.loggers.wandb import WandbLogger

@@ -329,10 +329,14 @@ def test_cosine_schedule_resumes_exactly(data, tmp_path):
         make_config("cpu", lr_schedule="step")
 
 
-def test_tensorboard_events_match_metrics_and_resume_purges(data, tmp_path):
-    """tb/ holds the metrics.jsonl scalars; a resumed run's events after its checkpoint are dropped."""
+def test_tensorboard_events_match_metrics_and_resume_purges(data, tmp_path, monkeypatch):
+    """tb/ holds the metrics.jsonl scalars; a resumed run's events after its checkpoint are dropped,
+    also when the resumed file's counter in its name sorts before the first's ("10" < "9")."""
     pytest.importorskip("tensorboard")
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    from tensorboard.summary.writer import event_file_writer
+
+    monkeypatch.setattr(event_file_writer, "_global_uid", event_file_writer.AtomicCounter(9))
 
     cfg = make_config("cpu", algo="gcsl", dataset=str(data.info["path"]), **TINY)
     evals = {"fake": lambda algo, step: {"success": step / 100}}
