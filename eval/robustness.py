@@ -150,9 +150,17 @@ def expert_spec(info_spec: dict | None) -> DatasetSpec:
     return replace(spec, action_noise=(0.0, 0.0, 0.0, 0.0), start_states="rest", world="free", family="navigate")
 
 
-def expert_success(spec: DatasetSpec, episodes: int, seed: int, horizon: int, perturbation_text_: str | None) -> np.ndarray:
+def expert_success(
+    spec: DatasetSpec,
+    episodes: int,
+    seed: int,
+    horizon: int,
+    perturbation_text_: str | None,
+    tol: task.GoalTolerance = task.TOLERANCE,
+) -> np.ndarray:
     """(episodes,) bool: the geometric expert reaches its goal within ``horizon`` steps on the
-    perturbed plant, flying min-time references of ``spec`` from hover (seeded by ``seed``)."""
+    perturbed plant, flying min-time references of ``spec`` from hover (seeded by ``seed``);
+    ``tol``: the goal test's tolerances (the task's by default)."""
     from aerohrl.datagen import goals as goals_mod
     from aerohrl.datagen.build import plan_references, rollout_expert
     from aerohrl.sim.perturb import Perturbation
@@ -165,7 +173,7 @@ def expert_success(spec: DatasetSpec, episodes: int, seed: int, horizon: int, pe
         spec, goals, T, coeffs, progress=False, perturbation=p, perturb_seed=seed, extra_steps=max(0, horizon - steps)
     )
     G = goals_mod.goal_vectors(goals)
-    hit = task.goal_reached(task.achieved_goal(r.states[1 : horizon + 1]), G[None])
+    hit = task.goal_reached(task.achieved_goal(r.states[1 : horizon + 1]), G[None], tol)
     return hit.any(axis=0)
 
 

@@ -3,6 +3,7 @@ effect, determinism, one-line parse errors, and ``aerohrl eval --perturb`` end t
 
 from __future__ import annotations
 
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -378,3 +379,19 @@ def test_randomized_dataset_card_names_the_ranges(tmp_path):
     res = build(DatasetSpec(goals=3, seed=5, randomize="thrust=0.9:1.1"), tmp_path, progress=False, log=lambda *x: None)
     card = (res.path / "README.md").read_text()
     assert "domain randomisation" in card and "thrust 0.9..1.1" in card
+
+
+def test_robust_bounds_relaxing_a_tolerance_never_lowers_the_expert(tiny_run, capsys):
+    """experiments/robust_bounds.py: the expert under the goal test, then one tolerance x k at a time."""
+    import importlib.util
+
+    path = Path(__file__).parents[1] / "experiments" / "robust_bounds.py"
+    spec = importlib.util.spec_from_file_location("robust_bounds", path)
+    rb = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rb)
+    (row,) = rb.bounds(tiny_run, ["drag=0.5,wind=3"], 3.0, 4, 0)
+    assert row["perturb"] == "drag=0.5,wind=3"
+    assert all(0 <= row[k] <= 1 and row[k] >= row["as is"] for k in ("position", "velocity", "attitude"))
+    assert rb.main(["--run", str(tiny_run), "--perturb", "weight=2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("robust_bounds: error: unknown perturbation 'weight'") and "\n" not in err
