@@ -150,17 +150,12 @@ def expert_spec(info_spec: dict | None) -> DatasetSpec:
     return replace(spec, action_noise=(0.0, 0.0, 0.0, 0.0), start_states="rest", world="free", family="navigate")
 
 
-def expert_success(
-    spec: DatasetSpec,
-    episodes: int,
-    seed: int,
-    horizon: int,
-    perturbation_text_: str | None,
-    tol: task.GoalTolerance = task.TOLERANCE,
-) -> np.ndarray:
-    """(episodes,) bool: the geometric expert reaches its goal within ``horizon`` steps on the
-    perturbed plant, flying min-time references of ``spec`` from hover (seeded by ``seed``);
-    ``tol``: the goal test's tolerances (the task's by default)."""
+def expert_flights(
+    spec: DatasetSpec, episodes: int, seed: int, horizon: int, perturbation_text_: str | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The geometric expert flying min-time references of ``spec`` from hover (seeded by
+    ``seed``) on the perturbed plant: its achieved goals (horizon, episodes, 15) over the
+    ``horizon`` steps after take-off, and the goals (episodes, 15)."""
     from aerohrl.datagen import goals as goals_mod
     from aerohrl.datagen.build import plan_references, rollout_expert
     from aerohrl.sim.perturb import Perturbation
@@ -172,9 +167,22 @@ def expert_success(
     r = rollout_expert(
         spec, goals, T, coeffs, progress=False, perturbation=p, perturb_seed=seed, extra_steps=max(0, horizon - steps)
     )
-    G = goals_mod.goal_vectors(goals)
-    hit = task.goal_reached(task.achieved_goal(r.states[1 : horizon + 1]), G[None], tol)
-    return hit.any(axis=0)
+    return task.achieved_goal(r.states[1 : horizon + 1]), goals_mod.goal_vectors(goals)
+
+
+def expert_success(
+    spec: DatasetSpec,
+    episodes: int,
+    seed: int,
+    horizon: int,
+    perturbation_text_: str | None,
+    tol: task.GoalTolerance = task.TOLERANCE,
+) -> np.ndarray:
+    """(episodes,) bool: the geometric expert reaches its goal within ``horizon`` steps on the
+    perturbed plant (:func:`expert_flights`) under the goal test with tolerances ``tol``."""
+    achieved, G = expert_flights(spec, episodes, seed, horizon, perturbation_text_)
+    hit: np.ndarray = task.goal_reached(achieved, G[None], tol)
+    return np.asarray(hit.any(axis=0))
 
 
 # ----------------------------------------------------------------------------- the study

@@ -48,11 +48,11 @@ def subgoal_positions(algo, state, goal):
     return (state[:, task.POS] + rel).double().numpy()
 
 
-def study(run_dir: Path, frames: int, seed: int) -> dict:
-    """The figures of the module doc for one run."""
+def load(run_dir: Path) -> tuple:
+    """(algo, data, maze) of a goal-space HIQL run on a maze dataset: its final checkpoint,
+    its dataset and the dataset's maze; UserError otherwise."""
     import torch
 
-    from aerohrl import task
     from aerohrl.algorithms.base import load_policy
     from aerohrl.algorithms.run import Run
     from aerohrl.eval.harness import load_run_dataset, run_checkpoints
@@ -66,6 +66,16 @@ def study(run_dir: Path, frames: int, seed: int) -> dict:
     maze = dataset_maze(data)
     if maze is None:
         raise UserError(f"{run_dir}: its dataset is not flown in a maze")
+    return algo, data, maze
+
+
+def study(run_dir: Path, frames: int, seed: int, loaded: tuple | None = None) -> dict:
+    """The figures of the module doc for one run (``loaded``: its :func:`load`, when done)."""
+    import torch
+
+    from aerohrl import task
+
+    algo, data, maze = loaded or load(run_dir)
     k = int(algo.cfg.hiql.hiql_subgoal_steps)
     rng = np.random.default_rng(seed)
     idx = torch.from_numpy(rng.choice(len(data), size=min(frames, len(data)), replace=False))
@@ -91,20 +101,15 @@ def study(run_dir: Path, frames: int, seed: int) -> dict:
     }
 
 
-def closed_loop(run_dir: Path, flights: int, seed: int) -> dict:
-    """Flat flights of the maze tasks and the high level's subgoals along them (module doc)."""
+def closed_loop(run_dir: Path, flights: int, seed: int, loaded: tuple | None = None) -> dict:
+    """Flat flights of the maze tasks and the high level's subgoals along them (module doc;
+    ``loaded``: the run's :func:`load`, when done)."""
     import torch
 
     from aerohrl import task
-    from aerohrl.algorithms.base import load_policy
-    from aerohrl.algorithms.run import Run
-    from aerohrl.eval.harness import EvalOptions, build_episodes, fly, load_run_dataset, run_checkpoints
-    from aerohrl.eval.tasks import dataset_maze
+    from aerohrl.eval.harness import EvalOptions, build_episodes, fly
 
-    run = Run.open(run_dir, kind="train")
-    algo, _ = load_policy(run_checkpoints(run, 1)[-1], torch.device("cpu"), run)
-    data, _ = load_run_dataset(run)
-    maze = dataset_maze(data)
+    algo, data, maze = loaded or load(run_dir)
     opt = EvalOptions(task="maze", episodes=flights, checkpoints=1, seed=seed, progress=False, record=False)
     r = fly(algo, build_episodes(data, opt), data, opt, record_states=True)
     states, goals = r["states"], r["policy_goals"]  # (E, T+1, 18), (E, T+1, 15)
@@ -140,8 +145,12 @@ def main(argv: list[str] | None = None) -> int:
             raise UserError("--frames must be >= 1 and --seed >= 0")
         if a.flights < 0:
             raise UserError("--flights must be >= 0")
-        rows = [(r, study(r, a.frames, a.seed)) for r in a.run]
-        flown = [(r, closed_loop(r, a.flights, a.seed)) for r in a.run] if a.flights else []
+        rows, flown = [], []
+        for r in a.run:  # one load per run (a maze dataset is millions of frames)
+            loaded = load(r)
+            rows.append((r, study(r, a.frames, a.seed, loaded)))
+            if a.flights:
+                flown.append((r, closed_loop(r, a.flights, a.seed, loaded)))
     except UserError as e:
         print(f"hiql_subgoals: error: {e}", file=sys.stderr)
         return 2

@@ -46,30 +46,26 @@ def hops_from(xy: np.ndarray, hop: float) -> np.ndarray:
 
 
 def dataset_hops(folder: Path, hop: float) -> dict:
-    """The figures of one LeRobot dataset folder (module doc)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
+    """The figures of one LeRobot dataset folder (module doc), read with the project's
+    :func:`aerohrl.datagen.dataset.open_dataset` (checksums verified)."""
+    from aerohrl.datagen.dataset import open_dataset
 
-    files = sorted((folder / "data").rglob("*.parquet"))
-    if not files:
-        raise UserError(f"{folder}: no data/*.parquet (a LeRobot dataset folder, e.g. datasets/<name>/<version>)")
-    t = pa.concat_tables([pq.read_table(f, columns=["observation.state", "episode_index"]) for f in files])
-    state = np.stack(t.column("observation.state").to_numpy(zero_copy_only=False)).astype(np.float64)
-    episode = t.column("episode_index").to_numpy()
+    cols = open_dataset(folder).columns()
+    state = np.asarray(cols["observation.state"], dtype=np.float64)
+    episode = np.asarray(cols["episode_index"])
     rest = rest_mask(state)
-    from_hop = 0
-    episodes_with = 0
-    for e in np.unique(episode):
-        r = np.flatnonzero((episode == e) & rest)  # frames are in time order within an episode
+    bounds = np.flatnonzero(np.diff(episode)) + 1  # an episode's frames are contiguous and in time order
+    from_hop = episodes_with = 0
+    for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, len(state)]):
+        r = lo + np.flatnonzero(rest[lo:hi])
         h = hops_from(state[r, :2], hop)
         from_hop += int(h.sum())
         episodes_with += bool(h.any())
-    n = len(state)
     return {
-        "frames": n,
-        "episodes": len(np.unique(episode)),
+        "frames": len(state),
+        "episodes": len(bounds) + 1,
         "at_rest": rest.mean(),
-        "hop_frames": from_hop / n,
+        "hop_frames": from_hop / len(state),
         "episodes_with_hop": episodes_with,
     }
 
@@ -82,13 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if a.hop <= 0:
             raise UserError(f"--hop must be > 0, got {a.hop:g}")
-        for d in a.datasets:
-            if not any((d / "data").rglob("*.parquet")):
-                raise UserError(f"{d}: no data/*.parquet (a LeRobot dataset folder, e.g. datasets/<name>/<version>)")
+        rows = [(d, dataset_hops(d, a.hop)) for d in a.datasets]
         print(f"| dataset | frames | at rest | at rest, resting >= {a.hop:g} m away later | episodes with such a hop |")
         print("|---|---|---|---|---|")
-        for d in a.datasets:
-            f = dataset_hops(d, a.hop)
+        for d, f in rows:
             print(
                 f"| `{d.parent.name}/{d.name}` | {f['frames']:,} | {f['at_rest']:.1%} | {f['hop_frames']:.2%} |"
                 f" {f['episodes_with_hop']:,} of {f['episodes']:,} |"

@@ -18,6 +18,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from aerohrl.errors import UserError
 
 HORIZON = 500  # Reach-Novel's (and the robustness study's) steps per episode
@@ -28,7 +30,7 @@ def bounds(run: Path, perturbations: list[str], scale: float, episodes: int, see
     tolerance x ``scale``."""
     from aerohrl import task
     from aerohrl.eval.harness import load_run_dataset
-    from aerohrl.eval.robustness import expert_spec, expert_success
+    from aerohrl.eval.robustness import expert_flights, expert_spec
     from aerohrl.sim.perturb import Perturbation
 
     spec = expert_spec(load_run_dataset(run)[0].info.get("spec"))
@@ -42,10 +44,9 @@ def bounds(run: Path, perturbations: list[str], scale: float, episodes: int, see
     rows = []
     for text in perturbations:
         Perturbation.parse(text).check()  # a one-line error before any flight
-        rows.append(
-            {"perturb": text}
-            | {k: float(expert_success(spec, episodes, seed, HORIZON, text, t).mean()) for k, t in tests.items()}
-        )
+        achieved, goals = expert_flights(spec, episodes, seed, HORIZON, text)  # one flight, scored under each test
+        hits = {k: np.asarray(task.goal_reached(achieved, goals[None], t)).any(axis=0) for k, t in tests.items()}
+        rows.append({"perturb": text} | {k: float(h.mean()) for k, h in hits.items()})
     return rows
 
 
