@@ -43,7 +43,7 @@ from aerohrl.datagen.dataset import FORMAT
 from aerohrl.datagen.lerobot_reader import read_info
 from aerohrl.datagen.lerobot_writer import DatasetWriter
 from aerohrl.datagen.manifest import read_manifest, validate, write_manifest
-from aerohrl.datagen.spec import EXPLORE_TASK, GENERATOR_VERSION, MAZE_TASK, TASK, DatasetSpec, spec_hash, version_name
+from aerohrl.datagen.spec import EXPLORE_TASK, GENERATOR_VERSION, MAZE_TASK, TASK, WALK_TASK, DatasetSpec, spec_hash, version_name
 from aerohrl.sim import BatchedQuadrotor, Perturbation, get_preset
 
 if TYPE_CHECKING:
@@ -801,7 +801,12 @@ def stream_dataset(spec: DatasetSpec, root: Path, progress: bool = True, runner:
     (:class:`DatasetWriter`), and only per-episode results stay in memory, so the peak
     is a few blocks' frames whatever the number of goals. With continuations the
     rest-start flights are kept whole (their starts are drawn from those frames)."""
-    task_text = TASK if spec.reach else (EXPLORE_TASK if spec.family == "explore" else MAZE_TASK)
+    if spec.reach:
+        task_text = TASK
+    elif spec.family == "explore":
+        task_text = WALK_TASK if spec.explore_pilot == "walk" else EXPLORE_TASK
+    else:
+        task_text = MAZE_TASK
     writer = DatasetWriter(
         root, fps=spec.fps, task=task_text, robot_type=f"quadrotor-{spec.vehicle}", names=FEATURE_NAMES, stats=spec.stats_mode
     )
@@ -1279,6 +1284,24 @@ def _family_intro(meta: dict) -> str:
             "single episode joins a frozen task's start to its goal (a policy must stitch them); fraction of the frozen "
             f"tasks whose start and then goal one episode passes within {c['tolerance_m']} m of: {c['fraction']}.\n"
         )
+    elif s.get("explore_pilot") == "walk":
+        e = meta["explore"]
+        noise = s["action_noise"]
+        body = (
+            "explore (pilot walk): not goal-directed. Each flight is a random walk over the maze's cells from a random "
+            "free cell (at each cell a free neighbour drawn uniformly, turning back only at a dead end), flown on the "
+            "maze expert's rest-to-rest legs between the walk's corners with correlated action noise "
+            f"(sigma c {noise[0]} m/s^2, body rates {noise[1]}/{noise[2]}/{noise[3]} rad/s, tau {s['noise_tau']} s) for "
+            f"up to {s['explore_duration']} s; an episode ends at its first colliding step (kept as its last frame). "
+            "`action` is what was flown (there is no `action.expert`); the desired goal is the episode's last achieved "
+            f"goal (relabel for other goals). Episodes ended by a collision: {e['episodes_ended_by_collision']}.\n"
+        )
+        if "task_coverage" in meta:
+            c = meta["task_coverage"]
+            body += (
+                f"- frozen-task coverage: the fraction of the maze's {len(c['per_task'])} evaluation "
+                f"tasks whose start and then goal one episode passes within {c['tolerance_m']} m of: {c['fraction']}.\n"
+            )
     else:
         e = meta["explore"]
         body = (

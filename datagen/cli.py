@@ -160,7 +160,8 @@ def cmd_build(a: argparse.Namespace) -> int:
             f"{res.resampled} goals resampled, in {res.seconds:.1f} s"
         )
     if spec.family == "explore":  # no expert: the desired goal is each episode's last achieved goal
-        print(f"explore: {res.episodes} random-velocity flights (no expert; see the dataset card)")
+        what = "random-walk" if spec.explore_pilot == "walk" else "random-velocity"
+        print(f"explore: {res.episodes} {what} flights (no expert; see the dataset card)")
         print(res.path)
         return 0
     print(
@@ -213,7 +214,9 @@ def cmd_info(a: argparse.Namespace) -> int:
         f"reference    degree {s['degree']}, {s['solver']}, a_max {s['a_max']} m/s^2; T min/mean/max {d['min']:.2f}/{d['mean']:.2f}/{d['max']:.2f} s",
         f"vehicle      {meta['vehicle']['name']} (mass {meta['vehicle']['mass']} kg), {s['substeps']} RK4 substeps per step",
         (
-            "expert       none (explore: random velocity commands; the desired goal is each episode's last achieved goal)"
+            "expert       none (explore: "
+            + ("a noisy random walk" if s.get("explore_pilot") == "walk" else "random velocity commands")
+            + "; the desired goal is each episode's last achieved goal)"
             if meta.get("family") == "explore"
             else f"expert       {100 * meta['expert_success_rate']:.1f}% success (goal-reached test 0.15 m, 0.35 m/s, 0.15 rad)"
         ),

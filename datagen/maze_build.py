@@ -8,7 +8,9 @@ an expert flight that collides is an error (the build stops and names the count)
 expert's legs run along corridor centre lines, so a collision means the recipe (noise,
 ``a_max``) is beyond what it tracks, not bad luck to be redrawn away.
 
-``explore``: random velocity commands tracked by a stabilising velocity controller; in a
+``explore``: random velocity commands tracked by a stabilising velocity controller
+(pilot ``velocity``), or in a maze a random walk over the cells flown on the expert's legs
+with the spec's action noise, recorded as flown (pilot ``walk``); in a
 maze an episode ends at its first colliding step (kept: the data show what a collision
 is), in free space it runs its full length. The desired goal is the episode's last
 achieved goal.
@@ -36,6 +38,10 @@ EXPLORE_STREAM = 17  # the exploration commands: [spec.seed, 17, block]
 # A block holds at most this many episode-steps (episodes x its longest episode): bounds the
 # rollout's (steps, N, .) float64 buffers (~0.2 GB) whatever the maze's path lengths.
 BLOCK_STEPS = 1_000_000
+# The walk pilot's moves per flight: its duration over this bound on the time a leg takes
+# per cell (a straight run of 2-m cells at a_max = 5 m/s^2 takes more than 0.45 s a cell
+# at any length a maze holds); a walk that ends early leaves the vehicle hovering there.
+WALK_CELL_TIME = 0.4
 MAX_BLOCK_EPISODES = 8192
 
 
@@ -66,6 +72,18 @@ def plan(spec: DatasetSpec, n: int | None = None) -> Plan:
     rng = np.random.default_rng(spec.seed)
     if spec.family == "explore":
         steps = int(np.ceil(spec.explore_duration * spec.fps - 1e-9))
+        if spec.explore_pilot == "walk":
+            assert maze is not None  # DatasetSpec.check: the walk is a maze recipe
+            s = maze.free_cells[rng.integers(0, len(maze.free_cells), size=n)]
+            # enough moves for the flight: no leg covers a cell in less than WALK_CELL_TIME
+            walks = mx.random_walks(maze, rng, s, int(np.ceil(spec.explore_duration / WALK_CELL_TIME)))
+            legs = mx.legs_along(maze, list(walks))
+            T, coeffs = mx.leg_references(
+                legs.a, legs.b, a_max=spec.a_max, solver=spec.solver, degree=spec.degree, tol=spec.bisection_tol
+            )
+            ref = mx.PiecewiseReference(legs.ep, T, coeffs, n)
+            legs_n = np.bincount(legs.ep, minlength=n)
+            return Plan(mx.hover_states(maze.cell_center(s)), np.full(n, steps, np.int64), None, ref, s, None, None, legs_n)
         if maze is None:
             p = np.zeros((n, 3))  # hover at the origin
         else:
@@ -137,12 +155,13 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
     ctrl = GeometricController(params)
     states = np.empty((kmax + 1, n, task.STATE_DIM))
     actions = np.empty((kmax, n, task.ACTION_DIM))
-    expert = np.empty_like(actions) if spec.noisy else None
+    explore = spec.family == "explore"
+    expert = np.empty_like(actions) if spec.noisy and not explore else None  # explore: no expert label
     collided = np.zeros(n, bool)
     s = states[0] = sim.reset(p.start[lo:hi])
     act: np.ndarray = np.arange(n)  # the episodes (of this block) in the simulator's batch, in order
-    explore = spec.family == "explore"
-    if explore:
+    velocity = explore and spec.explore_pilot == "velocity"  # else the expert's legs (navigate, stitch, walk)
+    if velocity:
         rng = np.random.default_rng([spec.seed, EXPLORE_STREAM, block])
         climb = spec.explore_climb if maze is None else 0.0
         cmds = mx.explore_commands(
@@ -165,13 +184,13 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
                 break
             keep = np.flatnonzero(~ended)
             sim, act, s = sim.select(keep), act[keep], s[keep]
-            if explore:
+            if velocity:
                 v_ref, flip = v_ref[keep], flip[keep]
             else:
                 ref = _sub(p.ref, lo + act)
                 if spec.noisy:
                     noise.eta = noise.eta[keep]
-        if explore:
+        if velocity:
             cmd = cmds[k, act]
             if bounce:
                 assert maze is not None
@@ -188,8 +207,8 @@ def fly_block(spec: DatasetSpec, p: Plan, lo: int, hi: int, block: int, progress
         else:
             a = ctrl(s, *ref(k * dt), yaw=0.0)
             if spec.noisy:
-                assert expert is not None
-                expert[k, act] = a
+                if expert is not None:
+                    expert[k, act] = a
                 a = np.clip(a + noise(), box_lo, box_hi)
         actions[k, act] = a
         s = sim.step(a)
@@ -239,6 +258,7 @@ def stream(spec: DatasetSpec, writer: Any, progress: bool) -> Any:
     final = np.empty((n, task.STATE_DIM))
     goal_vec = np.empty((n, task.GOAL_DIM)) if p.goal_vec is None else p.goal_vec
     passes = np.zeros((n, len(maze.tasks) if maze else 0), bool)
+    walk = spec.family == "explore" and spec.explore_pilot == "walk"
     for lo, hi, r in fly(spec, p, progress):
         L = r.pop("length")
         length[lo:hi] = L
@@ -255,7 +275,7 @@ def stream(spec: DatasetSpec, writer: Any, progress: bool) -> Any:
         first[lo + eps] = hit[at] - (ends - L)[eps]
         success[lo + eps] = True
         success_end[lo:hi] = r["success"][ends - 1]
-        if maze is not None and spec.family == "stitch":
+        if maze is not None and (spec.family == "stitch" or walk):
             passes[lo:hi] = mx.passes_tasks(maze, r["next_state"][:, task.POS], e, hi - lo)
         last = np.zeros(len(e), bool)
         last[ends - 1] = True
@@ -284,7 +304,7 @@ def stream(spec: DatasetSpec, writer: Any, progress: bool) -> Any:
             "path_cells": {"min": int(p.path_cells.min()), "mean": float(p.path_cells.mean()), "max": int(p.path_cells.max())},
             "legs_per_episode": {"min": int(p.legs.min()), "mean": float(p.legs.mean()), "max": int(p.legs.max())},
         }
-    if spec.family == "stitch":
+    if spec.family == "stitch" or walk:
         assert maze is not None
         extra["task_coverage"] = {
             "fraction": float(passes.any(axis=0).mean()),
@@ -298,6 +318,13 @@ def stream(spec: DatasetSpec, writer: Any, progress: bool) -> Any:
             "steps_flown": int(length.sum()),
             "steps_commanded": int(p.length.sum()),
         }
+        if walk:
+            assert p.legs is not None
+            extra["explore"]["legs_per_episode"] = {
+                "min": int(p.legs.min()),
+                "mean": float(p.legs.mean()),
+                "max": int(p.legs.max()),
+            }
     vel = goal_vec[:, task.VEL]
     goals = {"pos": goal_vec[:, task.POS].copy(), "vel": vel.copy(), "acc": np.zeros((n, 3))}
     T = p.duration if p.duration is not None else length * spec.dt

@@ -26,7 +26,13 @@ the desired goal is hover at the goal cell's centre, ``[p_goal, 0, I]``.
 
 Exploration (family explore)
 ----------------------------
-Piecewise-constant velocity commands: each held for a time drawn from ``hold`` (s); the
+Pilot ``walk`` (mazes; OGBench's explore recipe): each flight is a random walk over the
+cell graph from a random free cell (:func:`random_walks`), flown as the expert flies a
+path (steps 2-4 above: rest-to-rest legs between the walk's corners) with the spec's
+action noise added to every command; the recorded action is the flown one and there is no
+expert label. A flight lasts ``explore_duration`` seconds or ends at its first collision.
+
+Pilot ``velocity``: piecewise-constant velocity commands: each held for a time drawn from ``hold`` (s); the
 horizontal part has a uniform heading and a speed uniform in ``[0, speed]``; in free
 space the vertical part is uniform in ``[-climb, climb]``, in a maze it is 0 and the
 altitude is held. The reference velocity follows the command with its acceleration's
@@ -103,17 +109,53 @@ class Legs:
 def plan_legs(maze: Maze, start: np.ndarray, goal: np.ndarray) -> Legs:
     """The corner-to-corner legs of each episode's shortest path (module docstring, steps 1-2).
     Planning is a per-episode graph walk (predecessor lists), done once before flying."""
-    eps, pts, cells = [], [], np.empty(len(start), np.int64)
-    for i, (s, g) in enumerate(zip(start, goal)):
-        path = maze.shortest_path(tuple(s), tuple(g))
-        cells[i] = len(path)
+    return legs_along(maze, [maze.shortest_path(tuple(s), tuple(g)) for s, g in zip(start, goal)])
+
+
+def legs_along(maze: Maze, paths: list[np.ndarray]) -> Legs:
+    """The corner-to-corner legs of each episode's cell path ``paths[i]`` (k_i, 2), a walk
+    of 4-connected free cells (module docstring, step 2)."""
+    eps, pts = [], []
+    for i, path in enumerate(paths):
         c = maze.cell_center(corners(path))
         pts.append(c)
         eps.append(np.full(len(c), i))
     p = np.concatenate(pts)
     e = np.concatenate(eps)
     same = e[1:] == e[:-1]  # consecutive corners of one episode form a leg
-    return Legs(e[1:][same], p[:-1][same], p[1:][same], cells)
+    return Legs(e[1:][same], p[:-1][same], p[1:][same], np.array([len(path) for path in paths], np.int64))
+
+
+STEPS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]])  # the four grid moves (row, col)
+
+
+def random_walks(maze: Maze, rng: np.random.Generator, start: np.ndarray, cells: int) -> np.ndarray:
+    """``(n, cells + 1, 2)`` random walks of ``cells`` moves over the maze's cell graph from
+    ``start`` (n, 2), all walks at once (module docstring, "Exploration", pilot ``walk``).
+
+    Each move goes to a free 4-neighbour drawn uniformly among those that do not turn
+    back, and turns back only at a dead end: a plain random walk retraces its last move a
+    quarter to a half of the time and covers little of a maze in a flight, while this one
+    runs down corridors and picks a branch at random at each junction, the way OGBench's
+    explore agents run in a random direction. The draws come from ``rng`` in order."""
+    start = np.asarray(start, np.int64)
+    n = len(start)
+    walk = np.empty((n, cells + 1, 2), np.int64)
+    walk[:, 0] = start
+    prev = np.full(n, -1)  # the move index taken last (-1: none)
+    back = np.array([1, 0, 3, 2])  # the move that undoes each move
+    for k in range(cells):
+        nxt = walk[:, k, None, :] + STEPS  # (n, 4, 2)
+        free = ~maze.is_wall(nxt.reshape(-1, 2)).reshape(n, 4)
+        forward = free.copy()
+        has_prev = prev >= 0
+        forward[has_prev, back[prev[has_prev]]] = False
+        allowed = np.where(forward.any(axis=1, keepdims=True), forward, free)  # a dead end: turn back
+        key = np.where(allowed, rng.random((n, 4)), -1.0)  # uniform among the allowed moves
+        move = key.argmax(axis=1)
+        walk[:, k + 1] = nxt[np.arange(n), move]
+        prev = move
+    return walk
 
 
 def leg_references(

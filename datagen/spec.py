@@ -28,12 +28,14 @@ EXPERTS = ("open-loop", "replan")
 START_STATES = ("rest", "perturbed")
 WORLDS = ("free", "maze-medium", "maze-large", "maze-giant")
 FAMILIES = ("navigate", "stitch", "explore")
+EXPLORE_PILOTS = ("velocity", "walk")
 STATS_MODES = ("auto", "exact", "sketch")
 # stats = "auto": the exact dataset statistics below this many episodes, the streamed
 # sketch from it on (datagen/README.md "Statistics").
 STATS_SKETCH_EPISODES = 100_000
 MAZE_TASK = "Fly the quadrotor through the maze from hover at one cell centre to hover at another (the desired goal state)."
 EXPLORE_TASK = "Random-velocity flights (not goal-directed); the desired goal is the episode's last achieved goal."
+WALK_TASK = "Random walks over the maze's cells, flown with heavy action noise (not goal-directed); the desired goal is the episode's last achieved goal."
 # Recipe fields added after datasets were published: left out of the spec's dict (and so
 # of its hash, version name and metadata bytes) while they hold their defaults.
 RECIPE_DEFAULTS = {
@@ -61,6 +63,7 @@ RECIPE_DEFAULTS = {
     "explore_duration": 10.0,
     "explore_stop": 0.0,
     "explore_wall_margin": 0.0,
+    "explore_pilot": "velocity",
     "stats": "auto",
 }
 
@@ -148,7 +151,7 @@ class DatasetSpec:
     world: str = param("free", "free (open space, the thesis) | maze-medium | maze-large | maze-giant", choices=WORLDS)
     family: str = param(
         "navigate",
-        "navigate (expert flights to goals) | stitch (maze: short expert hops) | explore (random velocity commands)",
+        "navigate (expert flights to goals) | stitch (maze: short expert hops) | explore (not goal-directed: random velocity commands or a random walk, --explore-pilot)",
         choices=FAMILIES,
     )
     min_path: float = param(0.5, "maze navigate: least start-goal path length, fraction of the maze's diameter", ge=0, le=1)
@@ -170,6 +173,16 @@ class DatasetSpec:
         unit="m",
         ge=0,
         le=2,
+    )
+    # OGBench's explore datasets fly a goal-directed low level in random directions with
+    # heavy action noise; "walk" is that recipe in a maze: where the flight goes is random,
+    # how it flies a corridor is the expert's, and what is recorded is what was flown
+    explore_pilot: str = param(
+        "velocity",
+        "explore: velocity (random velocity commands tracked by a stabilising controller) | walk (maze: a random "
+        "walk over the cell graph flown on the maze expert's corner-to-corner legs with --action-noise, recorded as "
+        "flown, no expert label)",
+        choices=EXPLORE_PILOTS,
     )
     # How meta/stats.json is computed (datagen/README.md "Statistics"): "exact" order
     # statistics and sorted-column means of every frame (a read-back pass and scratch disk at
@@ -237,6 +250,8 @@ class DatasetSpec:
             raise UserError("--family stitch needs a maze world (--world maze-medium | maze-large | maze-giant)")
         if self.hop_cells[0] > self.hop_cells[1]:
             raise UserError(f"hop_cells is inverted: {self.hop_cells[0]} .. {self.hop_cells[1]} (need LOW <= HIGH)")
+        if self.explore_pilot == "walk" and not (self.family == "explore" and self.maze):
+            raise UserError("--explore-pilot walk is a maze explore recipe (--world maze-... --family explore)")
         if self.explore_hold[0] > self.explore_hold[1]:
             raise UserError(f"explore_hold is inverted: {self.explore_hold[0]} .. {self.explore_hold[1]} s (need LOW <= HIGH)")
         if not self.reach:
@@ -251,7 +266,7 @@ class DatasetSpec:
                 ("rollouts_per_goal", self.rollouts_per_goal > 1),
                 ("randomize", bool(self.randomize)),
                 ("disturbance_observer", self.disturbance_observer > 0),
-                ("action_noise", self.family == "explore" and self.noisy),
+                ("action_noise", self.family == "explore" and self.noisy and self.explore_pilot != "walk"),
             ):
                 if bad:
                     raise UserError(f"--{f.replace('_', '-')} is a free-space reach recipe; it does not apply to {what}")
@@ -289,6 +304,7 @@ class DatasetSpec:
         # Fields added after datasets were published are left out at their defaults, so
         # every earlier spec keeps its hash, version name and metadata bytes. A recipe's
         # sub-settings are kept only when the recipe is on.
+        velocity = self.family == "explore" and self.explore_pilot == "velocity"
         on = {
             "replan_every": self.expert == "replan",
             "replan_endgame": self.expert == "replan",
@@ -299,12 +315,13 @@ class DatasetSpec:
             "min_path": self.maze is not None and self.family == "navigate",
             "hop_cells": self.family == "stitch",
             "settle": self.maze is not None and self.family != "explore",
-            "explore_speed": self.family == "explore",
-            "explore_climb": self.family == "explore" and self.maze is None,
-            "explore_hold": self.family == "explore",
+            "explore_speed": velocity,
+            "explore_climb": velocity and self.maze is None,
+            "explore_hold": velocity,
             "explore_duration": self.family == "explore",
-            "explore_stop": self.family == "explore",
-            "explore_wall_margin": self.family == "explore" and self.maze is not None,
+            "explore_stop": velocity,
+            "explore_wall_margin": velocity and self.maze is not None,
+            "explore_pilot": self.family == "explore",
         }
         # the statistics as resolved: "auto" and "exact" give today's bytes, "sketch" others
         d["stats"] = "sketch" if self.stats_mode == "sketch" else "auto"

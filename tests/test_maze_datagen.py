@@ -24,6 +24,15 @@ TINY = {
     "navigate": DatasetSpec(name="m-nav", goals=4, world="maze-medium", family="navigate", action_noise=(1.0, 0.5, 0.5, 0.5)),
     "stitch": DatasetSpec(name="m-stitch", goals=12, world="maze-medium", family="stitch", action_noise=(1.0, 0.5, 0.5, 0.5)),
     "explore": DatasetSpec(name="m-explore", goals=6, world="maze-medium", family="explore", explore_duration=3.0),
+    "walk": DatasetSpec(
+        name="m-walk",
+        goals=6,
+        world="maze-medium",
+        family="explore",
+        explore_pilot="walk",
+        explore_duration=4.0,
+        action_noise=(3.0, 1.5, 1.5, 1.5),
+    ),
     "free-explore": DatasetSpec(
         name="f-explore", goals=3, family="explore", explore_speed=7.0, explore_climb=2.0, explore_duration=2.0
     ),
@@ -172,6 +181,53 @@ def test_explore_wall_margin_keeps_flights_going_and_earlier_bytes(tmp_path):
     assert hits[1] <= 2 and hits[1] < hits[0]
 
 
+def test_random_walks_run_down_corridors_and_turn_back_only_at_dead_ends():
+    maze = load_maze("large")
+    start = maze.free_cells[np.random.default_rng(0).integers(0, len(maze.free_cells), 64)]
+    w = mx.random_walks(maze, np.random.default_rng(1), start, 40)
+    assert w.shape == (64, 41, 2)
+    np.testing.assert_array_equal(w[:, 0], start)
+    step = np.diff(w, axis=1)
+    assert (np.abs(step).sum(axis=-1) == 1).all()  # one 4-neighbour move at a time
+    assert not maze.is_wall(w).any()
+    back = (step[:, 1:] == -step[:, :-1]).all(axis=-1)  # move k+1 undoes move k
+    here = w[:, 1:-1]  # the cell it turned back at
+    exits = (~maze.is_wall(here[..., None, :] + mx.STEPS)).sum(axis=-1)
+    assert back.any() and (exits[back] == 1).all()  # only at dead ends
+    again = mx.random_walks(maze, np.random.default_rng(1), start, 40)
+    np.testing.assert_array_equal(w, again)  # a function of the generator's seed
+
+
+def test_walk_pilot_flies_the_expert_legs_records_what_was_flown_and_keeps_earlier_bytes(built, tmp_path):
+    """The walk pilot: no expert label, a flight ends at its first collision or lasts its
+    duration, the legs run along corridor centre lines (no noise: no collision), and the
+    field enters a spec's identity only when it is walk."""
+    velocity = DatasetSpec(world="maze-large", family="explore")
+    assert version_name(DatasetSpec(world="maze-large", family="explore", explore_pilot="velocity")) == version_name(velocity)
+    d = DatasetSpec(world="maze-large", family="explore", explore_pilot="walk", action_noise=(3.0, 1.5)).to_dict()
+    assert d["explore_pilot"] == "walk" and d["action_noise"] == [3.0, 1.5, 1.5, 1.5]
+    assert not {"explore_speed", "explore_hold", "explore_stop", "explore_wall_margin"} & set(d)
+    res = built["walk"]
+    meta = read_manifest(res.path)
+    assert meta["explore"]["legs_per_episode"]["min"] >= 1 and "task_coverage" in meta
+    c = open_dataset(res.path).columns()
+    ep = c["episode_index"]
+    maze = load_maze("medium")
+    hit = maze.collides(c["next.observation.state"][:, :3].astype(np.float64))
+    last = np.r_[ep[1:] != ep[:-1], True]
+    assert not hit[~last].any() and hit[last].sum() == meta["collisions"]
+    assert ((np.bincount(ep) == 400) | hit[last]).all()
+    speed = np.linalg.norm(c["observation.state"][:, 3:6], axis=1)
+    assert speed.max() > 1.0  # it flies the maze, not a hover
+    assert "explore (pilot walk)" in (res.path / "README.md").read_text()
+    clean = DatasetSpec(
+        name="m-walk0", goals=8, world="maze-medium", family="explore", explore_pilot="walk", explore_duration=6.0
+    )
+    res0 = build(clean, tmp_path, progress=False, log=lambda _: None)
+    m0 = read_manifest(res0.path)
+    assert m0["collisions"] == 0 and m0["frames"] == 8 * 600
+
+
 def test_same_spec_same_bytes(built, tmp_path):
     res = build(TINY["stitch"], tmp_path, progress=False, log=lambda _: None)
     assert read_manifest(res.path)["checksums"] == read_manifest(built["stitch"].path)["checksums"]
@@ -203,6 +259,9 @@ def test_spec_round_trips_through_toml_and_free_space_names_hold(tmp_path):
         ({"world": "maze-medium", "expert": "replan"}, "--expert is a free-space reach recipe"),
         ({"world": "maze-large", "family": "stitch", "hop_cells": (4, 2)}, "hop_cells is inverted"),
         ({"family": "explore", "action_noise": (1.0, 0.5)}, "--action-noise is a free-space reach recipe"),
+        ({"family": "explore", "explore_pilot": "walk"}, "walk is a maze explore recipe"),
+        ({"world": "maze-large", "explore_pilot": "walk"}, "walk is a maze explore recipe"),
+        ({"world": "maze-large", "family": "explore", "explore_pilot": "drift"}, "explore_pilot must be one of"),
     ],
 )
 def test_bad_inputs_are_one_line_errors(kwargs, message):
