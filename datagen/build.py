@@ -237,7 +237,13 @@ def rollout_expert(
         seen = states[k] if sim.plant is None else sim.observe()
         if replanning and k > 0 and k % spec.replan_every == 0:
             # t0 holds each episode's plan start (an array) when replanning
-            recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, seen, xf, T)
+            end = xf
+            if spec.terminal_disturbance:  # the spec's field comment: arrive at the goal's attitude
+                assert dob is not None  # DatasetSpec.check: terminal_disturbance needs the observer
+                # horizontal only: a vertical estimate changes the thrust's size, not its direction
+                end = xf.copy()
+                end[:, :2, 2] += dob.d_hat[:, :2]
+            recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, seen, end, T)
         ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
         if dob is not None:
             assert out.disturbance is not None  # allocated with the observer
@@ -1131,6 +1137,12 @@ def recipe_summary(spec: DatasetSpec) -> dict:
         r["expert"] = (
             f"replan: shrinking-horizon minimum-jerk re-plan from the flown state every {spec.replan_every} steps, "
             f"none in the last {spec.replan_endgame} s"
+            + (
+                "; each re-plan ends at the goal's acceleration plus the observer's horizontal disturbance estimate "
+                "(terminal_disturbance: arriving at the goal's attitude, carried by the disturbance)"
+                if spec.terminal_disturbance
+                else ""
+            )
         )
     if spec.noisy:
         r["action_noise"] = {

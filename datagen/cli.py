@@ -48,7 +48,9 @@ def _spec_flags(p: argparse.ArgumentParser) -> None:
             continue
         flag = "--" + f.name.replace("_", "-")
         default = f.default
-        if f.name == "action_noise":
+        if isinstance(default, bool):  # a switch: absent keeps the spec file's value
+            p.add_argument(flag, action="store_true", default=None, help=f"{helps[f.name]} [off]")
+        elif f.name == "action_noise":
             p.add_argument(flag, type=T.nonneg_float, nargs="+", metavar="SIGMA", default=None, help=f"{helps[f.name]} [0 = off]")
         elif isinstance(default, tuple):
             p.add_argument(

@@ -45,6 +45,7 @@ RECIPE_DEFAULTS = {
     "replan_every": 5,
     "replan_endgame": 0.5,
     "disturbance_observer": 0.0,
+    "terminal_disturbance": False,
     "action_noise": (0.0, 0.0, 0.0, 0.0),
     "noise_tau": 0.2,
     "start_states": "rest",
@@ -112,6 +113,17 @@ class DatasetSpec:
         "drag, wind) from the observed velocity and cancels it (0: off, the thesis's expert)",
         unit="s",
         ge=0,
+    )
+    # Under a steady disturbance d (wind on the drag) hovering takes a tilt against it, so
+    # an expert that arrives at rest at the goal's acceleration arrives tilted off the goal's
+    # attitude. The goal's attitude is the thrust direction of its acceleration a_g; the
+    # thrust direction of a flown acceleration a is that of a - d, so a re-planned reference
+    # that ends at a_g + d_hat (its horizontal part) arrives at the goal's attitude, carried
+    # by the disturbance.
+    terminal_disturbance: bool = param(
+        False,
+        "replan with a disturbance observer: each re-plan ends at the goal's acceleration plus the observer's "
+        "estimate, so the vehicle arrives at the goal's attitude while the disturbance carries it",
     )
     # DART (Laskey et al. 2017): Ornstein-Uhlenbeck noise with stationary std
     # ``action_noise`` per CTBR dimension [c (m/s^2), wx, wy, wz (rad/s)] and correlation
@@ -227,6 +239,8 @@ class DatasetSpec:
             raise UserError("the closed-form solver exists for degree 5 only; use --solver qp for higher degrees")
         if self.fps * self.substeps < 500:
             raise UserError(f"physics rate fps*substeps = {self.fps * self.substeps} Hz is below the 500 Hz floor")
+        if self.terminal_disturbance and not (self.expert == "replan" and self.disturbance_observer > 0):
+            raise UserError("--terminal-disturbance needs --expert replan and --disturbance-observer TAU")
         if self.action_noise[0] > 5.0 or max(self.action_noise[1:]) > 3.0:
             raise UserError(
                 f"action_noise {list(self.action_noise)} is beyond what the expert flies through "

@@ -193,3 +193,33 @@ def test_observer_setting_keeps_old_spec_hashes_and_is_free_space_only():
     assert spec_hash(replace(spec, disturbance_observer=0.5)) != spec_hash(spec)
     with pytest.raises(UserError, match="disturbance-observer"):
         replace(spec, world="maze-large", disturbance_observer=0.5).check()
+
+
+def test_terminal_disturbance_arrives_level_in_steady_wind():
+    """In a steady wind the re-planning expert with its observer arrives at rest tilted
+    against the drag and misses the goal's attitude; ending each re-plan at the goal's
+    acceleration plus the estimate (terminal_disturbance) arrives at the goal's attitude."""
+    from dataclasses import replace
+
+    from aerohrl.eval.robustness import expert_spec, expert_success
+
+    spec = replace(expert_spec(None), disturbance_observer=0.25, expert="replan")
+    wind = "drag=0.5,wind=3"
+    plain = expert_success(spec, 40, 0, 500, wind).mean()
+    shifted = expert_success(replace(spec, terminal_disturbance=True), 40, 0, 500, wind).mean()
+    assert shifted >= plain + 0.1
+    assert expert_success(replace(spec, terminal_disturbance=True), 40, 0, 500, None).mean() >= 0.95  # nominal: no shift
+
+
+def test_terminal_disturbance_needs_the_replanning_observer_expert_and_keeps_old_hashes():
+    from dataclasses import replace
+
+    from aerohrl.datagen.spec import DatasetSpec, spec_hash
+    from aerohrl.errors import UserError
+
+    spec = DatasetSpec(expert="replan", disturbance_observer=0.25)
+    assert "terminal_disturbance" not in spec.to_dict()
+    assert spec_hash(replace(spec, terminal_disturbance=True)) != spec_hash(spec)
+    for bad in (replace(spec, expert="open-loop"), replace(spec, disturbance_observer=0.0)):
+        with pytest.raises(UserError, match="terminal-disturbance needs"):
+            replace(bad, terminal_disturbance=True).check()
