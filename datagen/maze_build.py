@@ -81,7 +81,10 @@ def plan(spec: DatasetSpec, n: int | None = None) -> Plan:
             T, coeffs = mx.leg_references(
                 legs.a, legs.b, a_max=spec.a_max, solver=spec.solver, degree=spec.degree, tol=spec.bisection_tol
             )
-            ref = mx.PiecewiseReference(legs.ep, T, coeffs, n)
+            ep = legs.ep
+            if spec.explore_stop > 0:
+                ep, T, coeffs = mx.with_pauses(rng, legs, T, coeffs, spec.explore_stop, spec.explore_hold)
+            ref = mx.PiecewiseReference(ep, T, coeffs, n)
             legs_n = np.bincount(legs.ep, minlength=n)
             return Plan(mx.hover_states(maze.cell_center(s)), np.full(n, steps, np.int64), None, ref, s, None, None, legs_n)
         if maze is None:

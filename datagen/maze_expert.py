@@ -30,7 +30,9 @@ Pilot ``walk`` (mazes; OGBench's explore recipe): each flight is a random walk o
 cell graph from a random free cell (:func:`random_walks`), flown as the expert flies a
 path (steps 2-4 above: rest-to-rest legs between the walk's corners) with the spec's
 action noise added to every command; the recorded action is the flown one and there is no
-expert label. A flight lasts ``explore_duration`` seconds or ends at its first collision.
+expert label. With probability ``explore_stop`` the vehicle hovers after a leg, for a time
+drawn from ``explore_hold`` (:func:`with_pauses`). A flight lasts ``explore_duration``
+seconds or ends at its first collision.
 
 Pilot ``velocity``: piecewise-constant velocity commands: each held for a time drawn from ``hold`` (s); the
 horizontal part has a uniform heading and a speed uniform in ``[0, speed]``; in free
@@ -124,6 +126,22 @@ def legs_along(maze: Maze, paths: list[np.ndarray]) -> Legs:
     e = np.concatenate(eps)
     same = e[1:] == e[:-1]  # consecutive corners of one episode form a leg
     return Legs(e[1:][same], p[:-1][same], p[1:][same], np.array([len(path) for path in paths], np.int64))
+
+
+def with_pauses(
+    rng: np.random.Generator, legs: Legs, T: np.ndarray, coeffs: np.ndarray, stop: float, hold: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The legs ``(T, coeffs)`` of :func:`leg_references` with a hover after each leg with
+    probability ``stop``, held a time uniform in ``hold`` (s) at the leg's end ->
+    ``(ep, T, coeffs)`` in episode order, for :class:`PiecewiseReference`. A hover is a
+    constant reference (every derivative zero). The draws come from ``rng`` in order."""
+    pause = rng.random(len(T)) < stop
+    held = rng.uniform(hold[0], hold[1], size=len(T))[pause]
+    still = np.zeros((int(pause.sum()),) + coeffs.shape[1:])
+    still[:, :, 0] = legs.b[pause]
+    order = np.argsort(np.concatenate([2 * np.arange(len(T)), 2 * np.flatnonzero(pause) + 1]), kind="stable")
+    ep = np.concatenate([legs.ep, legs.ep[pause]])[order]
+    return ep, np.concatenate([T, held])[order], np.concatenate([coeffs, still])[order]
 
 
 STEPS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]])  # the four grid moves (row, col)

@@ -174,7 +174,11 @@ class DatasetSpec:
     explore_hold: tuple[float, float] = param((0.5, 1.0), "explore: range of each command's hold time", unit="s", gt=0)
     explore_duration: float = param(10.0, "explore: flight length (a maze flight ends earlier at a collision)", unit="s", gt=0)
     explore_stop: float = param(
-        0.0, "explore: probability that a command is a hover (zero velocity): pauses of a random pilot", ge=0, le=1
+        0.0,
+        "explore: probability that a command is a hover (zero velocity; walk: a hover after a leg, held explore_hold): "
+        "pauses of a random pilot",
+        ge=0,
+        le=1,
     )
     # Without it most maze flights end at their first collision within a few seconds and
     # less than a cell from their start; with it they last their duration and wander
@@ -331,9 +335,9 @@ class DatasetSpec:
             "settle": self.maze is not None and self.family != "explore",
             "explore_speed": velocity,
             "explore_climb": velocity and self.maze is None,
-            "explore_hold": velocity,
+            "explore_hold": velocity or (self.family == "explore" and self.explore_stop > 0),
             "explore_duration": self.family == "explore",
-            "explore_stop": velocity,
+            "explore_stop": self.family == "explore",
             "explore_wall_margin": velocity and self.maze is not None,
             "explore_pilot": self.family == "explore",
         }

@@ -198,6 +198,30 @@ def test_random_walks_run_down_corridors_and_turn_back_only_at_dead_ends():
     np.testing.assert_array_equal(w, again)  # a function of the generator's seed
 
 
+def test_walk_pauses_hover_at_a_legs_end_for_the_drawn_time():
+    maze = load_maze("large")
+    start = maze.free_cells[:6]
+    legs = mx.legs_along(maze, list(mx.random_walks(maze, np.random.default_rng(2), start, 12)))
+    T, coeffs = mx.leg_references(legs.a, legs.b, a_max=5.0, solver="closed-form", degree=5, tol=0.02)
+    ep, T2, c2 = mx.with_pauses(np.random.default_rng(3), legs, T, coeffs, 0.5, (0.5, 1.5))
+    pauses = len(T2) - len(T)
+    assert 0 < pauses < len(T) and (np.diff(ep) >= 0).all()  # episodes stay consecutive
+    moving = np.isin(T2, T)
+    np.testing.assert_array_equal(T2[moving], T)  # the legs keep their order
+    held = T2[~moving]
+    assert ((held >= 0.5) & (held <= 1.5)).all()
+    ref = mx.PiecewiseReference(ep, T2, c2, len(start))
+    # during each pause the reference is at rest at the end of the leg before it
+    starts = ref.start[ref.T > 0]
+    still = ~np.isin(ref.T[ref.T > 0], T)
+    rows = np.repeat(np.arange(len(start)), (ref.T > 0).sum(axis=1))
+    for row, t0, dur in zip(rows[still], starts[still], ref.T[ref.T > 0][still]):
+        out = mx.PiecewiseReference(ep, T2, c2, len(start))(np.full(len(start), t0 + dur / 2))
+        np.testing.assert_allclose(out[1][row], 0.0, atol=1e-12)
+        before = mx.PiecewiseReference(ep, T2, c2, len(start))(np.full(len(start), t0 - 1e-9))
+        np.testing.assert_allclose(out[0][row], before[0][row], atol=1e-6)
+
+
 def test_walk_pilot_flies_the_expert_legs_records_what_was_flown_and_keeps_earlier_bytes(built, tmp_path):
     """The walk pilot: no expert label, a flight ends at its first collision or lasts its
     duration, the legs run along corridor centre lines (no noise: no collision), and the
