@@ -8,7 +8,8 @@ horizon) and is scored under the goal test as it is, then with one tolerance at 
 lifts the success most is the one the expert's flights miss.
 
     python experiments/robust_bounds.py --run runs/drow-s0 \\
-        --perturb drag=0.5,wind=3,gust=1 --perturb mass=1.2,thrust=0.85 [--scale 2] [--episodes 100]
+        --perturb drag=0.5,wind=3,gust=1 --perturb mass=1.2,thrust=0.85 [--scale 2] [--episodes 100] \\
+        [--expert-set expert=replan --expert-set terminal_disturbance=true]
 """
 
 from __future__ import annotations
@@ -25,15 +26,26 @@ from aerohrl.errors import UserError
 HORIZON = 500  # Reach-Novel's (and the robustness study's) steps per episode
 
 
-def bounds(run: Path, perturbations: list[str], scale: float, episodes: int, seed: int) -> list[dict]:
+def bounds(
+    run: Path, perturbations: list[str], scale: float, episodes: int, seed: int, expert_set: dict | None = None
+) -> list[dict]:
     """One row per perturbation: the expert's success under the task's test and with each
-    tolerance x ``scale``."""
+    tolerance x ``scale``. ``expert_set``: spec fields of the expert replaced (another
+    expert recipe on the same goals, e.g. ``{"expert": "replan"}``)."""
     from aerohrl import task
     from aerohrl.eval.harness import load_run_dataset
     from aerohrl.eval.robustness import expert_flights, expert_spec
     from aerohrl.sim.perturb import Perturbation
 
     spec = expert_spec(load_run_dataset(run)[0].info.get("spec"))
+    if expert_set:
+        from dataclasses import fields
+
+        names = {f.name for f in fields(spec)}
+        unknown = sorted(set(expert_set) - names)
+        if unknown:
+            raise UserError(f"--expert-set {unknown[0]}: not a dataset spec field")
+        spec = replace(spec, **expert_set)
     tol = task.TOLERANCE
     tests = {
         "as is": tol,
@@ -57,11 +69,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scale", type=float, default=2.0, help="factor on the one relaxed tolerance [2]")
     p.add_argument("--episodes", type=int, default=100, help="episodes per perturbation [100]")
     p.add_argument("--seed", type=int, default=0, help="episode and perturbation seed, as aerohrl eval robustness [0]")
+    p.add_argument(
+        "--expert-set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="replace a spec field of the expert (expert=replan, terminal_disturbance=true; repeatable)",
+    )
     a = p.parse_args(argv)
     try:
         if a.scale <= 0 or a.episodes < 1 or a.seed < 0:
             raise UserError("--scale must be > 0, --episodes >= 1 and --seed >= 0")
-        rows = bounds(a.run, a.perturb, a.scale, a.episodes, a.seed)
+        from aerohrl.sweep import key_values
+
+        rows = bounds(a.run, a.perturb, a.scale, a.episodes, a.seed, key_values(a.expert_set, "--expert-set", many=False))
     except (UserError, ValueError) as e:
         print(f"robust_bounds: error: {e}", file=sys.stderr)
         return 2

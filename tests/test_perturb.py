@@ -395,3 +395,9 @@ def test_robust_bounds_relaxing_a_tolerance_never_lowers_the_expert(tiny_run, ca
     assert rb.main(["--run", str(tiny_run), "--perturb", "weight=2"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("robust_bounds: error: unknown perturbation 'weight'") and "\n" not in err
+    # another expert recipe on the same goals: the observer holds a heavier vehicle's goals
+    (plain,) = rb.bounds(tiny_run, ["mass=1.2"], 2.0, 40, 0)
+    (other,) = rb.bounds(tiny_run, ["mass=1.2"], 2.0, 40, 0, {"disturbance_observer": 0.5})
+    assert other["as is"] >= plain["as is"] + 0.15
+    assert rb.main(["--run", str(tiny_run), "--perturb", "mass=1.1", "--expert-set", "pilot=7"]) == 2
+    assert "--expert-set pilot: not a dataset spec field" in capsys.readouterr().err
