@@ -39,8 +39,9 @@ EXPLORE_STREAM = 17  # the exploration commands: [spec.seed, 17, block]
 # rollout's (steps, N, .) float64 buffers (~0.2 GB) whatever the maze's path lengths.
 BLOCK_STEPS = 1_000_000
 # The walk pilot's moves per flight: its duration over this bound on the time a leg takes
-# per cell (a straight run of 2-m cells at a_max = 5 m/s^2 takes more than 0.45 s a cell
-# at any length a maze holds); a walk that ends early leaves the vehicle hovering there.
+# per cell. A rest-to-rest quintic over k cells of 2 m at a_max = 5 m/s^2 takes
+# sqrt(10 / sqrt(3) * 2 / (5 k)) s a cell, above 0.4 s for runs up to 14 cells (the packaged
+# mazes' longest corridor is 10); a walk that ends early leaves the vehicle hovering there.
 WALK_CELL_TIME = 0.4
 MAX_BLOCK_EPISODES = 8192
 
