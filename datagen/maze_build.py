@@ -66,6 +66,11 @@ def world_maze(spec: DatasetSpec) -> Maze | None:
     return load_maze(spec.maze) if spec.maze else None
 
 
+def _references(spec: DatasetSpec, legs: mx.Legs) -> tuple[np.ndarray, np.ndarray]:
+    """The spec's minimum-time references of ``legs`` (:func:`aerohrl.datagen.maze_expert.leg_references`)."""
+    return mx.leg_references(legs.a, legs.b, a_max=spec.a_max, solver=spec.solver, degree=spec.degree, tol=spec.bisection_tol)
+
+
 def plan(spec: DatasetSpec, n: int | None = None) -> Plan:
     """Starts, goals and expert references of the spec's episodes (the first ``n``)."""
     n = spec.goals if n is None else int(n)
@@ -79,9 +84,7 @@ def plan(spec: DatasetSpec, n: int | None = None) -> Plan:
             # enough moves for the flight: no leg covers a cell in less than WALK_CELL_TIME
             walks = mx.random_walks(maze, rng, s, int(np.ceil(spec.explore_duration / WALK_CELL_TIME)))
             legs = mx.legs_along(maze, list(walks))
-            T, coeffs = mx.leg_references(
-                legs.a, legs.b, a_max=spec.a_max, solver=spec.solver, degree=spec.degree, tol=spec.bisection_tol
-            )
+            T, coeffs = _references(spec, legs)
             ep = legs.ep
             if spec.explore_stop > 0:
                 ep, T, coeffs = mx.with_pauses(rng, legs, T, coeffs, spec.explore_stop, spec.explore_hold)
@@ -99,9 +102,7 @@ def plan(spec: DatasetSpec, n: int | None = None) -> Plan:
     else:
         s, g = mx.sample_pairs(maze, rng, n, min_path=spec.min_path)
     legs = mx.plan_legs(maze, s, g)
-    T, coeffs = mx.leg_references(
-        legs.a, legs.b, a_max=spec.a_max, solver=spec.solver, degree=spec.degree, tol=spec.bisection_tol
-    )
+    T, coeffs = _references(spec, legs)
     ref = mx.PiecewiseReference(legs.ep, T, coeffs, n)
     length = np.ceil((ref.duration + spec.settle) * spec.fps - 1e-9).astype(np.int64)
     return Plan(

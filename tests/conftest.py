@@ -47,6 +47,24 @@ def load_experiment(name: str):
     return sys.modules[key]
 
 
+# A run small enough to train in a test: the experiment scripts' tests read its checkpoint
+TINY_TRAIN = dict(
+    hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=20, log_every=10, checkpoint_every=20, eval_every=0
+)
+
+
+def train_tiny(run_dir: Path, dataset: Path, **settings) -> Path:
+    """A :data:`TINY_TRAIN` cpu-preset run on ``dataset`` (``settings`` on top), trained to its end."""
+    import torch
+
+    from aerohrl.algorithms.config import make_config
+    from aerohrl.algorithms.trainer import start_run
+
+    torch.set_num_threads(1)
+    start_run(make_config("cpu", dataset=str(dataset), **{**TINY_TRAIN, **settings}), run_dir, progress=False).train()
+    return run_dir
+
+
 FINGERPRINT_RTOL = 1e-9  # of the array's L1 norm: far above round-off, far below any change of the arithmetic
 
 

@@ -1,33 +1,22 @@
 """experiments/hiql_subgoals.py: a goal-space HIQL's subgoals read back as positions, on a maze dataset."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
-import torch
+from conftest import load_experiment, train_tiny
 
-spec = importlib.util.spec_from_file_location("hiql_subgoals", Path(__file__).parents[1] / "experiments" / "hiql_subgoals.py")
-hs = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(hs)
-
-TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=20, log_every=10, checkpoint_every=20, eval_every=0)
+hs = load_experiment("hiql_subgoals")
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    from aerohrl.algorithms.config import make_config
     from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
-    from aerohrl.algorithms.trainer import start_run
 
-    torch.set_num_threads(1)
     root = tmp_path_factory.mktemp("hiqlsub")
     maze = write_synthetic_dataset(root / "ds", straight_columns(seed=2), version="synthetic-maze", spec={"world": "maze-medium"})
-    out = {}
-    for name, kw in (("hiql", dict(algo="hiql", hiql_subgoal_space="goal", hiql_subgoal_steps=5)), ("gcsl", dict(algo="gcsl"))):
-        start_run(make_config("cpu", dataset=str(maze), pos_octaves=2, **kw, **TINY), root / name, progress=False).train()
-        out[name] = root / name
-    return out
+    hiql = dict(algo="hiql", hiql_subgoal_space="goal", hiql_subgoal_steps=5)
+    return {
+        name: train_tiny(root / name, maze, pos_octaves=2, **kw) for name, kw in (("hiql", hiql), ("gcsl", dict(algo="gcsl")))
+    }
 
 
 def test_subgoal_positions_invert_the_goal_columns(runs):

@@ -1,34 +1,20 @@
 """experiments/maze_hops.py: the one-cell hop test of a maze skill."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
-import torch
+from conftest import load_experiment, train_tiny
 
-spec = importlib.util.spec_from_file_location("maze_hops", Path(__file__).parents[1] / "experiments" / "maze_hops.py")
-mh = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(mh)
-
-TINY = dict(hidden=(16, 16), critic_hidden=(16, 16), batch_size=32, steps=20, log_every=10, checkpoint_every=20, eval_every=0)
+mh = load_experiment("maze_hops")
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    from aerohrl.algorithms.config import make_config
     from aerohrl.algorithms.synthetic import straight_columns, write_synthetic_dataset
-    from aerohrl.algorithms.trainer import start_run
 
-    torch.set_num_threads(1)
     root = tmp_path_factory.mktemp("hops")
     maze = write_synthetic_dataset(root / "m", straight_columns(seed=2), version="synthetic-maze", spec={"world": "maze-medium"})
     free = write_synthetic_dataset(root / "f", straight_columns(seed=3), version="synthetic-free")
-    out = {}
-    for name, ds in (("maze", maze), ("free", free)):
-        start_run(make_config("cpu", dataset=str(ds), algo="gcsl", **TINY), root / name, progress=False).train()
-        out[name] = root / name
-    return out
+    return {name: train_tiny(root / name, ds, algo="gcsl") for name, ds in (("maze", maze), ("free", free))}
 
 
 def test_adjacent_pairs_are_distinct_free_neighbours():

@@ -3,7 +3,6 @@ effect, determinism, one-line parse errors, and ``aerohrl eval --perturb`` end t
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -383,12 +382,9 @@ def test_randomized_dataset_card_names_the_ranges(tmp_path):
 
 def test_robust_bounds_relaxing_a_tolerance_never_lowers_the_expert(tiny_run, capsys):
     """experiments/robust_bounds.py: the expert under the goal test, then one tolerance x k at a time."""
-    import importlib.util
+    from conftest import load_experiment
 
-    path = Path(__file__).parents[1] / "experiments" / "robust_bounds.py"
-    spec = importlib.util.spec_from_file_location("robust_bounds", path)
-    rb = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(rb)
+    rb = load_experiment("robust_bounds")
     (row,) = rb.bounds(tiny_run, ["drag=0.5,wind=3"], 3.0, 4, 0)
     assert row["perturb"] == "drag=0.5,wind=3"
     assert all(0 <= row[k] <= 1 and row[k] >= row["as is"] for k in ("position", "velocity", "attitude"))

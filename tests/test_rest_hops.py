@@ -1,14 +1,11 @@
 """experiments/rest_hops.py: the rest test and the hop search on hand-made flights."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
+from conftest import load_experiment
 
-spec = importlib.util.spec_from_file_location("rest_hops", Path(__file__).parents[1] / "experiments" / "rest_hops.py")
-rest_hops = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(rest_hops)
+rest_hops = load_experiment("rest_hops")
 
 
 def _state(px, py, speed=0.0, tilt=0.0):
