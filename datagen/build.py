@@ -243,7 +243,11 @@ def rollout_expert(
                 # horizontal only: a vertical estimate changes the thrust's size, not its direction
                 end = xf.copy()
                 end[:, :2, 2] += dob.d_hat[:, :2]
-            recipes.replan(coeffs, cast(np.ndarray, t0), T - k * dt > spec.replan_endgame + 1e-9, k * dt, seen, end, T)
+            due = T - k * dt > spec.replan_endgame + 1e-9
+            recipes.replan(coeffs, cast(np.ndarray, t0), due, k * dt, seen, end, T)
+            if spec.endgame_retarget:  # the spec's field comment: only the end follows the estimate
+                late = ~due & (T - k * dt > spec.replan_every * dt - 1e-9)
+                recipes.replan(coeffs, cast(np.ndarray, t0), late, k * dt, None, end, T)
         ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
         if dob is not None:
             assert out.disturbance is not None  # allocated with the observer
@@ -1141,6 +1145,12 @@ def recipe_summary(spec: DatasetSpec) -> dict:
                 "; each re-plan ends at the goal's acceleration plus the observer's horizontal disturbance estimate "
                 "(terminal_disturbance: arriving at the goal's attitude, carried by the disturbance)"
                 if spec.terminal_disturbance
+                else ""
+            )
+            + (
+                "; through the endgame each re-plan starts from the reference itself, only its end following "
+                "the estimate (endgame_retarget)"
+                if spec.endgame_retarget
                 else ""
             )
         )

@@ -85,20 +85,29 @@ def sample_start_states(
 
 
 def replan(
-    coeffs: np.ndarray, t0: np.ndarray, due: np.ndarray, t: float, state: np.ndarray, xf: np.ndarray, T: np.ndarray
+    coeffs: np.ndarray,
+    t0: np.ndarray,
+    due: np.ndarray,
+    t: float,
+    state: np.ndarray | None,
+    xf: np.ndarray,
+    T: np.ndarray,
 ) -> None:
     """Shrinking-horizon re-plan, in place, of the references ``due`` (bool (N,)) at time ``t``.
 
     ``coeffs`` (N, 3, 6) are in each plan's own time (from ``t0`` (N,)); a re-planned
     reference starts at the flown ``p, v`` and the current reference acceleration and
-    ends at the goal ``xf`` (N, 3, 3) at the take-off plan's end ``T`` (N,).
+    ends at the goal ``xf`` (N, 3, 3) at the take-off plan's end ``T`` (N,). With
+    ``state=None`` it starts at the reference's own ``p, v, a`` instead: only the end
+    moves (a retarget; the expert's endgame).
     """
     i = np.flatnonzero(due)
     if i.size == 0:
         return
-    x0 = np.stack(
-        [state[i, task.POS], state[i, task.VEL], reference.evaluate(coeffs[i], t - t0[i], order=2)], axis=-1
-    )  # (m, axis, (p, v, a))
+    ref = [reference.evaluate(coeffs[i], t - t0[i], order=o) for o in range(3)]
+    if state is not None:
+        ref[:2] = state[i, task.POS], state[i, task.VEL]
+    x0 = np.stack(ref, axis=-1)  # (m, axis, (p, v, a))
     c = reference.min_jerk_closed_form(x0, xf[i], T[i] - t)
     coeffs[i] = 0.0  # a degree > 5 reference: the quintic in its first 6 coefficients
     coeffs[i, :, : c.shape[2]] = c

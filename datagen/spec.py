@@ -46,6 +46,7 @@ RECIPE_DEFAULTS = {
     "replan_endgame": 0.5,
     "disturbance_observer": 0.0,
     "terminal_disturbance": False,
+    "endgame_retarget": False,
     "action_noise": (0.0, 0.0, 0.0, 0.0),
     "noise_tau": 0.2,
     "start_states": "rest",
@@ -124,6 +125,16 @@ class DatasetSpec:
         False,
         "replan with a disturbance observer: each re-plan ends at the goal's acceleration plus the observer's "
         "estimate, so the vehicle arrives at the goal's attitude while the disturbance carries it",
+    )
+    # Re-planning from the flown state over the last fraction of a second asks for large
+    # accelerations (the quintic's terms scale as 1/T^k), hence replan_endgame. The gust of
+    # the arrival still tilts the vehicle: through the endgame the reference is instead
+    # re-planned from itself (its own p, v, a at that time), so only its terminal
+    # acceleration moves, to the goal's plus the current estimate.
+    endgame_retarget: bool = param(
+        False,
+        "terminal_disturbance: through the endgame, re-plan from the reference itself so only its terminal "
+        "acceleration follows the observer's current estimate",
     )
     # DART (Laskey et al. 2017): Ornstein-Uhlenbeck noise with stationary std
     # ``action_noise`` per CTBR dimension [c (m/s^2), wx, wy, wz (rad/s)] and correlation
@@ -245,6 +256,8 @@ class DatasetSpec:
             raise UserError(f"physics rate fps*substeps = {self.fps * self.substeps} Hz is below the 500 Hz floor")
         if self.terminal_disturbance and not (self.expert == "replan" and self.disturbance_observer > 0):
             raise UserError("--terminal-disturbance needs --expert replan and --disturbance-observer TAU")
+        if self.endgame_retarget and not self.terminal_disturbance:
+            raise UserError("--endgame-retarget needs --terminal-disturbance")
         if self.action_noise[0] > 5.0 or max(self.action_noise[1:]) > 3.0:
             raise UserError(
                 f"action_noise {list(self.action_noise)} is beyond what the expert flies through "

@@ -223,3 +223,52 @@ def test_terminal_disturbance_needs_the_replanning_observer_expert_and_keeps_old
     for bad in (replace(spec, expert="open-loop"), replace(spec, disturbance_observer=0.0)):
         with pytest.raises(UserError, match="terminal-disturbance needs"):
             replace(bad, terminal_disturbance=True).check()
+
+
+def test_endgame_retarget_arrives_at_the_goal_attitude_in_gusts():
+    """Gusts in the last half second, where the expert no longer re-plans, tilt it off the
+    goal's attitude; re-planning from the reference itself there (endgame_retarget) moves
+    only the reference's end with the current estimate and recovers those flights."""
+    from dataclasses import replace
+
+    from aerohrl.eval.robustness import expert_spec, expert_success
+
+    spec = replace(expert_spec(None), disturbance_observer=0.25, expert="replan", terminal_disturbance=True)
+    gusts = "drag=0.5,wind=3,gust=1"
+    plain = expert_success(spec, 60, 0, 500, gusts).mean()
+    retarget = expert_success(replace(spec, endgame_retarget=True), 60, 0, 500, gusts).mean()
+    assert retarget >= plain + 0.05
+    assert expert_success(replace(spec, endgame_retarget=True), 40, 0, 500, None).mean() >= 0.95
+
+
+def test_replan_from_the_reference_moves_only_the_end():
+    """replan(state=None): the new quintic starts at the old reference's p, v, a."""
+    from aerohrl.datagen import recipes, reference
+
+    rng = np.random.default_rng(0)
+    x0, xf = rng.normal(size=(4, 3, 3)), rng.normal(size=(4, 3, 3))
+    T = np.full(4, 2.0)
+    coeffs = reference.min_jerk_closed_form(x0, xf, T)
+    old = [reference.evaluate(coeffs, np.full(4, 1.7), order=o) for o in range(3)]
+    end = xf.copy()
+    end[:, :2, 2] += 0.5
+    t0 = np.zeros(4)
+    recipes.replan(coeffs, t0, np.array([True, True, False, True]), 1.7, None, end, T)
+    new = [reference.evaluate(coeffs, 1.7 - t0, order=o) for o in range(3)]
+    for o in range(3):
+        np.testing.assert_allclose(new[o], old[o], atol=1e-9)
+    np.testing.assert_allclose(reference.evaluate(coeffs, T - t0, order=2)[[0, 1, 3]], end[[0, 1, 3], :, 2], atol=1e-9)
+    np.testing.assert_allclose(reference.evaluate(coeffs, T - t0, order=2)[2], xf[2, :, 2], atol=1e-9)
+
+
+def test_endgame_retarget_needs_terminal_disturbance_and_keeps_old_hashes():
+    from dataclasses import replace
+
+    from aerohrl.datagen.spec import DatasetSpec, spec_hash
+    from aerohrl.errors import UserError
+
+    spec = DatasetSpec(expert="replan", disturbance_observer=0.25, terminal_disturbance=True)
+    assert "endgame_retarget" not in spec.to_dict()
+    assert spec_hash(replace(spec, endgame_retarget=True)) != spec_hash(spec)
+    with pytest.raises(UserError, match="endgame-retarget needs"):
+        replace(spec, terminal_disturbance=False, endgame_retarget=True).check()
