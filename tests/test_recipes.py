@@ -317,3 +317,16 @@ def test_the_recommended_spec_is_the_measured_dataset():
     root = Path(__file__).resolve().parents[1]
     spec = load_spec(root / "datasets" / "quadrotor-reach-dart.toml")
     assert version_name(spec) == version_name(DatasetSpec(goals=25000, action_noise=(1.0, 0.5))) == "n25000-s0-81b96355"
+
+
+def test_the_robustness_spec_is_the_measured_dataset():
+    """datasets/quadrotor-reach-robust.toml is the data of the robustness page's best recipe."""
+    root = Path(__file__).resolve().parents[1]
+    spec = load_spec(root / "datasets" / "quadrotor-reach-robust.toml")
+    assert (spec.expert, spec.disturbance_observer, spec.terminal_disturbance, spec.endgame_retarget) == (
+        "replan",
+        0.1,
+        True,
+        True,
+    )
+    assert version_name(spec) == "n25000-s0-2eeaadb1"
