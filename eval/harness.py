@@ -255,16 +255,26 @@ def run_checkpoints(run_dir: str | Path | Run, k: int) -> list[Path]:
     return paths[-k:]
 
 
-def load_run_dataset(run_dir: str | Path | Run, override: str | Path | None = None) -> tuple[Dataset, dict]:
+def load_run_dataset(
+    run_dir: str | Path | Run, override: str | Path | None = None, cache: dict[Path, Dataset] | None = None
+) -> tuple[Dataset, dict]:
     """The run's dataset (``config.json``; found by version under ``datasets/`` when it
-    moved), or ``override``; identity checked against the run. Returns (data, config.json)."""
+    moved), or ``override``; identity checked against the run. Returns (data, config.json).
+    ``cache`` (path -> data): runs of one dataset share one copy in memory (seeds of a
+    recipe; a 25,000-goal dataset holds about a gigabyte)."""
     from aerohrl.algorithms.data import load_dataset
     from aerohrl.algorithms.run import Run, check_same_dataset
 
     run = Run.open(run_dir, kind="train")
     meta = run.meta
     path = run.locate_dataset(override)  # the recorded path, else found by version, else "pass --dataset"
-    data = load_dataset(path)
+    if cache is None:
+        data = load_dataset(path)
+    else:
+        key = Path(path).resolve()
+        if key not in cache:
+            cache[key] = load_dataset(path)
+        data = cache[key]
     try:
         check_same_dataset(meta.get("dataset") or {}, data)
     except UserError as e:

@@ -27,7 +27,7 @@ import io
 import math
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -227,7 +227,8 @@ def run_study(
         raise UserError("nothing to fly: give runs, or keep the expert curve")
     if expert and task_name == "maze":
         raise UserError("the expert's curve flies free-space references; pass --no-expert with --task maze")
-    loaded = {run: load_run_dataset(run) for run in runs}
+    shared: dict[Path, Any] = {}  # the seeds of a group share their dataset
+    loaded = {run: load_run_dataset(run, cache=shared) for run in runs}
     info_spec = next(iter(loaded.values()))[0].info.get("spec") if loaded else None
     spec = expert_spec(info_spec)
     if expert_observer is not None:  # the expert with (or without) a disturbance observer

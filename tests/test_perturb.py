@@ -397,3 +397,17 @@ def test_robust_bounds_relaxing_a_tolerance_never_lowers_the_expert(tiny_run, ca
     assert other["as is"] >= plain["as is"] + 0.15
     assert rb.main(["--run", str(tiny_run), "--perturb", "mass=1.1", "--expert-set", "pilot=7"]) == 2
     assert "--expert-set pilot: not a dataset spec field" in capsys.readouterr().err
+
+
+def test_runs_of_one_dataset_share_one_copy(tiny_run, tmp_path):
+    """load_run_dataset with a cache: the seeds of a recipe load their dataset once."""
+    import shutil
+
+    from aerohrl.eval.harness import load_run_dataset
+
+    twin = tmp_path / "twin"
+    shutil.copytree(tiny_run, twin)
+    cache: dict = {}
+    a, b = load_run_dataset(tiny_run, cache=cache), load_run_dataset(twin, cache=cache)
+    assert a[0] is b[0] and len(cache) == 1
+    assert load_run_dataset(tiny_run)[0] is not a[0]  # no cache: a copy of its own
