@@ -246,7 +246,7 @@ def rollout_expert(
             due = T - k * dt > spec.replan_endgame + 1e-9
             recipes.replan(coeffs, cast(np.ndarray, t0), due, k * dt, seen, end, T)
             if spec.endgame_retarget:  # the spec's field comment: only the end follows the estimate
-                late = ~due & (T - k * dt > spec.replan_every * dt - 1e-9)
+                late = ~due & (T - k * dt > spec.replan_every * dt - 1e-9)  # at least one re-plan period left
                 recipes.replan(coeffs, cast(np.ndarray, t0), late, k * dt, None, end, T)
         ref = [reference.evaluate(coeffs, t - t0, order=o) for o in range(4)]
         if dob is not None:
