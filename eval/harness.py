@@ -282,6 +282,15 @@ def load_run_dataset(
     return data, meta
 
 
+def open_run_dataset(run_dir: str | Path | Run):
+    """The run's dataset opened for its metadata only (spec, manifest; no frames read, no
+    checksums): for tools that fly the run's world or expert rather than its data."""
+    from aerohrl.algorithms.run import Run
+    from aerohrl.datagen.dataset import open_dataset
+
+    return open_dataset(Run.open(run_dir, kind="train").locate_dataset(), verify=False)
+
+
 def check_checkpoint_dataset(ck: dict, data: Dataset, path: str | Path) -> None:
     """UserError (one line) when the checkpoint at ``path`` was trained on another dataset
     than ``data`` (feature shapes or version)."""

@@ -45,13 +45,11 @@ def fly_hops(run_dir: Path, hops: int, seconds: float, seed: int) -> dict:
     import aerohrl
     from aerohrl import task
     from aerohrl.datagen.maze_expert import hover_goals, hover_states
-    from aerohrl.algorithms.run import Run
-    from aerohrl.datagen.dataset import open_dataset
+    from aerohrl.eval.harness import open_run_dataset
     from aerohrl.sim import BatchedQuadrotor, get_preset
     from aerohrl.worlds.maze import world_maze
 
-    # the dataset's metadata only (its spec and maze): the hops fly, they read no frames
-    ds = open_dataset(Run.open(run_dir, kind="train").locate_dataset(), verify=False)
+    ds = open_run_dataset(run_dir)  # its spec and maze: the hops fly, they read no frames
     spec = ds.spec
     maze = world_maze(spec, ds.manifest)
     if maze is None:

@@ -33,11 +33,11 @@ def bounds(
     tolerance x ``scale``. ``expert_set``: spec fields of the expert replaced (another
     expert recipe on the same goals, e.g. ``{"expert": "replan"}``)."""
     from aerohrl import task
-    from aerohrl.eval.harness import load_run_dataset
+    from aerohrl.eval.harness import open_run_dataset
     from aerohrl.eval.robustness import expert_flights, expert_spec
     from aerohrl.sim.perturb import Perturbation
 
-    spec = expert_spec(load_run_dataset(run)[0].info.get("spec"))
+    spec = expert_spec(open_run_dataset(run).spec)  # the expert flies; no frame is read
     if expert_set:
         from dataclasses import fields
 
