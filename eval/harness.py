@@ -26,6 +26,7 @@ from aerohrl.eval.tasks import TASKS
 
 if TYPE_CHECKING:
     from aerohrl.algorithms.base import Algorithm
+    from aerohrl.datagen.dataset import DatasetHandle
     from aerohrl.algorithms.config import TrainConfig
     from aerohrl.algorithms.data import Dataset
     from aerohrl.algorithms.run import Run
@@ -282,7 +283,7 @@ def load_run_dataset(
     return data, meta
 
 
-def open_run_dataset(run_dir: str | Path | Run):
+def open_run_dataset(run_dir: str | Path | Run) -> DatasetHandle:
     """The run's dataset opened for its metadata only (spec, manifest; no frames read, no
     checksums): for tools that fly the run's world or expert rather than its data."""
     from aerohrl.algorithms.run import Run
