@@ -38,7 +38,7 @@ from aerohrl import task
 from aerohrl.errors import UserError
 from aerohrl.datagen import goals as goals_mod
 from aerohrl.datagen import recipes, reference
-from aerohrl.datagen.expert import DisturbanceObserver, GeometricController
+from aerohrl.datagen.expert import DisturbanceObserver, GeometricController, ThrustGainObserver
 from aerohrl.datagen.dataset import FORMAT
 from aerohrl.datagen.lerobot_reader import read_info
 from aerohrl.datagen.lerobot_writer import DatasetWriter
@@ -224,9 +224,11 @@ def rollout_expert(
         t0 = 0.0
     states[0] = sim.reset(start_state, rotor_speeds)
     dob = DisturbanceObserver(n, spec.disturbance_observer, dt) if spec.disturbance_observer > 0 else None
+    # the estimate the expert controls with (recorded: always the additive one, dob)
+    gob = ThrustGainObserver(n, spec.disturbance_observer, dt) if spec.observer_model == "gain" else None
     if dob is not None:
         out.disturbance = np.empty((kmax, n, 3))
-    drop_ended = drop_ended and not (replanning or perturbation is not None or extra_steps or record_rotors or dob)
+    drop_ended = drop_ended and not (replanning or perturbation is not None or extra_steps or record_rotors or dob or gob)
     if drop_ended:
         return _rollout_dropping_ended(out, sim, ctrl, coeffs, T, dt, noise, kmax, progress)
     for k in tqdm(range(kmax), desc="expert rollouts", unit="step", disable=None if progress else True, leave=False):
@@ -242,7 +244,7 @@ def rollout_expert(
                 assert dob is not None  # DatasetSpec.check: terminal_disturbance needs the observer
                 # horizontal only: a vertical estimate changes the thrust's size, not its direction
                 end = xf.copy()
-                end[:, :2, 2] += dob.d_hat[:, :2]
+                end[:, :2, 2] += (dob if gob is None else gob).d_hat[:, :2]
             due = T - k * dt > spec.replan_endgame + 1e-9
             recipes.replan(coeffs, cast(np.ndarray, t0), due, k * dt, seen, end, T)
             if spec.endgame_retarget:  # the spec's field comment: only the end follows the estimate
@@ -252,13 +254,18 @@ def rollout_expert(
         if dob is not None:
             assert out.disturbance is not None  # allocated with the observer
             out.disturbance[k] = dob.d_hat
-        a = ctrl(seen, *ref, yaw=0.0, disturbance=None if dob is None else dob.d_hat)
+        if gob is not None:
+            a = ctrl(seen, *ref, yaw=0.0, disturbance=gob.d_hat, thrust_gain=gob.kappa_hat)
+        else:
+            a = ctrl(seen, *ref, yaw=0.0, disturbance=None if dob is None else dob.d_hat)
         if noise is not None:
             assert out.expert_actions is not None  # allocated with the noise
             out.expert_actions[k] = a
             a = np.clip(a + noise(), lo, hi)
         if dob is not None:  # with the collective flown, for the next command
             dob.update(seen, a[:, 0])
+        if gob is not None:
+            gob.update(seen, a[:, 0])
         actions[k] = a
         states[k + 1] = sim.step(a)
     if record_rotors:
@@ -1151,6 +1158,12 @@ def recipe_summary(spec: DatasetSpec) -> dict:
                 "; through the endgame each re-plan starts from the reference itself, only its end following "
                 "the estimate (endgame_retarget)"
                 if spec.endgame_retarget
+                else ""
+            )
+            + (
+                "; the expert controls with a thrust gain and a horizontal acceleration estimated apart "
+                "(observer_model gain), the recorded estimate staying the additive one"
+                if spec.observer_model == "gain"
                 else ""
             )
         )

@@ -128,9 +128,13 @@ class GeometricController:
         a_des[:, 2] += GRAVITY
         return a_des, e_v
 
-    def __call__(self, state, ref_pos, ref_vel, ref_acc, ref_jerk, yaw=0.0, yaw_rate=0.0, disturbance=None) -> np.ndarray:
+    def __call__(
+        self, state, ref_pos, ref_vel, ref_acc, ref_jerk, yaw=0.0, yaw_rate=0.0, disturbance=None, thrust_gain=None
+    ) -> np.ndarray:
         """The CTBR command (N, 4); ``disturbance`` (N, 3): an estimate of the unmodelled
-        acceleration (:class:`DisturbanceObserver`), cancelled in the desired acceleration."""
+        acceleration (:class:`DisturbanceObserver`), cancelled in the desired acceleration;
+        ``thrust_gain`` (N,): an estimate of the flown collective per commanded one
+        (:class:`ThrustGainObserver`), divided out of the collective."""
         s = np.asarray(state, dtype=np.float64)
         if s.ndim != 2 or s.shape[1] != 18:
             raise ValueError(f"state must have shape (N, 18), got {s.shape}")
@@ -178,6 +182,8 @@ class GeometricController:
         # w_cmd = R^T R_d w_ff - k_R e_R  (E^T = R^T R_d)
         w_cmd = np.einsum("nji,nj->ni", E, w_ff) - self._kR * e_R
         out = np.empty((N, 4))
+        if thrust_gain is not None:  # command the collective that flies as c
+            c = c / thrust_gain
         out[:, 0] = np.clip(c, g.c_min, self._c_max)
         out[:, 1:] = np.clip(w_cmd, -self._rate_lim, self._rate_lim)
         return out
@@ -227,3 +233,61 @@ class DisturbanceObserver:
         self.v_hat = self.v_hat + self.dt * (acc + self.d_hat + self.l1 * e)
         self.d_hat = self.d_hat + self.dt * self.l2 * e
         return self.d_hat
+
+
+# A thrust gain estimate is kept in this range: the vehicle flies (a vehicle with half its
+# thrust per mass cannot hover at the expert's limits anyway), and one noisy step cannot
+# flip the collective's sign.
+GAIN_RANGE = (0.25, 4.0)
+
+
+class ThrustGainObserver:
+    r"""A Luenberger observer of a thrust gain ``kappa`` (N,) and a horizontal external
+    acceleration ``d`` (N, 3, vertical part 0), batched.
+
+    Model: ``dv/dt = kappa c b3 - g e3 + d`` with ``kappa`` (flown collective per commanded
+    one: thrust scale / mass scale) and ``d = (d_x, d_y, 0)`` (wind on the drag) slowly
+    varying. The additive observer (:class:`DisturbanceObserver`) lumps both into one
+    acceleration ``(kappa - 1) c b3 + d``, which is steady only while ``c b3`` is; under a
+    thrust error it lags every change of the collective, most in the final braking. Here
+    the innovation ``e = v - v_hat`` is split in the basis ``(c b3, e_x, e_y)``::
+
+        dkappa = e_z / (c b3_z),   dd_xy = e_xy - dkappa c b3_xy
+
+        v_hat += dt (kappa_hat c b3 - g e3 + d_hat + l_1 e)
+        kappa_hat += dt l_2 dkappa,   d_hat_xy += dt l_2 dd_xy
+
+    For a constant ``c b3`` the estimated acceleration ``kappa_hat c b3 + d_hat`` moves by
+    ``dt l_2 e`` a step, as the additive observer's does: the same error dynamics, both
+    poles at ``-1/tau`` (:func:`observer_gains`). A vertical external force (vertical drag)
+    is read as part of the gain. The controller divides the collective by ``kappa_hat`` and
+    cancels ``d_hat`` (``GeometricController(..., disturbance=d_hat, thrust_gain=kappa_hat)``).
+    """
+
+    def __init__(self, n: int, tau: float, dt: float):
+        if not tau > 0 or not dt > 0:
+            raise ValueError(f"observer time constant and step must be > 0, got tau={tau}, dt={dt}")
+        self.l1, self.l2 = observer_gains(tau)
+        self.dt = dt
+        self.v_hat: np.ndarray | None = None
+        self.kappa_hat: np.ndarray = np.ones(n)
+        self.d_hat: np.ndarray = np.zeros((n, 3))
+
+    def update(self, state: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Advance with the observed ``state`` (N, 18) and the collective ``c`` (N,) just
+        commanded from it; returns ``(kappa_hat (N,), d_hat (N, 3))`` for the next command."""
+        s = np.asarray(state, dtype=np.float64)
+        v, b3 = s[:, 3:6], s[:, 6:15].reshape(-1, 3, 3)[:, :, 2]
+        if self.v_hat is None:
+            self.v_hat = v.copy()
+        e = v - self.v_hat
+        thrust = c[:, None] * b3  # commanded collective along the body z-axis
+        acc = self.kappa_hat[:, None] * thrust + self.d_hat
+        acc[:, 2] -= GRAVITY
+        self.v_hat = self.v_hat + self.dt * (acc + self.l1 * e)
+        # e = dkappa c b3 + (dd_x, dd_y, 0); c b3_z > 0 for any collective the controller flies
+        dkappa = e[:, 2] / np.maximum(thrust[:, 2], 1e-3)
+        dd = e[:, :2] - dkappa[:, None] * thrust[:, :2]
+        self.kappa_hat = np.clip(self.kappa_hat + self.dt * self.l2 * dkappa, *GAIN_RANGE)
+        self.d_hat[:, :2] += self.dt * self.l2 * dd
+        return self.kappa_hat, self.d_hat

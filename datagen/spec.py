@@ -29,6 +29,7 @@ START_STATES = ("rest", "perturbed")
 WORLDS = ("free", "maze-medium", "maze-large", "maze-giant")
 FAMILIES = ("navigate", "stitch", "explore")
 EXPLORE_PILOTS = ("velocity", "walk")
+OBSERVER_MODELS = ("additive", "gain")
 STATS_MODES = ("auto", "exact", "sketch")
 # stats = "auto": the exact dataset statistics below this many episodes, the streamed
 # sketch from it on (datagen/README.md "Statistics").
@@ -45,6 +46,7 @@ RECIPE_DEFAULTS = {
     "replan_every": 5,
     "replan_endgame": 0.5,
     "disturbance_observer": 0.0,
+    "observer_model": "additive",
     "terminal_disturbance": False,
     "endgame_retarget": False,
     "action_noise": (0.0, 0.0, 0.0, 0.0),
@@ -114,6 +116,17 @@ class DatasetSpec:
         "drag, wind) from the observed velocity and cancels it (0: off, the thesis's expert)",
         unit="s",
         ge=0,
+    )
+    # A thrust-coefficient or mass error scales the flown collective; the additive observer
+    # sees it as an acceleration along the thrust that changes with every change of the
+    # collective, and lags in the braking. "gain" estimates the scale as a gain and only the
+    # horizontal rest as an acceleration (expert.ThrustGainObserver). Either way the recorded
+    # estimate (observation.disturbance, what a policy may observe) is the additive one.
+    observer_model: str = param(
+        "additive",
+        "disturbance observer of the expert's control: additive (one unmodelled acceleration) | gain (a thrust "
+        "gain and a horizontal acceleration)",
+        choices=OBSERVER_MODELS,
     )
     # Under a steady disturbance d (wind on the drag) hovering takes a tilt against it, so
     # an expert that arrives at rest at the goal's acceleration arrives tilted off the goal's
@@ -256,6 +269,8 @@ class DatasetSpec:
             raise UserError(f"physics rate fps*substeps = {self.fps * self.substeps} Hz is below the 500 Hz floor")
         if self.terminal_disturbance and not (self.expert == "replan" and self.disturbance_observer > 0):
             raise UserError("--terminal-disturbance needs --expert replan and --disturbance-observer TAU")
+        if self.observer_model != "additive" and not self.disturbance_observer > 0:
+            raise UserError(f"--observer-model {self.observer_model} needs --disturbance-observer TAU")
         if self.endgame_retarget and not self.terminal_disturbance:
             raise UserError("--endgame-retarget needs --terminal-disturbance")
         if self.action_noise[0] > 5.0 or max(self.action_noise[1:]) > 3.0:
