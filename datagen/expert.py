@@ -289,5 +289,6 @@ class ThrustGainObserver:
         dkappa = e[:, 2] / np.maximum(thrust[:, 2], 1e-3)
         dd = e[:, :2] - dkappa[:, None] * thrust[:, :2]
         self.kappa_hat = np.clip(self.kappa_hat + self.dt * self.l2 * dkappa, *GAIN_RANGE)
+        self.d_hat = self.d_hat.copy()  # a new array per step, as DisturbanceObserver's: callers may hold the last one
         self.d_hat[:, :2] += self.dt * self.l2 * dd
         return self.kappa_hat, self.d_hat
