@@ -235,9 +235,8 @@ class DisturbanceObserver:
         return self.d_hat
 
 
-# A thrust gain estimate is kept in this range: the vehicle flies (a vehicle with half its
-# thrust per mass cannot hover at the expert's limits anyway), and one noisy step cannot
-# flip the collective's sign.
+# The thrust gain estimate is kept in this range, so that a noisy step cannot flip or blow
+# up the collective it divides; a vehicle outside it could not fly the expert's references.
 GAIN_RANGE = (0.25, 4.0)
 
 
