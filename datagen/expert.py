@@ -41,6 +41,9 @@ Equations (Lee, Leok & McClamroch, CDC 2010; Mellinger & Kumar, ICRA 2011):
 an unmodelled acceleration ``d`` (a mass or thrust-coefficient error, drag, wind) is
 estimated from the observed velocity and cancelled, ``a_des = ... + g e3 - d_hat``; the
 geometric controller alone has no integral action and holds a steady offset under it.
+With :class:`ThrustGainObserver` (``thrust_gain=``) a thrust-coefficient or mass error is
+estimated as a gain ``kappa`` on the collective, ``c = (a_des - d_hat) . b3 / kappa_hat``, and
+only the horizontal rest as an acceleration.
 
 The inner rate loop of the simulator (k_w = 40 1/s for the Hummingbird, a ~25 ms rate
 response) makes ``k_R`` the attitude bandwidth; the gains below keep a factor of ~4
