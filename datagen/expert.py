@@ -198,7 +198,30 @@ def observer_gains(tau: float) -> tuple[float, float]:
     return 2.0 / tau, 1.0 / tau**2
 
 
-class DisturbanceObserver:
+class _VelocityObserver:
+    """What the observers below share: gains with both poles at ``-1/tau``, the velocity
+    estimate ``v_hat`` (started at the first observed velocity), the acceleration estimate
+    ``d_hat`` (N, 3, from 0) and the innovation of a step."""
+
+    def __init__(self, n: int, tau: float, dt: float):
+        if not tau > 0 or not dt > 0:
+            raise ValueError(f"observer time constant and step must be > 0, got tau={tau}, dt={dt}")
+        self.l1, self.l2 = observer_gains(tau)
+        self.dt = dt
+        self.v_hat: np.ndarray | None = None
+        self.d_hat: np.ndarray = np.zeros((n, 3))
+
+    def _innovation(self, state: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(e, thrust, v_hat)``: the innovation ``v - v_hat`` (N, 3), the commanded collective
+        along the observed body z-axis ``c b3`` (N, 3) and the velocity estimate it is against."""
+        s = np.asarray(state, dtype=np.float64)
+        v, b3 = s[:, 3:6], s[:, 6:15].reshape(-1, 3, 3)[:, :, 2]
+        if self.v_hat is None:
+            self.v_hat = v.copy()
+        return v - self.v_hat, c[:, None] * b3, self.v_hat
+
+
+class DisturbanceObserver(_VelocityObserver):
     r"""A Luenberger observer of an unmodelled acceleration ``d`` (N, 3), batched.
 
     Model: ``dv/dt = c b3 - g e3 + d`` with ``d`` slowly varying (``dd/dt = 0``), where ``c``
@@ -215,25 +238,12 @@ class DisturbanceObserver:
     ``d = g (1/s - 1) e3``) is estimated exactly; ``d_hat`` starts at 0.
     """
 
-    def __init__(self, n: int, tau: float, dt: float):
-        if not tau > 0 or not dt > 0:
-            raise ValueError(f"observer time constant and step must be > 0, got tau={tau}, dt={dt}")
-        self.l1, self.l2 = observer_gains(tau)
-        self.dt = dt
-        self.v_hat: np.ndarray | None = None
-        self.d_hat: np.ndarray = np.zeros((n, 3))
-
     def update(self, state: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Advance with the observed ``state`` (N, 18) and the collective ``c`` (N,) just
         commanded from it; returns ``d_hat`` (N, 3), the estimate for the next command."""
-        s = np.asarray(state, dtype=np.float64)
-        v, b3 = s[:, 3:6], s[:, 6:15].reshape(-1, 3, 3)[:, :, 2]
-        if self.v_hat is None:
-            self.v_hat = v.copy()
-        e = v - self.v_hat
-        acc = c[:, None] * b3
+        e, acc, v_hat = self._innovation(state, c)
         acc[:, 2] -= GRAVITY
-        self.v_hat = self.v_hat + self.dt * (acc + self.d_hat + self.l1 * e)
+        self.v_hat = v_hat + self.dt * (acc + self.d_hat + self.l1 * e)
         self.d_hat = self.d_hat + self.dt * self.l2 * e
         return self.d_hat
 
@@ -243,7 +253,7 @@ class DisturbanceObserver:
 GAIN_RANGE = (0.25, 4.0)
 
 
-class ThrustGainObserver:
+class ThrustGainObserver(_VelocityObserver):
     r"""A Luenberger observer of a thrust gain ``kappa`` (N,) and a horizontal external
     acceleration ``d`` (N, 3, vertical part 0), batched.
 
@@ -267,26 +277,16 @@ class ThrustGainObserver:
     """
 
     def __init__(self, n: int, tau: float, dt: float):
-        if not tau > 0 or not dt > 0:
-            raise ValueError(f"observer time constant and step must be > 0, got tau={tau}, dt={dt}")
-        self.l1, self.l2 = observer_gains(tau)
-        self.dt = dt
-        self.v_hat: np.ndarray | None = None
+        super().__init__(n, tau, dt)
         self.kappa_hat: np.ndarray = np.ones(n)
-        self.d_hat: np.ndarray = np.zeros((n, 3))
 
     def update(self, state: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Advance with the observed ``state`` (N, 18) and the collective ``c`` (N,) just
         commanded from it; returns ``(kappa_hat (N,), d_hat (N, 3))`` for the next command."""
-        s = np.asarray(state, dtype=np.float64)
-        v, b3 = s[:, 3:6], s[:, 6:15].reshape(-1, 3, 3)[:, :, 2]
-        if self.v_hat is None:
-            self.v_hat = v.copy()
-        e = v - self.v_hat
-        thrust = c[:, None] * b3  # commanded collective along the body z-axis
+        e, thrust, v_hat = self._innovation(state, c)
         acc = self.kappa_hat[:, None] * thrust + self.d_hat
         acc[:, 2] -= GRAVITY
-        self.v_hat = self.v_hat + self.dt * (acc + self.l1 * e)
+        self.v_hat = v_hat + self.dt * (acc + self.l1 * e)
         # e = dkappa c b3 + (dd_x, dd_y, 0); c b3_z > 0 for any collective the controller flies
         dkappa = e[:, 2] / np.maximum(thrust[:, 2], 1e-3)
         dd = e[:, :2] - dkappa[:, None] * thrust[:, :2]
