@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 from aerohrl.algorithms.config import CQLConfig, critic_sizes
 from aerohrl.algorithms.base import Algorithm
-from aerohrl.algorithms.networks import EnsembleSoftUpdate, ACT_DIM, make_critic, make_critic_loss, mlp, use_clipped_td0
+from aerohrl.algorithms.networks import ACT_DIM, adam, EnsembleSoftUpdate, make_critic, make_critic_loss, mlp, use_clipped_td0
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -109,14 +109,14 @@ class CQL(Algorithm):
         )
         self.cql_updater = EnsembleSoftUpdate(self.cql_loss, tau=cfg.tau)
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
-        self.actor_opt = torch.optim.Adam(self.cql_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)
-        self.cql_critic_opt = torch.optim.Adam(self.cql_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
-        self.alpha_opt = torch.optim.Adam([self.cql_loss.log_alpha], lr=cfg.lr_actor)
+        self.actor_opt = adam(self.cql_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)
+        self.cql_critic_opt = adam(self.cql_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+        self.alpha_opt = adam([self.cql_loss.log_alpha], lr=cfg.lr_actor)
         # the Lagrange variant's multiplier (its own optimiser: gradient ascent on the gap)
         self.alpha_prime_opt = (
-            torch.optim.Adam([self.cql_loss.log_alpha_prime], lr=cfg.lr_critic) if cfg.cql.cql_lagrange_thresh > 0 else None
+            adam([self.cql_loss.log_alpha_prime], lr=cfg.lr_critic) if cfg.cql.cql_lagrange_thresh > 0 else None
         )
-        self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+        self.critic_opt = adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         # tanh(loc) as a module sharing the actor's weights; kept out of the module tree
         # (its weights are the actor's, already in the state dict)
         object.__setattr__(self, "_det_net", _TanhLoc(net))

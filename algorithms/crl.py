@@ -48,7 +48,7 @@ from torch import nn
 
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.config import CRLConfig, critic_sizes, goal_mix
-from aerohrl.algorithms.networks import ACT_DIM, frozen, gaussian_log_prob, ln_mlp, make_actor
+from aerohrl.algorithms.networks import ACT_DIM, adam, frozen, gaussian_log_prob, ln_mlp, make_actor
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -113,8 +113,8 @@ class CRL(Algorithm):
         c = cfg.crl
         self.critic = BilinearCritic(normalizer, critic_sizes(cfg), c.crl_latent_dim)
         self.actor = make_actor(cfg.hidden, normalizer.in_dim)
-        self.critic_opt = torch.optim.Adam([*self.critic.phi.parameters(), *self.critic.psi.parameters()], lr=cfg.lr_critic)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr_actor)
+        self.critic_opt = adam([*self.critic.phi.parameters(), *self.critic.psi.parameters()], lr=cfg.lr_critic)
+        self.actor_opt = adam(self.actor.parameters(), lr=cfg.lr_actor)
         self.setup_ema()
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:

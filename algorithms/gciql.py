@@ -53,6 +53,7 @@ from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.config import GCIQLConfig, critic_sizes, goal_mix
 from aerohrl.algorithms.networks import (
     ACT_DIM,
+    adam,
     Twin,
     frozen,
     gaussian_log_prob,
@@ -98,8 +99,8 @@ class GCIQL(Algorithm):
         self.critic = Twin(lambda: ln_mlp(n_in + ACT_DIM, 1, hv))  # Q_1, Q_2 (s, a, g)
         self.target_critic = make_target(self.critic, cfg.tau)
         self.actor = make_actor(cfg.hidden, n_in)
-        self.critic_opt = torch.optim.Adam([*self.value.parameters(), *self.critic.parameters()], lr=cfg.lr_critic)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr_actor)
+        self.critic_opt = adam([*self.value.parameters(), *self.critic.parameters()], lr=cfg.lr_critic)
+        self.actor_opt = adam(self.actor.parameters(), lr=cfg.lr_actor)
         self.setup_ema()
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:

@@ -21,7 +21,7 @@ from torchrl.objectives import BCLoss
 
 from aerohrl.algorithms.config import critic_sizes
 from aerohrl.algorithms.base import Algorithm
-from aerohrl.algorithms.networks import EnsembleSoftUpdate, make_actor, make_critic_loss
+from aerohrl.algorithms.networks import adam, EnsembleSoftUpdate, make_actor, make_critic_loss
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -47,8 +47,8 @@ class GCSL(Algorithm):
             in_dim=normalizer.in_dim,
         )
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr_actor)
-        self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+        self.actor_opt = adam(self.actor.parameters(), lr=cfg.lr_actor)
+        self.critic_opt = adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         self.setup_ema()
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:

@@ -87,7 +87,7 @@ from torch import nn
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.config import HIQLConfig, critic_sizes, goal_mix
 from aerohrl.algorithms.gciql import ogbench_reward_mask
-from aerohrl.algorithms.networks import ACT_DIM, gaussian_log_prob, ln_mlp, make_target, mlp, success_value
+from aerohrl.algorithms.networks import ACT_DIM, adam, gaussian_log_prob, ln_mlp, make_target, mlp, success_value
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -199,9 +199,9 @@ class HIQL(Algorithm):
         self.subgoal_index = [i for i in normalizer.goal_index if i not in state_cols]
         goal_space = c.hiql_subgoal_space == "goal"
         self.policy = HIQLPolicy(n_in, normalizer.state_index, cfg.hidden, rep, self.subgoal_index if goal_space else None)
-        self.value_opt = torch.optim.Adam(self.value.parameters(), lr=cfg.lr_critic)
-        self.high_opt = torch.optim.Adam(self.policy.high.parameters(), lr=cfg.lr_actor)
-        self.low_opt = torch.optim.Adam(self.policy.low.parameters(), lr=cfg.lr_actor)
+        self.value_opt = adam(self.value.parameters(), lr=cfg.lr_critic)
+        self.high_opt = adam(self.policy.high.parameters(), lr=cfg.lr_actor)
+        self.low_opt = adam(self.policy.low.parameters(), lr=cfg.lr_actor)
         self.setup_ema()
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:

@@ -59,7 +59,7 @@ from torch import nn
 from aerohrl import task
 from aerohrl.algorithms.base import Algorithm
 from aerohrl.algorithms.config import QRLConfig, critic_sizes, goal_mix
-from aerohrl.algorithms.networks import ACT_DIM, frozen, gaussian_log_prob, ln_mlp, make_actor
+from aerohrl.algorithms.networks import ACT_DIM, adam, frozen, gaussian_log_prob, ln_mlp, make_actor
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -160,9 +160,9 @@ class QRL(Algorithm):
         self.log_lambda = nn.Parameter(torch.zeros(()))  # the Lagrange multiplier, lambda = exp(.) (OGBench: 1 at start)
         self.actor = make_actor(cfg.hidden, normalizer.in_dim)
         value_params = [*self.encoder.parameters(), *self.head.parameters(), *self.dynamics.parameters()]
-        self.value_opt = torch.optim.Adam(value_params, lr=cfg.lr_critic)
-        self.lambda_opt = torch.optim.Adam([self.log_lambda], lr=cfg.lr_critic)
-        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=cfg.lr_actor)
+        self.value_opt = adam(value_params, lr=cfg.lr_critic)
+        self.lambda_opt = adam([self.log_lambda], lr=cfg.lr_critic)
+        self.actor_opt = adam(self.actor.parameters(), lr=cfg.lr_actor)
         self.setup_ema()
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:

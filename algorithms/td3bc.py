@@ -25,7 +25,7 @@ from torch import nn
 
 from aerohrl.algorithms.config import TD3BCConfig, critic_sizes
 from aerohrl.algorithms.base import Algorithm
-from aerohrl.algorithms.networks import EnsembleSoftUpdate, make_actor, make_critic_loss
+from aerohrl.algorithms.networks import adam, EnsembleSoftUpdate, make_actor, make_critic_loss
 
 if TYPE_CHECKING:
     from tensordict import TensorDict
@@ -52,8 +52,8 @@ class TD3BC(Algorithm):
         self.actor = make_actor(cfg.hidden, normalizer.in_dim)
         self.critic_loss = self._make_loss(cfg, self.actor)
         self.target_updater = EnsembleSoftUpdate(self.critic_loss, tau=cfg.tau)
-        self.actor_opt = torch.optim.Adam(self.critic_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)
-        self.critic_opt = torch.optim.Adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
+        self.actor_opt = adam(self.critic_loss.actor_network_params.values(True, True), lr=cfg.lr_actor)
+        self.critic_opt = adam(self.critic_loss.qvalue_network_params.values(True, True), lr=cfg.lr_critic)
         self._last_actor = {}
         self.setup_ema()
 

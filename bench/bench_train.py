@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import logging
 import resource
 import sys
@@ -93,7 +94,7 @@ def main(argv=None) -> int:
             a.preset, algo=algo, steps=10**9, eval_every=0, log_every=200, checkpoint_every=10**9, amp=a.amp, device=str(device)
         )
         cfg = dataclasses.replace(cfg, amp=resolve_amp(cfg.amp, device)[0])
-        amp = torch.autocast(device.type, dtype=torch.bfloat16, enabled=cfg.amp == "bf16")
+        amp = functools.partial(torch.autocast, device.type, dtype=torch.bfloat16, enabled=cfg.amp == "bf16")
         with tempfile.TemporaryDirectory() as tmp:
             tr = start_run(cfg, f"{tmp}/run", data=data, progress=False)
             tr.train(until=20)  # warm-up
@@ -144,17 +145,21 @@ def main(argv=None) -> int:
 
 
 def _time_updates(update, batches, amp, sync) -> tuple[float, float]:
-    """(s per update over ``batches``, s of the 10 warm-up updates before them)."""
-    with amp:
-        t = time.perf_counter()
-        for b in batches[:10]:
+    """(s per update over ``batches``, s of the 10 warm-up updates before them). Each update
+    in its own autocast context, as the trainer runs them: autocast caches the bf16 copies
+    of the weights until its context exits, so one context around the loop would skip the
+    casts a training step pays (and train on stale copies)."""
+    t = time.perf_counter()
+    for b in batches[:10]:
+        with amp():
             update(b)
-        sync()
-        warm = time.perf_counter() - t
-        t = time.perf_counter()
-        for b in batches:
+    sync()
+    warm = time.perf_counter() - t
+    t = time.perf_counter()
+    for b in batches:
+        with amp():
             update(b)
-        sync()
+    sync()
     return (time.perf_counter() - t) / len(batches), warm
 
 
