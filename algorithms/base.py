@@ -110,7 +110,10 @@ class Algorithm(nn.Module):
     @torch.no_grad()
     def critics(self, state: torch.Tensor, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Every critic's value ``Q_j(o, g, a)`` -> (num_critics, B), for states (B, 18),
-        goals (B, 15) and physical actions (B, 4)."""
+        goals (B, 15) and physical actions (B, 4). A one-line error for a run that trained no
+        critics (GCSL with ``--no-train-critics``)."""
+        if not getattr(self.cfg, "train_critics", True):
+            raise UserError("this run trained its policy alone (--no-train-critics): it has no critics to plan or rank with")
         x = self.normalizer.inputs(state, goal)
         return ensemble_values(self.critic_loss, x, self.normalizer.action_to_unit(action))
 

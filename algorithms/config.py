@@ -302,6 +302,12 @@ class TrainConfig:
     mc_lower_bound: bool = param(True, "critic targets max(clipped TD target, discounted return observed in the data)")
     tau: float = param(0.005, "soft target update rate: phi' <- (1 - tau) phi' + tau phi", gt=0, le=1)
     num_critics: int = param(5, "size of the goal-conditioned critic ensemble", ge=2)
+    # GCSL's policy learns from the data alone; its critics serve the planner (Eq. 3.6/3.7)
+    # and cost about as much per step as the policy, so a run that only needs the skill
+    # may leave them out
+    train_critics: bool = param(
+        True, "GCSL: train the planner's critic ensemble beside the policy (off: the policy alone; the run cannot plan)"
+    )
     # each algorithm's own settings
     td3bc: TD3BCConfig = section(TD3BCConfig, "TD3-BC and TD3-AWBC")
     td3awbc: TD3AWBCConfig = section(TD3AWBCConfig, "TD3-AWBC")
@@ -400,6 +406,8 @@ def check(cfg: TrainConfig) -> None:
             keys = [f"{name}_{use}_p_{src}" for src in ("curgoal", "trajgoal", "randomgoal")]
             if sum(getattr(sec, k) for k in keys) > 1 + 1e-9:
                 raise ConfigError(f"{' + '.join(keys)} must be at most 1 (the rest keeps the transition's own goal)")
+    if not cfg.train_critics and cfg.algo != "gcsl":
+        raise ConfigError(f"--no-train-critics is GCSL's: {cfg.algo} learns its policy through its critics")
     if cfg.observe_disturbance and cfg.augment != "none":
         raise ConfigError("--augment mirrors the state, not the disturbance estimate: not with --observe-disturbance")
     if cfg.qrl.qrl_quasimetric == "iqe" and cfg.qrl.qrl_latent_dim % cfg.qrl.qrl_components:

@@ -7,6 +7,9 @@ Per step (Alg. 2 lines 5-7):
    action from the *learned* policy without noise (``TD3BCLoss.qvalue_loss`` with
    ``delay_actor=False, policy_noise=0``: its "target actor" is then the actor itself);
 3. targets: ``SoftUpdate`` (phi' <- (1 - tau) phi' + tau phi).
+
+Steps 2-3 serve the planner only: with ``train_critics`` off the run learns the policy alone,
+at about half the cost of a step, and cannot plan.
 """
 
 from __future__ import annotations
@@ -61,13 +64,16 @@ class GCSL(Algorithm):
 
     def update(self, batch: TensorDict) -> dict[str, torch.Tensor]:
         """One behaviour-cloning step on the relabelled goals (Eq. 3.1) and one step of the
-        evaluation critic ensemble; the losses by name."""
+        evaluation critic ensemble (unless ``train_critics`` is off); the losses by name."""
         # 1. behaviour cloning on the (relabelled) goals, Eq. 3.1
         loss_bc = self.bc_loss(self.actor_batch(batch))["loss_bc"]
         self.actor_opt.zero_grad(set_to_none=True)
         loss_bc.backward()
         self.actor_opt.step()
         self.ema_step()
+        self.num_updates += 1
+        if not self.cfg.train_critics:  # a policy-only run (--no-train-critics)
+            return {"loss_actor": loss_bc.detach()}
         # 2. the critic ensemble, Eq. 3.2 (next action from the updated policy, no grad)
         loss_q, meta = self.critic_loss.qvalue_loss(self.critic_batch(batch))
         self.critic_opt.zero_grad(set_to_none=True)
@@ -75,7 +81,6 @@ class GCSL(Algorithm):
         self.critic_opt.step()
         # 3. target critics
         self.target_updater.step()
-        self.num_updates += 1
         return {
             "loss_actor": loss_bc.detach(),
             "loss_critic": loss_q.detach(),

@@ -69,6 +69,34 @@ def test_update_act_critics(algo, data):
     assert torch.allclose(a.critics(st2, g2, data.action[:7]), q, atol=1e-5)
 
 
+def test_gcsl_policy_alone(data):
+    """--no-train-critics: GCSL's policy learns as before, its critics stay where they were
+    initialised, and asking the run for critic values is a one-line error."""
+    torch.set_num_threads(1)
+    a, s = _build("gcsl", data, train_critics=False)
+    q0 = a.critic_loss.qvalue_network_params.clone()
+    p0 = [p.detach().clone() for p in a.policy_net().parameters()]
+    for _ in range(3):
+        m = a.update(s.sample())
+    assert set(m) == {"loss_actor"} and torch.isfinite(m["loss_actor"])
+    assert a.num_updates == 3
+    assert any(not torch.equal(p, q) for p, q in zip(p0, a.policy_net().parameters()))
+    assert all(torch.equal(v, w) for v, w in zip(q0.values(True, True), a.critic_loss.qvalue_network_params.values(True, True)))
+    # the same batches give the same policy with and without the critics (they never touch it)
+    b, s2 = _build("gcsl", data)
+    for _ in range(3):
+        b.update(s2.sample())
+    assert all(torch.allclose(p, q) for p, q in zip(b.policy_net().parameters(), a.policy_net().parameters()))
+    with pytest.raises(UserError, match="no critics"):
+        a.critics(data.state[:2], data.goal[:2], data.action[:2])
+
+
+@pytest.mark.parametrize("algo", ["td3bc", "cql", "gciql"])
+def test_policy_alone_is_gcsl_only(algo):
+    with pytest.raises(UserError, match="GCSL's"):
+        make_config("cpu", algo=algo, train_critics=False)
+
+
 def test_targets_clipped_to_unit_interval(data):
     a, s = _build("td3bc", data, gamma=1.0)
     est = a.critic_loss.value_estimator

@@ -40,6 +40,7 @@ CPU_GCSL = {
     "mc_lower_bound": True,
     "tau": 0.005,
     "num_critics": 5,
+    "train_critics": True,
     "alpha": 0.001,
     "policy_noise": 0.2,
     "noise_clip": 0.5,
