@@ -322,6 +322,14 @@ class TrainConfig:
     checkpoint_every: int = param(1_000, "checkpoint every N steps", ge=1)
     keep_checkpoints: int = param(10, "checkpoints kept (newest)", ge=1)
     eval_every: int = param(5_000, "closed-loop evaluation every N steps (0: none)", ge=0)
+    # time to a working skill: the evaluations before a policy can succeed cost the most (every
+    # episode flies the whole horizon)
+    eval_start: int = param(
+        0,
+        "periodic evaluations from this step on (0: from the first eval_every); the last step is always evaluated",
+        unit="steps",
+        ge=0,
+    )
     eval_episodes: int = param(25, "episodes per evaluation", ge=1)
     eval_horizon: int = param(500, "simulator steps per evaluation episode (100 Hz: 500 = 5 s)", ge=1)
     eval_task: str = param(

@@ -195,6 +195,12 @@ class Trainer:
         )
 
     # --- the loop -----------------------------------------------------------------
+    def _evaluates(self, step: int) -> bool:
+        """Whether the periodic evaluation runs after ``step``: every ``eval_every`` steps from
+        ``eval_start`` on, and at the last step."""
+        cfg = self.cfg
+        return step == cfg.steps or (step % cfg.eval_every == 0 and step >= cfg.eval_start)
+
     def _default_evaluators(self) -> dict[str, Evaluator]:
         if self.cfg.eval_every <= 0:
             return {}
@@ -292,7 +298,7 @@ class Trainer:
                     log.write(rec)
                     bar.set_postfix({k: f"{rec[k]:.3g}" for k in list(metrics)[:2]})
                 reached = False
-                if self.evaluators and cfg.eval_every > 0 and (self.step % cfg.eval_every == 0 or self.step == cfg.steps):
+                if self.evaluators and cfg.eval_every > 0 and self._evaluates(self.step):
                     self._acc["seconds"] += time.perf_counter() - self._t0
                     ev = self.evaluate()
                     if ev:

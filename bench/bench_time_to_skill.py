@@ -8,7 +8,7 @@ checkpoint whose closed-loop evaluation reaches a target success, per seed.
 What is measured: the ``train`` command itself, one process per seed, run as a user runs
 it (``train --preset P --dataset DS --seed S --threads T``) with the trainer's periodic
 closed-loop evaluation (``--eval-task``, ``--eval-episodes`` goals, every ``--eval-every``
-steps, a checkpoint at each) and ``--stop-success TARGET``: the run ends with a checkpoint
+steps from ``--eval-start``, a checkpoint at each) and ``--stop-success TARGET``: the run ends with a checkpoint
 at the first evaluation that reaches the target, so the process's wall clock is the time
 to that checkpoint, start-up, dataset loading, normaliser fit and the evaluations
 included. ``cpu s`` is the process's CPU time (user + system): on a machine other jobs
@@ -51,6 +51,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--target", type=float, default=None, help="success to reach [reach-desired 0.9, reach-novel 0.95]")
     ap.add_argument("--episodes", type=int, default=250, help="episodes per evaluation [250]")
     ap.add_argument("--eval-every", type=int, default=None, help="evaluation (and checkpoint) every N steps [the preset's]")
+    ap.add_argument("--eval-start", type=int, default=None, help="evaluations from this step on [the preset's]")
     ap.add_argument("--steps", type=int, default=None, help="at most this many steps [the preset's]")
     ap.add_argument("--keep", type=Path, default=None, help="keep the runs in this folder [a temporary folder, removed]")
     a = ap.parse_args(argv)
@@ -109,6 +110,8 @@ def train_seed(a: argparse.Namespace, dataset: str, seed: int, out: Path) -> dic
     ]
     if a.eval_every:
         cmd += ["--eval-every", str(a.eval_every), "--checkpoint-every", str(a.eval_every)]
+    if a.eval_start is not None:
+        cmd += ["--eval-start", str(a.eval_start)]
     if a.steps:
         cmd += ["--steps", str(a.steps)]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)

@@ -34,6 +34,21 @@ def test_training_stops_at_the_first_evaluation_that_reaches_the_target(tmp_path
     assert [e["step"] for e in evals] == [10, 20]
 
 
+def test_evaluations_start_at_eval_start_and_the_last_step_is_always_evaluated(tmp_path, data):
+    cfg = C.make_config("cpu", hidden=(8,), critic_hidden=(8,), batch_size=8, steps=55, eval_every=10, eval_start=30)
+    seen = []
+    tr = start_run(
+        cfg,
+        tmp_path / "run",
+        data=data,
+        progress=False,
+        logger="none",
+        evaluators={"fake": lambda algo, step: seen.append(step) or {"success": 0.0}},
+    )
+    tr.train()
+    assert seen == [30, 40, 50, 55]
+
+
 def test_reach_novel_hook_flies_the_eval_tasks_goals(data):
     from aerohrl.algorithms import closed_loop
     from aerohrl.eval.tasks import reach_novel
@@ -59,7 +74,7 @@ def test_the_bench_runs_on_a_tiny_setting(dataset_dir, capsys):
     assert spec is not None and spec.loader is not None
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    argv = ["--seeds", "0", "--dataset", str(dataset_dir), "--steps", "20", "--eval-every", "10", "--episodes", "3"]
+    argv = ["--seeds", "0", "--dataset", str(dataset_dir), "--steps", "20", "--eval-every", "10", "--eval-start", "0", "--episodes", "3"]
     assert bench.main(argv) == 0
     out = capsys.readouterr().out
     assert "torch capability" in out and "target 90 % on 3 episodes" in out

@@ -109,6 +109,7 @@ CPU_GCSL = {
     "checkpoint_every": 1000,
     "keep_checkpoints": 10,
     "eval_every": 5000,
+    "eval_start": 0,
     "eval_episodes": 25,
     "eval_horizon": 500,
     "eval_task": "reach-desired",
