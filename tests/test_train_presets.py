@@ -141,14 +141,18 @@ THESIS = {
 }
 
 # what the fast preset changes under every algorithm: a shorter run (the cosine schedule
-# anneals within it) evaluated on 250 episodes every 1,000 steps, stopping at 90 %
+# anneals within it) evaluated on 250 episodes every 1,000 steps from 5,000, stopping at 90 %
 FAST = {
     "preset": "fast",
-    "steps": 10000,
+    "steps": 9000,
     "eval_every": 1000,
+    "eval_start": 5000,
     "eval_episodes": 250,
     "stop_success": 0.9,
 }
+
+# and under GCSL: the policy alone, a deeper actor, smaller batches
+FAST_GCSL = {"batch_size": 128, "hidden": [512, 512, 512, 512], "train_critics": False}
 
 # the cpu and fast presets' actors of the reference agents: a strong BC term, the episodes' desired goals
 AGENT_ACTORS = {
@@ -163,7 +167,7 @@ EXPECTED_CHANGES = {
     "cpu/td3bc": {"algo": "td3bc", "relabel_prob": 0.05},
     "cpu/td3awbc": {"algo": "td3awbc", "relabel_prob": 0.05},
     "cpu/cql": {"algo": "cql", "relabel_prob": 0.05},
-    "fast/gcsl": {**FAST},
+    "fast/gcsl": {**FAST, **FAST_GCSL},
     "fast/td3bc": {**FAST, "algo": "td3bc", "relabel_prob": 0.05},
     "fast/cql": {**FAST, "algo": "cql", "relabel_prob": 0.05},
     "thesis/gcsl": {**THESIS},
@@ -192,7 +196,7 @@ def test_presets_resolve_to_the_same_configs(name):
 def test_the_preset_files_are_the_presets():
     assert C.presets() == ("cpu", "fast", "thesis")
     assert C.per_algo_values("cpu") == {"gcsl": {"relabel_prob": 0.01}, **AGENT_ACTORS}
-    assert C.per_algo_values("fast") == C.per_algo_values("cpu")
+    assert C.per_algo_values("fast") == {"gcsl": {"relabel_prob": 0.01, **FAST_GCSL}, **AGENT_ACTORS}
     assert C.preset_base("cpu") == C.TrainConfig()  # the cpu preset is the dataclass defaults
     cfg = C.make_config("thesis", algo="td3awbc")
     assert (cfg.td3bc.alpha, cfg.td3bc.policy_delay, cfg.td3awbc.awr_temperature, cfg.cql.cql_num_random) == (2.5, 2, 1.0, 10)
@@ -239,6 +243,14 @@ def test_the_fast_preset_is_its_flags():
 
     fast = config_from_args(parser().parse_args(["--preset", "fast", "--dataset", "/data/ds"]))
     changes = {k: v for k, v in C.to_dict(fast).items() if k != "preset" and v != CPU_GCSL.get(k)}
-    assert changes == {"dataset": "/data/ds", **{k: v for k, v in FAST.items() if k != "preset"}}
-    flags = [f"--{k.replace('_', '-')}={v}" for k, v in changes.items()]
+    assert changes == {"dataset": "/data/ds", **{k: v for k, v in {**FAST, **FAST_GCSL}.items() if k != "preset"}}
+    flags = []
+    for k, v in changes.items():
+        flag = "--" + k.replace("_", "-")
+        if isinstance(v, bool):
+            flags.append(flag if v else "--no-" + flag[2:])
+        elif isinstance(v, list):
+            flags += [flag, *map(str, v)]
+        else:
+            flags.append(f"{flag}={v}")
     assert C.to_dict(config_from_args(parser().parse_args(flags))) == {**C.to_dict(fast), "preset": "cpu"}
