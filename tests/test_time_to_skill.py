@@ -74,7 +74,20 @@ def test_the_bench_runs_on_a_tiny_setting(dataset_dir, capsys):
     assert spec is not None and spec.loader is not None
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
-    argv = ["--seeds", "0", "--dataset", str(dataset_dir), "--steps", "20", "--eval-every", "10", "--eval-start", "0", "--episodes", "3"]
+    argv = [
+        "--seeds",
+        "0",
+        "--dataset",
+        str(dataset_dir),
+        "--steps",
+        "20",
+        "--eval-every",
+        "10",
+        "--eval-start",
+        "0",
+        "--episodes",
+        "3",
+    ]
     assert bench.main(argv) == 0
     out = capsys.readouterr().out
     assert "torch capability" in out and "target 90 % on 3 episodes" in out
