@@ -17,17 +17,15 @@ from aerohrl.algorithms.trainer import start_run
 BENCH = Path(__file__).resolve().parent.parent / "bench" / "bench_time_to_skill.py"
 
 
+def _tiny_run(tmp_path, data, evaluator, **settings):
+    """A run of tiny networks in ``tmp_path/run`` whose periodic evaluation is ``evaluator`` (named "fake")."""
+    cfg = C.make_config("cpu", hidden=(8,), critic_hidden=(8,), batch_size=8, **settings)
+    return start_run(cfg, tmp_path / "run", data=data, progress=False, logger="none", evaluators={"fake": evaluator})
+
+
 def test_training_stops_at_the_first_evaluation_that_reaches_the_target(tmp_path, data):
-    cfg = C.make_config("cpu", hidden=(8,), critic_hidden=(8,), batch_size=8, steps=100, eval_every=10, stop_success=0.5)
     scores = iter([0.2, 0.6, 0.9])
-    tr = start_run(
-        cfg,
-        tmp_path / "run",
-        data=data,
-        progress=False,
-        logger="none",
-        evaluators={"fake": lambda algo, step: {"success": next(scores)}},
-    )
+    tr = _tiny_run(tmp_path, data, lambda algo, step: {"success": next(scores)}, steps=100, eval_every=10, stop_success=0.5)
     assert tr.train() == 20 and tr.stopped_at == 20
     assert tr.run.checkpoints()[-1].name.startswith("step-") and "20" in tr.run.checkpoints()[-1].name
     evals = [json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines() if "eval/fake/success" in x]
@@ -35,15 +33,9 @@ def test_training_stops_at_the_first_evaluation_that_reaches_the_target(tmp_path
 
 
 def test_evaluations_start_at_eval_start_and_the_last_step_is_always_evaluated(tmp_path, data):
-    cfg = C.make_config("cpu", hidden=(8,), critic_hidden=(8,), batch_size=8, steps=55, eval_every=10, eval_start=30)
     seen = []
-    tr = start_run(
-        cfg,
-        tmp_path / "run",
-        data=data,
-        progress=False,
-        logger="none",
-        evaluators={"fake": lambda algo, step: seen.append(step) or {"success": 0.0}},
+    tr = _tiny_run(
+        tmp_path, data, lambda algo, step: seen.append(step) or {"success": 0.0}, steps=55, eval_every=10, eval_start=30
     )
     tr.train()
     assert seen == [30, 40, 50, 55]
