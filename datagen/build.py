@@ -428,6 +428,13 @@ def _block_rollout(
 _GATHER_FRAMES = 1 << 16
 
 
+def _rows(a: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """``a[k, e]`` of a (steps, episodes, ...) buffer for flat rows ``at = k * episodes + e``:
+    one ``np.take`` over the buffer's rows, several times faster than indexing with the
+    two index arrays."""
+    return np.take(a.reshape(-1, *a.shape[2:]), at, axis=0)
+
+
 def _fly_block_columns(*args: Any) -> dict[str, Any]:
     """:func:`_fly_block` (its arguments, then the block's goal vectors (n, 15)) turned into
     what the writer and the episode summary take: ``columns`` (those of :func:`frame_columns`),
@@ -459,18 +466,18 @@ def _fly_block_columns(*args: Any) -> dict[str, Any]:
     gv = goals_mod.goal_vectors(goals)
     cuts = np.linspace(0, F, -(-F // _GATHER_FRAMES) + 1).round().astype(np.int64)
     for c0, c1 in zip(cuts[:-1], cuts[1:]):
-        ee, k = e[c0:c1], kk[c0:c1]
-        nxt = r.states[k + 1, ee]
+        ee, at = e[c0:c1], kk[c0:c1] * n + e[c0:c1]  # frame (k, e) of a (steps, n, .) buffer: row k n + e
+        nxt = _rows(r.states, at + n)
         success_f[c0:c1] = task.goal_reached(task.achieved_goal(nxt), gv[ee])
         cols["next.observation.state"][c0:c1] = nxt
-        cols["observation.state"][c0:c1] = r.states[k, ee]
-        cols["action"][c0:c1] = r.actions[k, ee]
+        cols["observation.state"][c0:c1] = _rows(r.states, at)
+        cols["action"][c0:c1] = _rows(r.actions, at)
         if expert is not None:
             assert r.expert_actions is not None
-            expert[c0:c1] = r.expert_actions[k, ee]
+            expert[c0:c1] = _rows(r.expert_actions, at)
         if dist is not None:
             assert r.disturbance is not None
-            dist[c0:c1] = r.disturbance[k, ee]
+            dist[c0:c1] = _rows(r.disturbance, at)
     final = r.states[length, np.arange(n)]  # the state after each episode's last action
     del r
     last = np.zeros(F, bool)

@@ -15,9 +15,10 @@ Per-episode stats go into the episodes parquet as ``stats/<feature>/<stat>`` col
 Streamed dataset-level statistics (:class:`StreamStats`, the ``stats = "sketch"`` of a
 spec): one pass over the frames in blocks, each block summarised on its own and the
 summaries merged in any order, nothing read back. ``count``, ``min`` and ``max`` are
-exact; ``mean`` and ``std`` are float64 (Chan, Golub and LeVeque's pairwise update of
-count, mean and the sum of squared deviations), exact up to float64 rounding (not bit
-for bit the sorted-column sums of :func:`sorted_stats`). The quantiles come from a
+exact; ``mean`` and ``std`` are float64 (each block's by NumPy's pairwise sums over its
+values in frame order, merged by Chan, Golub and LeVeque's pairwise update of count, mean
+and the sum of squared deviations), exact up to float64 rounding (not bit for bit the
+sorted-column sums of :func:`sorted_stats`). The quantiles come from a
 histogram per dimension whose buckets are fixed in advance and cover every finite value:
 the value's bits mapped to an order-preserving unsigned key, keeping its top
 :data:`SKETCH_BITS` bits (sign, exponent and the leading mantissa bits), so no range has
@@ -234,6 +235,11 @@ def index_stats(k: str, lengths: np.ndarray, fps: int) -> dict:
 # Order-preserving key bits kept per value in the quantile histogram (2**SKETCH_BITS
 # buckets per dimension); see the module docstring for the error bound.
 SKETCH_BITS = 20
+# The sketch's definition, part of a sketch dataset's version name (spec.to_dict). 2: each
+# row group's mean and squared deviations are summed over its values in frame order. 1
+# summed them in sorted order (a sort per row group and dimension); the count, min, max
+# and histogram, so the quantiles, are the same, the mean and std differ in the last bits.
+SKETCH_REVISION = 2
 
 
 def _sketch_keys(x: np.ndarray) -> np.ndarray:
@@ -265,11 +271,12 @@ def _bucket_edges(b: np.ndarray, dtype: np.dtype) -> tuple[np.ndarray, np.ndarra
 
 
 class StreamStats:
-    """Mergeable dataset-level statistics of one feature (module docstring): update with
-    blocks of frames (:meth:`of_block`) and :meth:`merge` the summaries in any order;
-    :meth:`result` gives the ``stats.json`` entries. The histogram is held sparse in a
-    block's summary (the buckets it touches) and dense (``2**SKETCH_BITS`` counts per
-    dimension) once merged."""
+    """Mergeable dataset-level statistics of one feature (module docstring): :meth:`add`
+    blocks of frames in place (or summarise one with :meth:`of_block`) and :meth:`merge`
+    summaries in any order; :meth:`result` gives the ``stats.json`` entries. The
+    histogram is dense, ``2**SKETCH_BITS`` counts per dimension, allocated by the first
+    block; a block's values are counted into it directly (``np.add.at``, whose cost is
+    linear in the block), so nothing is sorted."""
 
     def __init__(self, d: int, dtype: np.dtype):
         self.d, self.dtype = int(d), np.dtype(dtype)
@@ -278,33 +285,58 @@ class StreamStats:
         self.m2: np.ndarray = np.zeros(d)
         self.min: np.ndarray = np.full(d, np.inf)
         self.max: np.ndarray = np.full(d, -np.inf)
-        self.hist: list | None = None  # dense: d arrays of 2**SKETCH_BITS counts
-        self.sparse: list[tuple[np.ndarray, np.ndarray]] = []  # a block's: (buckets, counts) per dimension
+        self.hist: np.ndarray | None = None  # (d, 2**SKETCH_BITS) counts, int32 while they fit
 
     @classmethod
     def of_block(cls, a: np.ndarray) -> "StreamStats":
         """The summary of one block of frames ``a`` ((F,) or (F, d), any dtype the
         writer accepts), values taken in their statistics dtype (:func:`stats_dtype`)."""
+        s = cls(int(np.prod(a.shape[1:], dtype=np.int64)), stats_dtype(a.dtype))
+        return s.add(a)
+
+    def add(self, a: np.ndarray) -> "StreamStats":
+        """Add the frames of ``a`` (as :meth:`of_block`) in place; returns self. The
+        block's count, mean and sum of squared deviations (float64, NumPy's pairwise sums
+        over each dimension's values in frame order) are merged as :meth:`merge` does."""
         cols = a.reshape(len(a), int(np.prod(a.shape[1:], dtype=np.int64)))
-        sdt = stats_dtype(a.dtype)
-        s = cls(cols.shape[1], sdt)
-        if len(cols) == 0:
-            return s
-        xt = np.array(cols.T, dtype=sdt, order="C", copy=True)  # one dimension per row; sorted in place below
-        xt += 0  # -0.0 to +0.0: sorting ties them, and each bucket must be one run
-        xt.sort(axis=1)  # min, max and the histogram's runs of equal buckets
-        s.count = xt.shape[1]
-        s.min, s.max = xt[:, 0].astype(np.float64), xt[:, -1].astype(np.float64)
-        s.mean = np.add.reduce(xt, axis=1, dtype=np.float64) / s.count
-        for j in range(s.d):
-            dev = xt[j].astype(np.float64)
-            dev -= s.mean[j]
-            dev *= dev
-            s.m2[j] = np.add.reduce(dev)
-            keys = _sketch_keys(xt[j])
-            ends = np.append(np.flatnonzero(keys[1:] != keys[:-1]), len(keys) - 1)
-            s.sparse.append((keys[ends].astype(np.int32), np.diff(ends, prepend=-1).astype(np.int64)))
-        return s
+        if cols.shape[1] != self.d or stats_dtype(a.dtype) != self.dtype:
+            raise ValueError("merging statistics of different features")
+        n = len(cols)
+        if n == 0:
+            return self
+        xt = np.array(cols.T, dtype=self.dtype, order="C", copy=True)  # one dimension per row
+        xt += 0  # -0.0 to +0.0: one bucket for zero
+        mean = np.add.reduce(xt, axis=1, dtype=np.float64) / n
+        dev = xt.astype(np.float64)
+        dev -= mean[:, None]
+        dev *= dev
+        self._merge_moments(n, mean, np.add.reduce(dev, axis=1), xt.min(axis=1), xt.max(axis=1))
+        del dev
+        keys = _sketch_keys(xt)
+        keys += (np.arange(self.d, dtype=np.int64) << SKETCH_BITS)[:, None]  # row j counts into hist[j]
+        hist = self._dense()
+        # np.add.at with an increment of the histogram's own dtype takes NumPy's fast path
+        np.add.at(hist.reshape(-1), keys.reshape(-1), hist.dtype.type(1))
+        return self
+
+    def _merge_moments(self, n: int, mean: np.ndarray, m2: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Chan, Golub and LeVeque's update of (count, mean, m2) by another set's, and the
+        exact min and max."""
+        total = self.count + n
+        delta = mean - self.mean
+        self.m2 = self.m2 + m2 + delta * delta * (self.count * n / total)
+        self.mean = self.mean + delta * (n / total)
+        self.count = total
+        self.min, self.max = np.minimum(self.min, lo), np.maximum(self.max, hi)
+
+    def _dense(self) -> np.ndarray:
+        """The histogram, allocated on first use; widened to int64 before a count could
+        pass int32's range."""
+        if self.hist is None:
+            self.hist = np.zeros((self.d, 1 << SKETCH_BITS), np.int32)
+        elif self.hist.dtype == np.int32 and self.count >= np.iinfo(np.int32).max:
+            self.hist = self.hist.astype(np.int64)
+        return self.hist
 
     def merge(self, other: "StreamStats") -> "StreamStats":
         """Add ``other``'s frames to this summary (in place; returns self)."""
@@ -312,35 +344,17 @@ class StreamStats:
             raise ValueError("merging statistics of different features")
         if other.count == 0:
             return self
-        n = self.count + other.count
-        delta = other.mean - self.mean
-        self.m2 = self.m2 + other.m2 + delta * delta * (self.count * other.count / n)
-        self.mean = self.mean + delta * (other.count / n)
-        self.count = n
-        self.min, self.max = np.minimum(self.min, other.min), np.maximum(self.max, other.max)
-        # dense counts in int32 while they fit (half the memory), int64 beyond
-        dt = np.int32 if n < np.iinfo(np.int32).max else np.int64
-        if self.hist is None:
-            self.hist = [np.zeros(1 << SKETCH_BITS, dt) for _ in range(self.d)]
-            for j, (b, c) in enumerate(self.sparse):
-                self.hist[j][b] += c.astype(dt)
-            self.sparse = []
-        elif self.hist[0].dtype != dt:
-            self.hist = [h.astype(dt) for h in self.hist]
-        for j in range(self.d):
-            if other.hist is not None:
-                self.hist[j] += other.hist[j].astype(dt)
-            else:
-                b, c = other.sparse[j]
-                self.hist[j][b] += c.astype(dt)
+        self._merge_moments(other.count, other.mean, other.m2, other.min, other.max)
+        assert other.hist is not None  # a summary with frames has its histogram
+        hist = self._dense()
+        hist += other.hist.astype(hist.dtype, copy=False)
         return self
 
     def _counts(self, j: int) -> tuple[np.ndarray, np.ndarray]:
         """(buckets, counts) of dimension ``j``, ascending, nonzero only."""
-        if self.hist is not None:
-            b = np.flatnonzero(self.hist[j])
-            return b, self.hist[j][b]
-        return self.sparse[j][0].astype(np.int64), self.sparse[j][1]
+        assert self.hist is not None
+        b = np.flatnonzero(self.hist[j])
+        return b, self.hist[j][b]
 
     def quantiles(self, j: int) -> dict[str, float]:
         """Dimension ``j``'s quantiles from the histogram (module docstring)."""
@@ -400,5 +414,6 @@ __all__ = [
     "sorted_stats",
     "index_stats",
     "SKETCH_BITS",
+    "SKETCH_REVISION",
     "StreamStats",
 ]

@@ -130,8 +130,9 @@ class DatasetWriter:
     lengths). The bytes are those of :func:`write_dataset` on all the frames at once.
 
     ``stats="sketch"`` computes the dataset-level statistics while writing instead
-    (:class:`aerohrl.datagen.lerobot_stats.StreamStats`): each row group's summary is
-    merged as it is written, in file order, so nothing is read back or spilled and the
+    (:class:`aerohrl.datagen.lerobot_stats.StreamStats`): each row group's frames are
+    added to the summary as they are written, in file order, so nothing is read back or
+    spilled and the
     bytes still do not depend on how the episodes are cut into pieces (row groups are
     fixed by the frames alone).
     """
@@ -320,11 +321,13 @@ class DatasetWriter:
         assert self.feats is not None  # set by the first append, before any rows
         keys = list(self.feats)
         meta = {b"huggingface": json.dumps(_hf_features(self.feats)).encode()}
-        if self.stats_mode == "sketch":  # one summary per row group, merged in file order
+        if self.stats_mode == "sketch":  # each row group added in file order
             for k in keys:
                 if k not in INDEX_FEATURES:
-                    part = StreamStats.of_block(rows[k])
-                    self._sketch[k] = self._sketch[k].merge(part) if k in self._sketch else part
+                    if k not in self._sketch:
+                        v = rows[k]
+                        self._sketch[k] = StreamStats(int(np.prod(v.shape[1:], dtype=np.int64)), stats_dtype(v.dtype))
+                    self._sketch[k].add(rows[k])
         table = pa.table([arrow_column(np.ascontiguousarray(rows[k])) for k in keys], names=keys)
         if self._schema is None:
             self._schema = table.schema.with_metadata(meta)

@@ -88,6 +88,27 @@ def test_quantiles_within_one_bucket_of_the_exact_ones(seed):
         assert got[key][0] == exact[key][0], key
 
 
+def test_adding_in_place_is_merging_and_the_histogram_counts_every_value():
+    """The writer's ``add`` (row groups in file order) gives what merging their summaries in
+    that order gives, bit for bit; the histogram holds each value's bucket exactly once."""
+    rng = np.random.default_rng(7)
+    a = _data(rng, 20_000)["gauss"]
+    cuts = [0, 5_000, 5_001, 12_345, 20_000]
+    running = LS.StreamStats(3, np.float32)
+    merged = LS.StreamStats.of_block(a[:0])
+    for i, j in zip(cuts[:-1], cuts[1:]):
+        running.add(a[i:j])
+        merged = merged.merge(LS.StreamStats.of_block(a[i:j]))
+    assert running.result() == merged.result()
+    for j in range(3):
+        keys, counts = np.unique(LS._sketch_keys(a[:, j] + np.float32(0)), return_counts=True)
+        b, c = running._counts(j)
+        np.testing.assert_array_equal(b, keys)
+        np.testing.assert_array_equal(c, counts)
+    with pytest.raises(ValueError, match="different features"):
+        running.add(a[:, :2])
+
+
 def test_empty_and_mismatched_summaries():
     s = LS.StreamStats.of_block(np.zeros((0, 2), np.float32))
     assert s.count == 0
@@ -104,6 +125,7 @@ def test_the_spec_field_resolves_and_only_a_sketch_changes_the_version():
     assert version_name(DatasetSpec(goals=250, stats="exact")) == version_name(small)
     sk = DatasetSpec(goals=250, stats="sketch")
     assert sk.stats_mode == "sketch" and sk.to_dict()["stats"] == "sketch" and version_name(sk) != version_name(small)
+    assert sk.to_dict()["stats_revision"] == LS.SKETCH_REVISION  # the sketch's definition names its version
     big = DatasetSpec(goals=STATS_SKETCH_EPISODES)
     assert big.stats_mode == "sketch"
     assert version_name(big) == version_name(DatasetSpec(goals=STATS_SKETCH_EPISODES, stats="sketch"))
