@@ -255,3 +255,30 @@ def test_collect_records_live_states_only():
     d = collect_states(cfg.env, default_lattice(), ("coverage",), cfg.seed, [[0, 1]], 1)
     assert len(d) > 0 and d.L.shape[1:] == (30, 30) and set(d.world) <= {0, 1}
     assert (d.rem > 0).all()
+
+
+def test_ranking_study_scores_every_belief_and_the_generators_marginal(belief_run, tmp_path, capsys):
+    """experiments/ipp_belief_ranking.py: one row per learned belief, the posterior, the
+    prior and the oracle; the oracle's AUC is a probability and the untrained rows agree
+    where they must (the posterior's and the prior's never-sensed cells are the same)."""
+    from conftest import load_experiment
+
+    m = load_experiment("ipp_belief_ranking")
+    out = tmp_path / "t.md"
+    assert m.main([str(belief_run), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert out.read_text() == text
+    rows = {
+        r.split(" | ")[0].lstrip("| "): r.split(" | ")[1:] for r in text.splitlines() if r.startswith("| ") and "---" not in r
+    }
+    assert set(rows) - {"belief"} == {
+        f"learned: {belief_run.name} (T = {load_belief(belief_run / 'belief.pt').temperature:.3f})",
+        "hand-written posterior",
+        "prior",
+        "generator's marginal (oracle)",
+    }
+    auc = {k: float(v[2]) for k, v in rows.items() if k != "belief"}
+    assert all(0.0 <= a <= 1.0 for a in auc.values())
+    assert rows["hand-written posterior"][1:] == rows["prior"][1:]  # never sensed: no measurement moved it
+    assert m.main([str(tmp_path / "nothing")]) == 2
+    assert "not a learned-belief run" in capsys.readouterr().err
