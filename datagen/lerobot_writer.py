@@ -323,11 +323,10 @@ class DatasetWriter:
         meta = {b"huggingface": json.dumps(_hf_features(self.feats)).encode()}
         if self.stats_mode == "sketch":  # each row group added in file order
             for k in keys:
-                if k not in INDEX_FEATURES:
-                    if k not in self._sketch:
-                        v = rows[k]
-                        self._sketch[k] = StreamStats(int(np.prod(v.shape[1:], dtype=np.int64)), stats_dtype(v.dtype))
+                if k in self._sketch:
                     self._sketch[k].add(rows[k])
+                elif k not in INDEX_FEATURES:
+                    self._sketch[k] = StreamStats.of_block(rows[k])
         table = pa.table([arrow_column(np.ascontiguousarray(rows[k])) for k in keys], names=keys)
         if self._schema is None:
             self._schema = table.schema.with_metadata(meta)

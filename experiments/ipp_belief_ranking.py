@@ -26,9 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from aerohrl.errors import ArgumentParser, UserError, run_cli
+from aerohrl.ipp.belief import log_loss
 
 PROG = "experiments/ipp_belief_ranking.py"
 TOP = 0.10  # the share of never-sensed cells counted as a search's first choices
+LOGLOSS_EPS = 1e-6  # probabilities clipped to [eps, 1 - eps]: the oracle's marginal reaches 0
 
 
 def _auc(score: np.ndarray, y: np.ndarray) -> float:
@@ -41,17 +43,13 @@ def _auc(score: np.ndarray, y: np.ndarray) -> float:
     return float((r[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
 
 
-def _logloss(p: np.ndarray, y: np.ndarray) -> float:
-    p = np.clip(p, 1e-6, 1 - 1e-6)
-    return float(-np.mean(np.where(y, np.log(p), np.log1p(-p))))
-
-
 def beliefs(runs: list[Path]) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """``{row: q (k, S, S)}`` on the first run's validation states, their targets (k, S, S)
     and never-sensed masks (k, S, S)."""
     import torch
 
-    from aerohrl.ipp.belief import load_belief, load_data, read_belief_config
+    from aerohrl.ipp.belief import load_belief, load_data, logits_over, read_belief_config
+    from aerohrl.ipp.sensor import sigmoid
     from aerohrl.ipp.factory import sample_for
 
     torch.set_num_threads(1)
@@ -64,13 +62,9 @@ def beliefs(runs: list[Path]) -> tuple[dict[str, np.ndarray], np.ndarray, np.nda
         if not np.array_equal(v.seeds, val.seeds):
             raise UserError(f"{run}: its validation worlds differ from {runs[0]}'s (same --val-seed and --val-worlds needed)")
         model = load_belief(run / "belief.pt")  # the calibrated temperature, as ipp bench --belief
-        zs = []
-        with torch.no_grad():
-            for s in range(0, len(val), 256):
-                x, b0, _ = val.tensors(np.arange(s, min(s + 256, len(val))))
-                zs.append(((b0 + model.net(x)) / model.temperature).double().numpy())
-        rows[f"learned: {run.name} (T = {model.temperature:.3f})"] = 1 / (1 + np.exp(-np.concatenate(zs)))
-    rows["hand-written posterior"] = 1 / (1 + np.exp(-np.clip(val.L.astype(np.float64), -20, 20)))
+        z, base = logits_over(model, val)
+        rows[f"learned: {run.name} (T = {model.temperature:.3f})"] = sigmoid(z / model.temperature)
+    rows["hand-written posterior"] = sigmoid(base)
     rows["prior"] = val.prior[val.world].astype(np.float64)
     worlds = sample_for(cfg0.env, int(val.seeds[0, 0]), val.seeds[:, 1])
     n_t = worlds.targets.reshape(len(worlds.targets), -1).sum(1)
@@ -99,7 +93,7 @@ def table(rows: dict[str, np.ndarray], y: np.ndarray, unsensed: np.ndarray) -> s
             k = max(1, int(TOP * m.sum()))
             tops.append(yy[np.argsort(-s, kind="stable")[:k]].sum() / yy.sum())
         out.append(
-            f"| {name} | {_logloss(q, y):.4f} | {_logloss(q[unsensed], y[unsensed]):.4f} | "
+            f"| {name} | {log_loss(q, y, eps=LOGLOSS_EPS):.4f} | {log_loss(q[unsensed], y[unsensed], eps=LOGLOSS_EPS):.4f} | "
             f"{np.mean(aucs):.3f} | {np.mean(tops):.3f} |"
         )
     return "\n".join(out) + "\n"

@@ -764,22 +764,28 @@ def fit_temperature(logits: np.ndarray, y: np.ndarray) -> float:
     return float(np.exp(r.x))
 
 
+def logits_over(model: BeliefModel, data: BeliefData, batch: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """The model's log-odds at ``T = 1`` and the Bayesian base log-odds (float64, (k, S, S))
+    over every state of ``data``."""
+    import torch
+
+    zs, bs = [], []
+    with torch.no_grad():
+        for s in range(0, len(data), batch):
+            x, b0, _ = data.tensors(np.arange(s, min(s + batch, len(data))))
+            zs.append((b0 + model.net(x)).double().numpy())
+            bs.append(b0.double().numpy())
+    return np.concatenate(zs), np.concatenate(bs)
+
+
 def calibrate(run_dir: str | Path, bins: int = 15) -> dict:
     """Fit the temperature on the run's validation states and write ``calibration.json``
     and ``reliability.png`` to the run folder; returns the report."""
-    import torch
-
     run = Path(run_dir)
     read_belief_config(run)
     model = load_belief(run / "belief.pt", temperature=1.0)
     _, val = load_data(run / "data.npz")
-    zs, bs = [], []
-    with torch.no_grad():
-        for s in range(0, len(val), 256):
-            x, b0, _ = val.tensors(np.arange(s, min(s + 256, len(val))))
-            zs.append((b0 + model.net(x)).double().numpy())
-            bs.append(b0.double().numpy())
-    z, b = np.concatenate(zs), np.concatenate(bs)
+    z, b = logits_over(model, val)
     y = val.targets[val.world]
     T = fit_temperature(z, y)
     q1, qT, post = sigmoid(z), sigmoid(z / T), sigmoid(b)
