@@ -171,6 +171,19 @@ class EvalOptions:
         "-synth",
         planned=True,
     )
+    waypoints_from: str = _in_name(
+        param(
+            "cells",
+            "maze --planner graph: intermediate goals at hover over the free cells' centres (cells) | the "
+            "dataset's achieved goals, a seeded subset of --candidates, joined by legs no wall crosses "
+            "(data: search on the replay buffer, Eysenbach et al. 2019: waypoints the data flies through, "
+            "at its speeds)",
+            choices=("cells", "data"),
+        ),
+        0,
+        "-{}",
+        planned=True,
+    )
     perturb: str | None = _in_name(
         param(
             None,
@@ -229,6 +242,8 @@ class EvalOptions:
             value = getattr(self, f.name)
             if value != f.default and (planned or not needs_planner):
                 parts.append((rank, part(value) if callable(part) else part.format(value)))
+        if planned and self.waypoints_from == "data":  # the candidate count names the waypoint set
+            parts = [(r, f"-data{self.candidates}" if x == "-data" else x) for r, x in parts]
         return head + "".join(p for _, p in sorted(parts))
 
 
@@ -349,9 +364,13 @@ def make_planner(
 
             n = graph_waypoints(opt)
             edge_filter = maze.in_corridor if opt.legs == "corridor" else None
+            cand = candidates_from_maze(maze)
+            if opt.waypoints_from == "data":
+                edge_filter = maze.segment_clear
+                cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
             return GraphPlanner(
                 algo,
-                candidates_from_maze(maze),
+                cand,
                 n=n,
                 alpha=opt.alpha,
                 max_edge=opt.max_edge,
@@ -389,6 +408,10 @@ def check_options(opt: EvalOptions) -> None:
         raise UserError("--task maze plans over the maze's free cells; it takes no --candidate-source")
     if opt.legs != "any" and not (opt.task == "maze" and opt.planner == "graph"):
         raise UserError("--legs corridor applies to --task maze with --planner graph only")
+    if opt.waypoints_from != "cells" and not (opt.task == "maze" and opt.planner == "graph"):
+        raise UserError("--waypoints-from data applies to --task maze with --planner graph only")
+    if opt.waypoints_from == "data" and opt.legs == "corridor":
+        raise UserError("--waypoints-from data joins the waypoints by legs no wall crosses; it takes no --legs corridor")
     if opt.planner == "multi" and opt.waypoints < 2:
         raise UserError(f"--planner multi needs --waypoints >= 2, got {opt.waypoints}")
     if opt.floor != "none" and opt.planner != "none":

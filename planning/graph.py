@@ -120,10 +120,14 @@ class GraphPlanner:
         ``max_edge`` or refused by ``edge_filter`` removed."""
         if self.max_edge > 0:
             lengths = lengths.masked_fill(torch.linalg.norm(q - p, dim=-1) > self.max_edge, math.inf)
-        if self.edge_filter is not None:
-            ok = self.edge_filter(p.double().cpu().numpy(), q.double().cpu().numpy())
-            refused = torch.as_tensor(~np.broadcast_to(ok, lengths.shape), device=lengths.device)
-            lengths = lengths.masked_fill(refused, math.inf)
+        if self.edge_filter is not None:  # asked only about the legs still in the graph
+            live = torch.isfinite(lengths).cpu().numpy()
+            shape = (*lengths.shape, p.shape[-1])
+            P = np.broadcast_to(p.double().cpu().numpy(), shape)[live]
+            Q = np.broadcast_to(q.double().cpu().numpy(), shape)[live]
+            ok = np.ones(lengths.shape, bool)
+            ok[live] = self.edge_filter(P, Q) if len(P) else True
+            lengths = lengths.masked_fill(torch.as_tensor(~ok, device=lengths.device), math.inf)
         return lengths
 
     def _path(self, i: int, j: int) -> list[int]:
@@ -169,7 +173,14 @@ class GraphPlanner:
             path = (path + [path[-1]] * n)[:n]
             seq[e] = path
         goals = self.cand.goals[torch.as_tensor(seq)].double().numpy()
-        return Plan(goals, seq, self.cand.frame[seq], np.exp(-best), np.exp(-direct), depth=np.minimum(depth, n))
+        frame = self.cand.frame[seq]
+        # no chain of edges joins the vehicle to the goal (candidates that the edge rules leave
+        # unconnected, e.g. dataset states no clear leg reaches): the only plan is the straight
+        # leg, every intermediate goal is G itself (reached at once), frame -1
+        none = ~np.isfinite(best)
+        goals[none] = Gt[torch.as_tensor(none)].double().cpu().numpy()[:, None]
+        frame[none], depth[none] = -1, 0
+        return Plan(goals, seq, frame, np.exp(-best), np.exp(-direct), depth=np.minimum(depth, n))
 
 
 __all__ = ["GraphPlanner", "leg_lengths"]

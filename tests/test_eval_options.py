@@ -126,6 +126,10 @@ NAMES = [
         {"task": "maze", "planner": "graph", "max_edge": 2.5, "legs": "corridor", "min_leg": 1.0},
         "maze-graph-corridor-edge2.5-minleg1",
     ),
+    (
+        {"task": "maze", "planner": "graph", "waypoints_from": "data", "candidates": 600, "max_edge": 2.5, "waypoint_tol": 2.5},
+        "maze-graph-data600-tol2.5-edge2.5",
+    ),
 ]
 
 
@@ -157,6 +161,8 @@ def test_declared_checks_and_cross_field_rules():
             "--legs corridor applies to --task maze with --planner graph",
         ),
         ({"task": "maze", "legs": "tunnel"}, "legs must be one of any, corridor"),
+        ({"task": "ood", "planner": "graph", "waypoints_from": "data"}, "applies to --task maze with --planner graph"),
+        ({"task": "maze", "waypoints_from": "states"}, "waypoints_from must be one of cells, data"),
     ):
         with pytest.raises(UserError, match=match) as e:
             check_options(EvalOptions(**options))

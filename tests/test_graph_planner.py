@@ -87,3 +87,55 @@ def test_an_edge_filter_removes_the_legs_it_refuses():
     p = gated.plan(s0, G)
     assert p.goals[0, :, 0].tolist() == [2.0, 3.0]  # 0 -> 2 -> 3 (-> 5): through the gate
     assert p.score[0] == pytest.approx(0.9**5, rel=1e-5)  # the same length, now the only way
+
+
+class DistanceCritics(nn.Module):
+    """Critics blind to walls: a leg of horizontal length d is worth 0.9^d."""
+
+    def __init__(self, m: int = 5):
+        super().__init__()
+        self.w = nn.Parameter(torch.zeros(1))
+        self.m = m
+
+    def act(self, s, g):
+        return torch.zeros(len(s), 4)
+
+    def critics(self, s, g, a):
+        return (0.9 ** torch.linalg.norm(g[:, :2] - s[:, :2], dim=-1)).expand(self.m, -1)
+
+
+def test_states_anywhere_in_a_maze_are_joined_by_clear_legs_only():
+    """Waypoints at dataset-like states (scattered in the free cells): with the maze's
+    segment test as the edge filter, the critics' shortcut through the walls is refused and
+    every leg of the plan, the first and the last included, is clear."""
+    from aerohrl.worlds.maze import load_maze
+
+    m = load_maze("medium")
+    rng = np.random.default_rng(0)
+    free = np.repeat(m.free_cells, 3, axis=0)
+    pts = m.cell_center(free) + np.c_[rng.uniform(-0.5, 0.5, (len(free), 2)), np.zeros(len(free))]
+    st = torch.zeros(len(pts), 18)
+    st[:, :3] = torch.as_tensor(pts, dtype=torch.float32)
+    st[:, 6] = st[:, 10] = st[:, 14] = 1.0
+    cand = Candidates(st[:, :15].clone(), st, np.arange(len(pts)))
+    algo = DistanceCritics()
+    (s_rc, g_rc) = m.tasks[0]
+    s0 = torch.zeros(1, 18)
+    s0[0, :3] = torch.as_tensor(m.cell_center(np.array(s_rc)))
+    s0[0, 6] = s0[0, 10] = s0[0, 14] = 1.0
+    G = torch.zeros(1, 15)
+    G[0, :3] = torch.as_tensor(m.cell_center(np.array(g_rc)))
+    G[0, 6] = G[0, 10] = G[0, 14] = 1.0
+    blind = GraphPlanner(algo, cand, n=40, alpha=0.0, max_edge=2.5).plan(s0, G)
+    p = GraphPlanner(algo, cand, n=40, alpha=0.0, max_edge=2.5, edge_filter=m.segment_clear).plan(s0, G)
+    d = int(p.depth[0])
+    path = np.concatenate([s0[:, :3].numpy(), p.goals[0, :d, :3], G[:, :3].numpy()])
+    assert m.segment_clear(path[:-1], path[1:]).all()
+    bp = np.concatenate([s0[:, :3].numpy(), blind.goals[0, : int(blind.depth[0]), :3], G[:, :3].numpy()])
+    assert not m.segment_clear(bp[:-1], bp[1:]).all()  # without the filter a leg cuts through a wall
+    assert p.score[0] < blind.score[0]  # the detour is longer than the wall-blind path
+    # a goal no clear leg reaches: the plan is the straight leg, its waypoints the goal itself
+    far = G.clone()
+    far[0, 0] = -5.0
+    q = GraphPlanner(algo, cand, n=3, alpha=0.0, max_edge=2.5, edge_filter=m.segment_clear).plan(s0, far)
+    assert (q.frame[0] == -1).all() and np.allclose(q.goals[0], far.numpy().astype(np.float64))

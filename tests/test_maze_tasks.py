@@ -282,6 +282,26 @@ def test_eval_maze_with_planner_over_free_cells(runs, capsys, planner):
         assert np.allclose([float(r["wp0_px"]), float(r["wp0_py"])], m.cell_center(cell)[:2])
 
 
+def test_eval_maze_with_graph_over_the_datasets_states(runs, capsys):
+    """--waypoints-from data plans over the dataset's achieved goals. The synthetic data's
+    states lie outside the maze, so no clear leg joins them: every plan is the straight leg
+    (waypoints = the task goal, frame -1). Planning through them is tests/test_graph_planner.py's."""
+    from aerohrl.cli import main
+
+    run = runs["maze"]
+    argv = ["eval", "--task", "maze", "--planner", "graph", "--waypoints-from", "data", "--candidates", "64"]
+    assert main([*argv, "--max-edge", "3", "--run", str(run), "--episodes", "5", "--checkpoints", "1", "--quiet"]) == 0
+    d = run / "eval" / "maze-graph-data64-edge3"
+    rows = (d / "episodes-step-000000020.csv").read_text().splitlines()
+    head = rows[0].split(",")
+    for line in rows[1:]:
+        r = dict(zip(head, line.split(",")))
+        assert int(r["wp0_frame"]) == -1
+        assert [float(r[f"wp0_p{a}"]) for a in "xyz"] == [float(r[f"goal_p{a}"]) for a in "xyz"]
+    code, err = _err(capsys, [*argv, "--legs", "corridor", "--run", str(run), "--episodes", "5", "--quiet"])
+    assert code == 2 and len(err.splitlines()) == 1 and "no --legs corridor" in err
+
+
 def test_eval_task_must_fit_the_world(runs, capsys):
     code, err = _err(capsys, ["eval", "--task", "maze", "--run", str(runs["free"]), "--episodes", "5", "--quiet"])
     assert code == 2 and len(err.splitlines()) == 1 and "maze dataset" in err

@@ -86,3 +86,21 @@ def test_corridor_legs_follow_free_rows_and_columns():
     p = np.stack([c(np.array([1, 1])), np.array([-1.0, 3.0, 1.5])])[:, None]
     q = np.stack([c(np.array([1, 3])), c(np.array([5, 1]))])[None]
     assert m.in_corridor(p, q).tolist() == [[True, True], [False, False]]
+
+
+def test_segment_clear_refuses_legs_through_walls_and_keeps_corridors():
+    m = load_maze("large")
+    c = m.cell_center
+    # row 1 is "#....#.....#": (1, 4) -> (1, 6) passes through the wall cell (1, 5)
+    assert not m.segment_clear(c(np.array([1, 4])), c(np.array([1, 6])))
+    assert m.segment_clear(c(np.array([1, 1])), c(np.array([1, 4])))
+    # along a corridor but 0.2 m from its wall: the 0.25 m sphere touches it
+    p = c(np.array([1, 1])) + [0.0, 1.0 - 0.2, 0.0]
+    assert not m.segment_clear(p, p + [4.0, 0.0, 0.0])
+    assert m.segment_clear(p, p + [4.0, 0.0, 0.0], radius=0.1)
+    # every corridor leg between free cells' centres is clear (the converse does not hold:
+    # diagonals across open areas are clear too); batched and broadcast
+    f = c(m.free_cells)
+    clear, corridor = m.segment_clear(f[:, None], f[None]), m.in_corridor(f[:, None], f[None])
+    assert clear.shape == corridor.shape and (clear | ~corridor).all()
+    assert m.segment_clear(f[:, None], f[None], chunk=1000).tolist() == clear.tolist()

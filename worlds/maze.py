@@ -150,6 +150,28 @@ class Maze:
         p = np.asarray(p, dtype=np.float64)
         return (self._wall_distance_sq(p) < radius * radius) | (p[..., 2] < radius) | (p[..., 2] > self.ceiling - radius)
 
+    def segment_clear(
+        self, p: np.ndarray, q: np.ndarray, radius: float = VEHICLE_RADIUS, step: float = 0.1, chunk: int = 1 << 20
+    ) -> np.ndarray:
+        """(...) bool: a sphere of ``radius`` moved in a straight line from ``p`` to ``q``
+        (..., 3, broadcast) touches no wall, floor or ceiling, tested at points ``step`` m
+        apart along the segment (both ends included; between two samples a corner can cut
+        into the sphere by at most ``step^2 / (8 radius)``). Legs between states anywhere in
+        the maze, where :meth:`in_corridor` knows only the cells' centre lines. Pairs are
+        tested ``chunk`` sample points at a time."""
+        p, q = np.broadcast_arrays(np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64))
+        shape = p.shape[:-1]
+        p, q = p.reshape(-1, 3), q.reshape(-1, 3)
+        length = np.linalg.norm(q - p, axis=-1)
+        k = int(np.ceil(length.max(initial=0.0) / step)) + 1
+        t = np.linspace(0.0, 1.0, max(k, 2))
+        ok = np.empty(len(p), bool)
+        rows = max(1, chunk // len(t))
+        for i in range(0, len(p), rows):
+            a, b = p[i : i + rows, None], q[i : i + rows, None]
+            ok[i : i + rows] = ~self.collides(a + (b - a) * t[:, None], radius).any(axis=-1)
+        return ok.reshape(shape)
+
     @functools.cached_property
     def _distances(self) -> tuple[np.ndarray, np.ndarray]:
         from scipy.sparse import coo_matrix
