@@ -77,10 +77,17 @@ BELIEF_PLANNERS = ("detect", "dp", "coverage", "prio_coverage", "greedy")  # tra
 
 @dataclass(frozen=True)
 class BeliefNetConfig:
-    """The network: dilated 3 x 3 convolutions, then a 1 x 1 head (zero-initialised)."""
+    """The network: dilated 3 x 3 convolutions, optionally a global-context branch, then a
+    1 x 1 head (zero-initialised)."""
 
     width: int = param(24, "channels of every hidden convolution", unit="channels", ge=1)
     dilations: tuple[int, ...] = param((1, 2, 4, 8), "dilation of each 3 x 3 convolution (receptive field 1 + 2 * sum)", ge=1)
+    context: bool = param(
+        False,
+        "a global-context branch: the map-wide mean and max of the features, through a linear layer, "
+        "join every cell's features before a 1 x 1 convolution (world-level latents, e.g. how far the "
+        "detections so far agree with the prior, are a statistic of the whole map)",
+    )
 
 
 @dataclass(frozen=True)
@@ -198,6 +205,7 @@ def check_temperature(T: float) -> float:
 
 
 def _net(cfg: BeliefNetConfig):
+    import torch
     from torch import nn
 
     class BeliefNet(nn.Module):
@@ -211,6 +219,11 @@ def _net(cfg: BeliefNetConfig):
                 layers += [nn.Conv2d(c, cfg.width, 3, padding=d, dilation=d), nn.ReLU()]
                 c = cfg.width
             self.body = nn.Sequential(*layers)
+            if cfg.context:
+                # the squeeze of squeeze-and-excitation (Hu et al. 2018), added rather than
+                # multiplied: the pooled statistics shift every cell's features
+                self.ctx = nn.Linear(2 * c, c)
+                self.mix = nn.Sequential(nn.Conv2d(c, c, 1), nn.ReLU())
             self.head = nn.Conv2d(c, 1, 1)
             # a zero residual at the start: the untrained belief is the Bayesian posterior
             nn.init.zeros_(self.head.weight)
@@ -218,7 +231,11 @@ def _net(cfg: BeliefNetConfig):
             nn.init.zeros_(self.head.bias)
 
         def forward(self, x: torch.Tensor) -> torch.Tensor:
-            return self.head(self.body(x))[:, 0]
+            h = self.body(x)
+            if cfg.context:
+                g = self.ctx(torch.cat([h.mean((-2, -1)), h.amax((-2, -1))], -1))
+                h = self.mix(h + g[:, :, None, None])
+            return self.head(h)[:, 0]
 
     return BeliefNet()
 

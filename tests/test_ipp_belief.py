@@ -97,6 +97,40 @@ def test_untrained_belief_is_the_posterior_and_plans_like_detect():
     np.testing.assert_array_equal(a, b)
 
 
+def test_context_branch_starts_at_the_posterior_reads_the_whole_map_and_round_trips(tmp_path):
+    lat = default_lattice()
+    env, _ = make_env(preset("test").env, lat, 3, range(2))
+    env.lazy_obs = True
+    env.step(make_planner("coverage", env).act())
+    model = BeliefModel(BeliefNetConfig(width=4, dilations=(1,), context=True), env.S)
+    np.testing.assert_allclose(model.predict(env), env.belief(), rtol=0, atol=1e-12)
+    # one 3 x 3 convolution sees 1 cell around; the pooled branch carries a far cell's input
+    torch.manual_seed(0)
+    for p in model.net.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    x = torch.zeros(1, 8, 12, 12)
+    y = torch.zeros(1, 8, 12, 12)
+    y[0, :, 11, 11] = 5.0
+    with torch.no_grad():
+        assert model.net(x)[0, 0, 0] != model.net(y)[0, 0, 0]
+        flat = BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), 12).net
+        assert flat(x)[0, 0, 0] == flat(y)[0, 0, 0]
+    save_belief(model, tmp_path / "belief.pt")
+    back = load_belief(tmp_path / "belief.pt")
+    assert back.cfg.context
+    with torch.no_grad():
+        np.testing.assert_array_equal(back.net(y).numpy(), model.net(y).numpy())
+
+
+def test_a_belief_saved_before_the_context_setting_loads_without_it(tmp_path):
+    from aerohrl.ipp.belief import _weights, _from_weights
+
+    ck = _weights(BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), 20))
+    del ck["net"]["context"]
+    model = _from_weights(ck, 1.0, "old", "old.pt", "damaged")
+    assert not model.cfg.context
+
+
 def test_belief_for_another_grid_size_is_a_one_line_error(tmp_path):
     save_belief(BeliefModel(BeliefNetConfig(width=4, dilations=(1,)), 20), tmp_path / "belief.pt")
     model = load_belief(tmp_path / "belief.pt")
