@@ -363,11 +363,10 @@ def make_planner(
             from aerohrl.planning.graph import GraphPlanner
 
             n = graph_waypoints(opt)
-            edge_filter = maze.in_corridor if opt.legs == "corridor" else None
-            cand = candidates_from_maze(maze)
             if opt.waypoints_from == "data":
-                edge_filter = maze.segment_clear
-                cand = candidates_from_dataset(data, opt.candidates, seed=opt.seed)
+                cand, edge_filter = candidates_from_dataset(data, opt.candidates, seed=opt.seed), maze.segment_clear
+            else:
+                cand, edge_filter = candidates_from_maze(maze), (maze.in_corridor if opt.legs == "corridor" else None)
             return GraphPlanner(
                 algo,
                 cand,
